@@ -1,0 +1,97 @@
+//! Accumulation of pixel estimates in f64, and the image type that the
+//! writers in [`crate::image_io`] take.
+
+use glam::{DVec3, Vec3};
+
+use crate::scene::Rgb;
+
+/// A finished image: linear RGB, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Pixels, row-major, top row first.
+    pub data: Vec<Vec3>,
+}
+
+impl Image {
+    /// A black image.
+    pub fn new(width: u32, height: u32) -> Self {
+        Image {
+            width,
+            height,
+            data: vec![Vec3::ZERO; width as usize * height as usize],
+        }
+    }
+
+    /// The pixel at column x, row y (row 0 at the top).
+    #[inline]
+    pub fn get(&self, x: u32, y: u32) -> Vec3 {
+        self.data[y as usize * self.width as usize + x as usize]
+    }
+}
+
+/// A sum of samples per pixel, in f64 (box filter: a sample counts only
+/// toward the pixel it falls in, as in the references).
+#[derive(Clone, Debug)]
+pub struct Film {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Per-pixel sums.
+    pub sum: Vec<DVec3>,
+}
+
+impl Film {
+    /// An empty film.
+    pub fn new(width: u32, height: u32) -> Self {
+        Film {
+            width,
+            height,
+            sum: vec![DVec3::ZERO; width as usize * height as usize],
+        }
+    }
+
+    /// Adds `v` to pixel index `i`. Non-finite values are dropped, so that a
+    /// numerical accident can never poison a pixel with NaN.
+    #[inline]
+    pub fn add_index(&mut self, i: usize, v: Rgb) {
+        if v.is_finite() {
+            self.sum[i] += v.as_dvec3();
+        }
+    }
+
+    /// Adds `v` at continuous film position `(px, py)` in pixels (a splat).
+    #[inline]
+    pub fn splat(&mut self, px: f32, py: f32, v: Rgb) {
+        let x = px.floor();
+        let y = py.floor();
+        if x >= 0.0 && y >= 0.0 && (x as u32) < self.width && (y as u32) < self.height {
+            self.add_index(y as usize * self.width as usize + x as usize, v);
+        }
+    }
+
+    /// Adds another film, pixel by pixel.
+    pub fn merge(&mut self, other: &Film) {
+        for (a, b) in self.sum.iter_mut().zip(&other.sum) {
+            *a += *b;
+        }
+    }
+
+    /// Clears all sums.
+    pub fn clear(&mut self) {
+        self.sum.iter_mut().for_each(|v| *v = DVec3::ZERO);
+    }
+
+    /// The image `sum · scale`.
+    pub fn to_image(&self, scale: f64) -> Image {
+        Image {
+            width: self.width,
+            height: self.height,
+            data: self.sum.iter().map(|v| (*v * scale).as_vec3()).collect(),
+        }
+    }
+}

@@ -1,0 +1,19 @@
+//! kalos: a global-illumination renderer and light baker built on three
+//! papers: density-estimation global illumination (Shirley et al. 1995),
+//! stochastic iteration (Szirmay-Kalos 1999) and progressive light path
+//! building (Szirmay-Kalos et al.), with a reference path tracer to judge
+//! them.
+#![warn(missing_docs)]
+
+pub mod accel;
+pub mod bsdf;
+pub mod camera;
+pub mod emitter;
+pub mod film;
+pub mod geometry;
+pub mod image_io;
+pub mod methods;
+pub mod metrics;
+pub mod plot;
+pub mod sampling;
+pub mod scene;

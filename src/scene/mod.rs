@@ -1,0 +1,377 @@
+//! The scene as plain data: triangles, materials, emitters and the camera.
+//!
+//! Every shape, whatever file it came from, is flattened into one set of
+//! world-space triangles. Loaders live in the submodules ([`mitsuba`],
+//! [`obj`], [`ply`]); nothing else in the crate reads files.
+
+pub mod material;
+pub mod mitsuba;
+pub mod obj;
+pub mod ply;
+pub mod shapes;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::{Mat4, Vec2, Vec3};
+
+use crate::geometry::Frame;
+pub use material::{Material, MicrofacetKind, TexImage, Texture};
+
+/// Linear RGB colour (radiance, reflectance, power...).
+pub type Rgb = Vec3;
+
+/// Rec. 709 luminance of a linear RGB colour.
+#[inline]
+pub fn luminance(c: Rgb) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// An error in a scene file: the file, the 1-based line (0 when unknown) and
+/// what was wrong or expected.
+#[derive(Debug, thiserror::Error)]
+#[error("{}:{line}: {msg}", file.display())]
+pub struct SceneError {
+    /// The file that holds the error.
+    pub file: PathBuf,
+    /// 1-based line number, 0 when the error is not tied to a line.
+    pub line: u32,
+    /// What was wrong, and what was expected.
+    pub msg: String,
+}
+
+impl SceneError {
+    /// An error at `file:line`.
+    pub fn new(file: impl AsRef<Path>, line: u32, msg: impl Into<String>) -> Self {
+        SceneError {
+            file: file.as_ref().to_path_buf(),
+            line,
+            msg: msg.into(),
+        }
+    }
+}
+
+/// One input shape (a mesh file or an analytic shape), as a range of triangles.
+#[derive(Clone, Debug)]
+pub struct Shape {
+    /// The `id` attribute, or a generated name.
+    pub name: String,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    /// Index into [`Scene::emitters`] when the shape is an area light.
+    pub emitter: Option<u32>,
+    /// First triangle in [`Scene::triangles`].
+    pub first_tri: u32,
+    /// Number of triangles.
+    pub tri_count: u32,
+    /// True when the vertices carry smooth shading normals.
+    pub smooth: bool,
+}
+
+/// A light source. Area lights point at their shape; the environment
+/// emitters surround the scene.
+#[derive(Clone, Debug)]
+pub enum EmitterDesc {
+    /// Uniform radiance leaving the front side (the side the geometric normal
+    /// points to) of every triangle of a shape.
+    Area {
+        /// Index into [`Scene::shapes`].
+        shape: u32,
+        /// Emitted radiance, W/(m²·sr) per channel.
+        radiance: Rgb,
+    },
+    /// Radiance arriving uniformly from every direction (Mitsuba `constant`).
+    Constant {
+        /// Radiance of the sky.
+        radiance: Rgb,
+    },
+    /// A latitude–longitude environment map (Mitsuba `envmap`).
+    EnvMap {
+        /// The radiance image.
+        image: Arc<TexImage>,
+        /// Multiplier.
+        scale: f32,
+        /// Map-to-world transform (Mitsuba `to_world`).
+        to_world: Mat4,
+    },
+}
+
+/// The perspective sensor, as the scene file gives it (Mitsuba conventions:
+/// camera space looks along +z with +y up and +x to the image's left).
+#[derive(Clone, Debug)]
+pub struct CameraDesc {
+    /// Camera-to-world transform.
+    pub to_world: Mat4,
+    /// Horizontal field of view in degrees (after resolving `fov_axis`).
+    pub fov_x_deg: f32,
+    /// Film width in pixels.
+    pub width: u32,
+    /// Film height in pixels.
+    pub height: u32,
+    /// Near clip distance.
+    pub near_clip: f32,
+}
+
+impl CameraDesc {
+    /// Builds the description from a field of view measured along `axis`
+    /// (`x`, `y`, `smaller`, `larger` or `diagonal`, as Mitsuba's `fov_axis`).
+    pub fn from_fov(
+        to_world: Mat4,
+        fov_deg: f32,
+        axis: &str,
+        width: u32,
+        height: u32,
+    ) -> Option<Self> {
+        let (w, h) = (width as f32, height as f32);
+        let t = (fov_deg.to_radians() * 0.5).tan();
+        // half-extent of the image plane at distance 1 along x
+        let tx = match axis {
+            "x" => t,
+            "y" => t * w / h,
+            "smaller" => {
+                if w <= h {
+                    t
+                } else {
+                    t * w / h
+                }
+            }
+            "larger" => {
+                if w >= h {
+                    t
+                } else {
+                    t * w / h
+                }
+            }
+            "diagonal" => t * w / (w * w + h * h).sqrt(),
+            _ => return None,
+        };
+        Some(CameraDesc {
+            to_world,
+            fov_x_deg: 2.0 * tx.atan().to_degrees(),
+            width,
+            height,
+            near_clip: 1e-2,
+        })
+    }
+}
+
+/// The whole scene: world-space triangles with per-vertex attributes, the
+/// shapes they came from, materials, emitters and the camera.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals (same length as `positions`; only read for
+    /// shapes with `smooth`).
+    pub normals: Vec<Vec3>,
+    /// Per-vertex texture coordinates (same length as `positions`; zero when
+    /// the source had none).
+    pub uvs: Vec<Vec2>,
+    /// Vertex indices of each triangle.
+    pub triangles: Vec<[u32; 3]>,
+    /// The shape of each triangle.
+    pub tri_shape: Vec<u32>,
+    /// Input shapes.
+    pub shapes: Vec<Shape>,
+    /// Materials, referenced by shapes.
+    pub materials: Vec<Material>,
+    /// Light sources.
+    pub emitters: Vec<EmitterDesc>,
+    /// The camera.
+    pub camera: CameraDesc,
+    /// Where the scene came from (for messages).
+    pub source: String,
+}
+
+/// A ray–surface hit with everything shading needs.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    /// Position.
+    pub p: Vec3,
+    /// Geometric normal (unit, from the triangle's winding).
+    pub ng: Vec3,
+    /// Shading frame (normal interpolated for smooth shapes, else `ng`).
+    pub frame: Frame,
+    /// Texture coordinates.
+    pub uv: Vec2,
+    /// Triangle index.
+    pub tri: u32,
+    /// Shape index.
+    pub shape: u32,
+}
+
+impl Scene {
+    /// An empty scene with a default camera, to be filled by a loader.
+    pub fn empty(source: impl Into<String>) -> Self {
+        Scene {
+            positions: Vec::new(),
+            normals: Vec::new(),
+            uvs: Vec::new(),
+            triangles: Vec::new(),
+            tri_shape: Vec::new(),
+            shapes: Vec::new(),
+            materials: Vec::new(),
+            emitters: Vec::new(),
+            camera: CameraDesc {
+                to_world: Mat4::IDENTITY,
+                fov_x_deg: 45.0,
+                width: 256,
+                height: 256,
+                near_clip: 1e-2,
+            },
+            source: source.into(),
+        }
+    }
+
+    /// Adds a material and returns its index.
+    pub fn add_material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        (self.materials.len() - 1) as u32
+    }
+
+    /// Adds a triangle mesh, already in world space. `normals` and `uvs`, when
+    /// given, have one entry per position. Degenerate triangles (zero area or
+    /// non-finite) are dropped. When `emitter_radiance` is given the shape
+    /// becomes an area light. Returns the shape index.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_mesh(
+        &mut self,
+        name: impl Into<String>,
+        positions: &[Vec3],
+        normals: Option<&[Vec3]>,
+        uvs: Option<&[Vec2]>,
+        indices: &[[u32; 3]],
+        material: u32,
+        emitter_radiance: Option<Rgb>,
+    ) -> u32 {
+        let base = self.positions.len() as u32;
+        let shape_id = self.shapes.len() as u32;
+        self.positions.extend_from_slice(positions);
+        match normals {
+            Some(n) if n.len() == positions.len() => self.normals.extend(
+                n.iter()
+                    .map(|v| v.try_normalize().unwrap_or(Vec3::Z)),
+            ),
+            _ => self
+                .normals
+                .extend(std::iter::repeat_n(Vec3::Z, positions.len())),
+        }
+        match uvs {
+            Some(t) if t.len() == positions.len() => self.uvs.extend_from_slice(t),
+            _ => self.uvs.extend(std::iter::repeat_n(Vec2::ZERO, positions.len())),
+        }
+        let first_tri = self.triangles.len() as u32;
+        for t in indices {
+            if t.iter().any(|&i| i as usize >= positions.len()) {
+                continue;
+            }
+            let (a, b, c) = (
+                positions[t[0] as usize],
+                positions[t[1] as usize],
+                positions[t[2] as usize],
+            );
+            let area2 = (b - a).cross(c - a).length();
+            if !(area2.is_finite() && area2 > 0.0) {
+                continue;
+            }
+            self.triangles
+                .push([t[0] + base, t[1] + base, t[2] + base]);
+            self.tri_shape.push(shape_id);
+        }
+        let tri_count = self.triangles.len() as u32 - first_tri;
+        let emitter = emitter_radiance.map(|radiance| {
+            self.emitters.push(EmitterDesc::Area {
+                shape: shape_id,
+                radiance,
+            });
+            (self.emitters.len() - 1) as u32
+        });
+        self.shapes.push(Shape {
+            name: name.into(),
+            material,
+            emitter,
+            first_tri,
+            tri_count,
+            smooth: normals.is_some_and(|n| n.len() == positions.len()),
+        });
+        shape_id
+    }
+
+    /// The three corners of triangle `tri`.
+    #[inline]
+    pub fn tri_vertices(&self, tri: u32) -> [Vec3; 3] {
+        let t = self.triangles[tri as usize];
+        [
+            self.positions[t[0] as usize],
+            self.positions[t[1] as usize],
+            self.positions[t[2] as usize],
+        ]
+    }
+
+    /// Area of triangle `tri`.
+    pub fn tri_area(&self, tri: u32) -> f32 {
+        let [a, b, c] = self.tri_vertices(tri);
+        0.5 * (b - a).cross(c - a).length()
+    }
+
+    /// The surface point at barycentrics (`b1`, `b2`) of triangle `tri`.
+    pub fn surface_point(&self, tri: u32, b1: f32, b2: f32) -> SurfacePoint {
+        let t = self.triangles[tri as usize];
+        let (i0, i1, i2) = (t[0] as usize, t[1] as usize, t[2] as usize);
+        let (a, b, c) = (self.positions[i0], self.positions[i1], self.positions[i2]);
+        let b0 = 1.0 - b1 - b2;
+        let p = a * b0 + b * b1 + c * b2;
+        let ng = (b - a).cross(c - a).normalize_or(Vec3::Z);
+        let shape = self.tri_shape[tri as usize];
+        let ns = if self.shapes[shape as usize].smooth {
+            let n = self.normals[i0] * b0 + self.normals[i1] * b1 + self.normals[i2] * b2;
+            // keep the shading normal on the geometric normal's side
+            let n = n.normalize_or(ng);
+            if n.dot(ng) < 0.0 {
+                -n
+            } else {
+                n
+            }
+        } else {
+            ng
+        };
+        let uv = self.uvs[i0] * b0 + self.uvs[i1] * b1 + self.uvs[i2] * b2;
+        SurfacePoint {
+            p,
+            ng,
+            frame: Frame::from_normal(ns),
+            uv,
+            tri,
+            shape,
+        }
+    }
+
+    /// The material of a surface point.
+    #[inline]
+    pub fn material_of(&self, sp: &SurfacePoint) -> &Material {
+        &self.materials[self.shapes[sp.shape as usize].material as usize]
+    }
+
+    /// Axis-aligned bounds of all triangles (min, max).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for t in &self.triangles {
+            for &i in t {
+                lo = lo.min(self.positions[i as usize]);
+                hi = hi.max(self.positions[i as usize]);
+            }
+        }
+        if lo.x > hi.x {
+            (Vec3::ZERO, Vec3::ZERO)
+        } else {
+            (lo, hi)
+        }
+    }
+
+    /// Overrides the film resolution, keeping the horizontal field of view.
+    pub fn set_resolution(&mut self, width: u32, height: u32) {
+        self.camera.width = width.max(1);
+        self.camera.height = height.max(1);
+    }
+}
