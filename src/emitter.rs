@@ -1,1 +1,499 @@
-//! TODO
+//! Light sources ready for sampling: area lights chosen by power, and the
+//! environment (constant or an importance-sampled lat-long map).
+//!
+//! Two uses: next-event estimation from a surface point (`sample_li`,
+//! `pdf_li`) for camera paths, and emission of particles (`sample_emission`)
+//! for light tracing, density estimation and light path building.
+
+use std::f32::consts::PI;
+
+use glam::{Mat3, Vec2, Vec3};
+
+use crate::geometry::Frame;
+use crate::sampling::{
+    concentric_disk, cosine_hemisphere, uniform_sphere, uniform_triangle, Distribution1D,
+};
+use crate::scene::{luminance, EmitterDesc, Rgb, Scene, TexImage};
+
+/// The environment around the scene.
+#[derive(Clone, Debug)]
+pub enum Env {
+    /// Uniform radiance.
+    Constant(Rgb),
+    /// A lat-long map (Mitsuba's `envmap` parameterisation), sampled in
+    /// proportion to luminance × sin θ, looked up piecewise-constant so that
+    /// sampling is exact.
+    Map {
+        /// The radiance image, scaled.
+        image: Vec<Rgb>,
+        /// Width.
+        width: u32,
+        /// Height.
+        height: u32,
+        /// World to map space.
+        to_local: Mat3,
+        /// Map to world.
+        to_world: Mat3,
+        /// Marginal distribution over rows.
+        rows: Distribution1D,
+        /// Conditional distribution over the columns of each row.
+        cols: Vec<Distribution1D>,
+    },
+}
+
+impl Env {
+    fn from_map(image: &TexImage, scale: f32, to_world: Mat3) -> Self {
+        let (w, h) = (image.width, image.height);
+        let data: Vec<Rgb> = image
+            .data
+            .iter()
+            .map(|c| (*c * scale).max(Rgb::ZERO))
+            .collect();
+        let mut row_w = Vec::with_capacity(h as usize);
+        let mut cols = Vec::with_capacity(h as usize);
+        for y in 0..h {
+            let sin = (PI * (y as f32 + 0.5) / h as f32).sin() as f64;
+            let ws: Vec<f64> = (0..w)
+                .map(|x| luminance(data[(y * w + x) as usize]) as f64 * sin)
+                .collect();
+            let d = Distribution1D::new(&ws);
+            row_w.push(d.total());
+            cols.push(d);
+        }
+        let to_world = orthonormalize(to_world);
+        Env::Map {
+            image: data,
+            width: w,
+            height: h,
+            to_local: to_world.transpose(),
+            to_world,
+            rows: Distribution1D::new(&row_w),
+            cols,
+        }
+    }
+
+    /// Radiance arriving from direction `dir` (pointing away from the scene).
+    pub fn le(&self, dir: Vec3) -> Rgb {
+        match self {
+            Env::Constant(c) => *c,
+            Env::Map {
+                image,
+                width,
+                height,
+                to_local,
+                ..
+            } => {
+                let (x, y) = map_pixel(*to_local * dir, *width, *height);
+                image[(y * width + x) as usize]
+            }
+        }
+    }
+
+    /// Samples a direction toward the environment: (dir, radiance, solid-angle pdf).
+    pub fn sample(&self, u: Vec2) -> Option<(Vec3, Rgb, f32)> {
+        match self {
+            Env::Constant(c) => {
+                let d = uniform_sphere(u);
+                Some((d, *c, 1.0 / (4.0 * PI)))
+            }
+            Env::Map {
+                image,
+                width,
+                height,
+                to_world,
+                rows,
+                cols,
+                ..
+            } => {
+                if rows.total() <= 0.0 {
+                    return None;
+                }
+                let (y, py, _) = rows.sample(u.y as f64);
+                let (x, px, ux) = cols[y].sample(u.x as f64);
+                let uu = (x as f32 + ux as f32) / *width as f32;
+                let vv = (y as f32 + 0.5) / *height as f32;
+                let theta = vv * PI;
+                let phi = uu * 2.0 * PI;
+                let (st, ct) = theta.sin_cos();
+                // inverse of map_pixel: u = atan2(x, -z)/(2π), v = acos(y)/π
+                let local = Vec3::new(st * phi.sin(), ct, -st * phi.cos());
+                // the row is sampled at its centre: spread θ uniformly inside it
+                let pdf_uv = (py * px) as f32 * (*width as f32) * (*height as f32);
+                let pdf = pdf_uv / (2.0 * PI * PI * st.max(1e-6));
+                Some((
+                    (*to_world * local).normalize(),
+                    image[y * *width as usize + x],
+                    pdf,
+                ))
+            }
+        }
+    }
+
+    /// Solid-angle pdf of [`Env::sample`] for `dir`.
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        match self {
+            Env::Constant(_) => 1.0 / (4.0 * PI),
+            Env::Map {
+                width,
+                height,
+                to_local,
+                rows,
+                cols,
+                ..
+            } => {
+                if rows.total() <= 0.0 {
+                    return 0.0;
+                }
+                let (x, y) = map_pixel(*to_local * dir, *width, *height);
+                let pdf_uv = (rows.pmf(y as usize) * cols[y as usize].pmf(x as usize)) as f32
+                    * (*width as f32)
+                    * (*height as f32);
+                let st = (PI * (y as f32 + 0.5) / *height as f32).sin();
+                pdf_uv / (2.0 * PI * PI * st.max(1e-6))
+            }
+        }
+    }
+
+    /// ∫ L dω over the sphere (per channel).
+    fn integral(&self) -> Rgb {
+        match self {
+            Env::Constant(c) => *c * 4.0 * PI,
+            Env::Map {
+                image,
+                width,
+                height,
+                ..
+            } => {
+                let mut s = Rgb::ZERO;
+                for y in 0..*height {
+                    let st = (PI * (y as f32 + 0.5) / *height as f32).sin();
+                    for x in 0..*width {
+                        s += image[(y * width + x) as usize] * st;
+                    }
+                }
+                s * (2.0 * PI * PI / (*width as f32 * *height as f32))
+            }
+        }
+    }
+}
+
+/// Removes scale from a rotation-like matrix (Gram–Schmidt).
+fn orthonormalize(m: Mat3) -> Mat3 {
+    let x = m.x_axis.normalize_or(Vec3::X);
+    let y = (m.y_axis - x * x.dot(m.y_axis)).normalize_or(Vec3::Y);
+    let z = x.cross(y);
+    Mat3::from_cols(x, y, z)
+}
+
+/// The pixel of a lat-long map for a local direction (Mitsuba's envmap
+/// convention: u = atan2(x, −z)/2π, v = acos(y)/π, v = 0 at the top row).
+fn map_pixel(d: Vec3, w: u32, h: u32) -> (u32, u32) {
+    let d = d.normalize_or(Vec3::Y);
+    let mut u = d.x.atan2(-d.z) / (2.0 * PI);
+    u -= u.floor();
+    let v = d.y.clamp(-1.0, 1.0).acos() / PI;
+    let x = ((u * w as f32) as u32).min(w - 1);
+    let y = ((v * h as f32) as u32).min(h - 1);
+    (x, y)
+}
+
+/// A light sample for next-event estimation.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    /// Unit direction from the shading point toward the light.
+    pub wi: Vec3,
+    /// Point on the light (for area lights) or far point (environment).
+    pub p: Vec3,
+    /// Geometric normal at the light point (zero for the environment).
+    pub n: Vec3,
+    /// Emitted radiance toward the shading point.
+    pub le: Rgb,
+    /// Solid-angle pdf, selection included.
+    pub pdf: f32,
+    /// True for the environment (the shadow ray is unbounded).
+    pub is_env: bool,
+}
+
+/// A sampled particle leaving a light.
+#[derive(Clone, Copy, Debug)]
+pub struct EmissionSample {
+    /// Start point.
+    pub p: Vec3,
+    /// Geometric normal of the light at `p` (the travel direction for the environment).
+    pub n: Vec3,
+    /// Unit travel direction.
+    pub d: Vec3,
+    /// Le · cos / (pdf_pos · pdf_dir): the power the particle carries when one
+    /// particle is traced (divide by the number of particles).
+    pub phi: Rgb,
+    /// Le / pdf_pos: the weight of the emission vertex itself, for connecting
+    /// it to the camera (multiply by the directional emission profile, 1 for
+    /// diffuse emitters, and the camera's cos θ g).
+    pub phi_pos: Rgb,
+    /// Radiance emitted at `p` (per unit projected area and solid angle).
+    pub le: Rgb,
+    /// True for the environment.
+    pub is_env: bool,
+    /// Emitting triangle (u32::MAX for the environment).
+    pub tri: u32,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Entry {
+    Tri { tri: u32, le: Rgb, area: f32 },
+    Env,
+}
+
+/// All the lights of a scene, with the power distribution that chooses among them.
+#[derive(Clone, Debug)]
+pub struct Lights {
+    entries: Vec<Entry>,
+    dist: Distribution1D,
+    /// Entry index of each triangle (u32::MAX when it does not emit).
+    tri_entry: Vec<u32>,
+    /// The environment, if any (the first `constant` or `envmap` of the scene).
+    pub env: Option<Env>,
+    env_entry: u32,
+    /// Centre of the scene's bounding sphere.
+    pub center: Vec3,
+    /// Radius of the scene's bounding sphere.
+    pub radius: f32,
+}
+
+impl Lights {
+    /// Gathers the lights of `scene`. Area lights are weighted by power
+    /// Φ = π · A · lum(Le) per triangle, the environment by π R² ∫ lum(L) dω.
+    pub fn new(scene: &Scene) -> Self {
+        let (lo, hi) = scene.bounds();
+        let center = (lo + hi) * 0.5;
+        let radius = ((hi - lo).length() * 0.5).max(1e-3) * 1.01;
+        let mut entries = Vec::new();
+        let mut weights = Vec::new();
+        let mut tri_entry = vec![u32::MAX; scene.triangles.len()];
+        let mut env = None;
+        let mut env_entry = u32::MAX;
+        for e in &scene.emitters {
+            match e {
+                EmitterDesc::Area { shape, radiance } => {
+                    let s = &scene.shapes[*shape as usize];
+                    for tri in s.first_tri..s.first_tri + s.tri_count {
+                        let area = scene.tri_area(tri);
+                        let w = (PI * area * luminance(*radiance)) as f64;
+                        if w > 0.0 {
+                            tri_entry[tri as usize] = entries.len() as u32;
+                            entries.push(Entry::Tri {
+                                tri,
+                                le: *radiance,
+                                area,
+                            });
+                            weights.push(w);
+                        }
+                    }
+                }
+                EmitterDesc::Constant { radiance } if env.is_none() => {
+                    env = Some(Env::Constant(*radiance));
+                }
+                EmitterDesc::EnvMap {
+                    image,
+                    scale,
+                    to_world,
+                } if env.is_none() => {
+                    env = Some(Env::from_map(image, *scale, Mat3::from_mat4(*to_world)));
+                }
+                _ => {}
+            }
+        }
+        if let Some(e) = &env {
+            let w = (PI * radius * radius * luminance(e.integral())) as f64;
+            if w > 0.0 {
+                env_entry = entries.len() as u32;
+                entries.push(Entry::Env);
+                weights.push(w);
+            }
+        }
+        Lights {
+            entries,
+            dist: Distribution1D::new(&weights),
+            tri_entry,
+            env,
+            env_entry,
+            center,
+            radius,
+        }
+    }
+
+    /// True when the scene has no light at all.
+    pub fn is_empty(&self) -> bool {
+        self.dist.total() <= 0.0
+    }
+
+    /// Total emitted power (luminance-weighted watts), the Φ of the papers.
+    pub fn total_power(&self) -> f64 {
+        self.dist.total()
+    }
+
+    /// Radiance leaving emitting triangle `tri` toward `w` (unit), given the
+    /// triangle's geometric normal `ng`: only the front side emits.
+    #[inline]
+    pub fn le_tri(&self, tri: u32, ng: Vec3, w: Vec3) -> Rgb {
+        match self.tri_entry.get(tri as usize) {
+            Some(&e) if e != u32::MAX && ng.dot(w) > 0.0 => match self.entries[e as usize] {
+                Entry::Tri { le, .. } => le,
+                Entry::Env => Rgb::ZERO,
+            },
+            _ => Rgb::ZERO,
+        }
+    }
+
+    /// True when triangle `tri` emits.
+    #[inline]
+    pub fn is_emitter(&self, tri: u32) -> bool {
+        self.tri_entry
+            .get(tri as usize)
+            .is_some_and(|&e| e != u32::MAX)
+    }
+
+    /// Radiance of the environment from direction `dir` (zero without one).
+    #[inline]
+    pub fn le_env(&self, dir: Vec3) -> Rgb {
+        self.env.as_ref().map_or(Rgb::ZERO, |e| e.le(dir))
+    }
+
+    /// Samples a light as seen from `p` (next-event estimation).
+    pub fn sample_li(&self, scene: &Scene, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
+        if self.is_empty() {
+            return None;
+        }
+        let (i, pmf, _) = self.dist.sample(u_sel as f64);
+        match self.entries[i] {
+            Entry::Tri { tri, le, area } => {
+                let b = uniform_triangle(u);
+                let [a, bb, c] = scene.tri_vertices(tri);
+                let q = a * (1.0 - b.x - b.y) + bb * b.x + c * b.y;
+                let n = (bb - a).cross(c - a).normalize_or(Vec3::Z);
+                let d = q - p;
+                let dist2 = d.length_squared();
+                if dist2 <= 0.0 {
+                    return None;
+                }
+                let wi = d / dist2.sqrt();
+                let cos_l = -n.dot(wi);
+                if cos_l <= 0.0 {
+                    return None;
+                }
+                let pdf = pmf as f32 / area * dist2 / cos_l;
+                Some(LightSample {
+                    wi,
+                    p: q,
+                    n,
+                    le,
+                    pdf,
+                    is_env: false,
+                })
+            }
+            Entry::Env => {
+                let env = self.env.as_ref()?;
+                let (wi, le, pdf_dir) = env.sample(u)?;
+                if pdf_dir <= 0.0 {
+                    return None;
+                }
+                Some(LightSample {
+                    wi,
+                    p: p + wi * (2.0 * self.radius + (p - self.center).length()),
+                    n: Vec3::ZERO,
+                    le,
+                    pdf: pmf as f32 * pdf_dir,
+                    is_env: true,
+                })
+            }
+        }
+    }
+
+    /// Solid-angle pdf with which [`Lights::sample_li`] from `p` picks the
+    /// point `q` (normal `nq`) on emitting triangle `tri`.
+    pub fn pdf_li_tri(&self, scene: &Scene, p: Vec3, q: Vec3, nq: Vec3, tri: u32) -> f32 {
+        let e = match self.tri_entry.get(tri as usize) {
+            Some(&e) if e != u32::MAX => e as usize,
+            _ => return 0.0,
+        };
+        let d = q - p;
+        let dist2 = d.length_squared();
+        let cos_l = nq.dot(d).abs() / dist2.sqrt();
+        if cos_l <= 0.0 {
+            return 0.0;
+        }
+        let area = scene.tri_area(tri);
+        self.dist.pmf(e) as f32 / area * dist2 / cos_l
+    }
+
+    /// Solid-angle pdf with which [`Lights::sample_li`] picks the environment
+    /// in direction `dir`.
+    pub fn pdf_li_env(&self, dir: Vec3) -> f32 {
+        match &self.env {
+            Some(env) if self.env_entry != u32::MAX => {
+                self.dist.pmf(self.env_entry as usize) as f32 * env.pdf(dir)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// Emits a particle: a light chosen by power, a point on it, and a
+    /// cosine-distributed direction (the emission pdf ∝ Le cos θ of the
+    /// density-estimation paper). The environment shoots parallel rays from a
+    /// disk of the scene's bounding radius, perpendicular to the direction.
+    pub fn sample_emission(
+        &self,
+        scene: &Scene,
+        u_sel: f32,
+        u_pos: Vec2,
+        u_dir: Vec2,
+    ) -> Option<EmissionSample> {
+        if self.is_empty() {
+            return None;
+        }
+        let (i, pmf, _) = self.dist.sample(u_sel as f64);
+        match self.entries[i] {
+            Entry::Tri { tri, le, area } => {
+                let b = uniform_triangle(u_pos);
+                let [a, bb, c] = scene.tri_vertices(tri);
+                let p = a * (1.0 - b.x - b.y) + bb * b.x + c * b.y;
+                let n = (bb - a).cross(c - a).normalize_or(Vec3::Z);
+                let d = Frame::from_normal(n).to_world(cosine_hemisphere(u_dir));
+                let pdf_pos = pmf as f32 / area;
+                // Le cos / (pdf_pos · cos/π)
+                Some(EmissionSample {
+                    p,
+                    n,
+                    d,
+                    phi: le * (PI / pdf_pos),
+                    phi_pos: le / pdf_pos,
+                    le,
+                    is_env: false,
+                    tri,
+                })
+            }
+            Entry::Env => {
+                let env = self.env.as_ref()?;
+                let (w_env, le, pdf_dir) = env.sample(u_dir)?;
+                if pdf_dir <= 0.0 {
+                    return None;
+                }
+                let d = -w_env;
+                let frame = Frame::from_normal(d);
+                let disk = concentric_disk(u_pos) * self.radius;
+                let p = self.center - d * self.radius + frame.s * disk.x + frame.t * disk.y;
+                let pdf_pos = 1.0 / (PI * self.radius * self.radius);
+                Some(EmissionSample {
+                    p,
+                    n: d,
+                    d,
+                    phi: le / (pdf_pos * pdf_dir * pmf as f32),
+                    phi_pos: Rgb::ZERO,
+                    le,
+                    is_env: true,
+                    tri: u32::MAX,
+                })
+            }
+        }
+    }
+}

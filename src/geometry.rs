@@ -93,9 +93,21 @@ pub fn offset_point(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
     };
     let pi = Vec3::new(step(p.x, of_i[0]), step(p.y, of_i[1]), step(p.z, of_i[2]));
     Vec3::new(
-        if p.x.abs() < ORIGIN { p.x + FLOAT_SCALE * n.x } else { pi.x },
-        if p.y.abs() < ORIGIN { p.y + FLOAT_SCALE * n.y } else { pi.y },
-        if p.z.abs() < ORIGIN { p.z + FLOAT_SCALE * n.z } else { pi.z },
+        if p.x.abs() < ORIGIN {
+            p.x + FLOAT_SCALE * n.x
+        } else {
+            pi.x
+        },
+        if p.y.abs() < ORIGIN {
+            p.y + FLOAT_SCALE * n.y
+        } else {
+            pi.y
+        },
+        if p.z.abs() < ORIGIN {
+            p.z + FLOAT_SCALE * n.z
+        } else {
+            pi.z
+        },
     )
 }
 
@@ -103,4 +115,18 @@ pub fn offset_point(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
 #[inline]
 pub fn reflect_local(v: Vec3) -> Vec3 {
     Vec3::new(-v.x, -v.y, v.z)
+}
+
+/// Mitsuba's `lookat` camera-to-world transform: columns left, up, forward
+/// and the origin, with left = normalize(up × dir).
+pub fn look_at(origin: Vec3, target: Vec3, up: Vec3) -> glam::Mat4 {
+    let dir = (target - origin).normalize_or(Vec3::Z);
+    let left = up.cross(dir).normalize_or(Vec3::X);
+    let new_up = dir.cross(left);
+    glam::Mat4::from_cols(
+        left.extend(0.0),
+        new_up.extend(0.0),
+        dir.extend(0.0),
+        origin.extend(1.0),
+    )
 }

@@ -188,7 +188,11 @@ impl Distribution1D {
             lo += 1;
         }
         let w = self.cdf[lo + 1] - self.cdf[lo];
-        let rem = if w > 0.0 { ((target - self.cdf[lo]) / w).clamp(0.0, 1.0 - 1e-12) } else { 0.0 };
+        let rem = if w > 0.0 {
+            ((target - self.cdf[lo]) / w).clamp(0.0, 1.0 - 1e-12)
+        } else {
+            0.0
+        };
         (lo, w / self.total, rem)
     }
 }

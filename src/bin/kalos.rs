@@ -1,1 +1,508 @@
-fn main() {}
+//! The `kalos` command line: parses arguments, shows progress and writes
+//! files. Everything else lives in the library.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use kalos::image_io::{self, PngOptions, Tonemap};
+use kalos::methods::{self, Budget, Driver, Options, World};
+use kalos::metrics;
+use kalos::plot::{self, PlotOptions, XAxis};
+use kalos::scene::{self, Scene};
+
+#[derive(Parser)]
+#[command(
+    name = "kalos",
+    version,
+    about = "Global illumination renderer and light baker"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene (Mitsuba XML, OBJ, PLY) to EXR, PFM or PNG.
+    Render(RenderArgs),
+    /// Compare an image with a reference: relMSE, RMSE, channel means.
+    Compare(CompareArgs),
+    /// Print what a scene holds: triangles, emitters, materials, bounds.
+    Info {
+        /// Scene file (omit for the built-in Cornell box).
+        scene: Option<PathBuf>,
+    },
+    /// Plot convergence logs (CSV from `render --log`): error against time.
+    Plot(PlotArgs),
+    /// Measure the ray core's throughput (Mrays/s), one thread and all.
+    Bench(BenchArgs),
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum TonemapArg {
+    Clamp,
+    Reinhard,
+    Aces,
+}
+
+#[derive(Args)]
+struct RenderArgs {
+    /// Scene file; omit (or say `builtin`) for the built-in Cornell box.
+    scene: Option<PathBuf>,
+    /// Output image (.exr, .pfm or .png).
+    #[arg(short, long, default_value = "out.exr")]
+    output: PathBuf,
+    /// Rendering method.
+    #[arg(short, long, default_value = "path", value_parser = clap::builder::PossibleValuesParser::new(methods::METHODS))]
+    method: String,
+    /// Method variant (light: walk | iteration).
+    #[arg(long)]
+    variant: Option<String>,
+    /// Samples per pixel (light paths per pixel for the light-based methods).
+    #[arg(long)]
+    spp: Option<f64>,
+    /// Time budget in seconds.
+    #[arg(long)]
+    time: Option<f64>,
+    /// Ray budget (closest-hit and shadow rays together); accepts 30M, 2G.
+    #[arg(long, value_parser = parse_count)]
+    rays: Option<u64>,
+    /// Random seed: the same seed gives the same image whatever --threads.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Override the film resolution, WxH.
+    #[arg(long, value_parser = parse_res)]
+    res: Option<(u32, u32)>,
+    /// Longest path in segments (Mitsuba's max_depth); default unlimited.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Iteration variants: steps discarded at the start of each chain.
+    #[arg(long, default_value_t = 0)]
+    discard: u64,
+    /// Reference image, for the convergence log and the final error.
+    #[arg(long = "ref")]
+    reference: Option<PathBuf>,
+    /// Write a convergence log (time_s,rays,spp,rel_mse) to this CSV file.
+    #[arg(long)]
+    log: Option<PathBuf>,
+    /// Seconds between convergence-log rows.
+    #[arg(long, default_value_t = 1.0)]
+    log_every: f64,
+    /// PNG exposure in stops.
+    #[arg(long, default_value_t = 0.0)]
+    exposure: f32,
+    /// PNG tone mapping.
+    #[arg(long, value_enum, default_value = "clamp")]
+    tonemap: TonemapArg,
+    /// No progress bar.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    /// The image to judge.
+    image: PathBuf,
+    /// The reference.
+    reference: PathBuf,
+    /// Write a false-colour relative-error image (PNG).
+    #[arg(long)]
+    error_image: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct PlotArgs {
+    /// Convergence logs (CSV), one curve each; label=FILE sets the legend.
+    #[arg(required = true)]
+    logs: Vec<String>,
+    /// Output PNG.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// What the x axis shows.
+    #[arg(long, value_enum, default_value = "time")]
+    x: XArg,
+    /// Plot title.
+    #[arg(long, default_value = "")]
+    title: String,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum XArg {
+    Time,
+    Rays,
+    Spp,
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Scene to trace (omit for a generated scene of about 1 M triangles).
+    scene: Option<PathBuf>,
+    /// Rays per measurement.
+    #[arg(long, default_value_t = 4_000_000)]
+    rays: u64,
+    /// Triangles in the generated scene.
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+}
+
+fn parse_count(s: &str) -> Result<u64, String> {
+    let s = s.trim();
+    let (num, mult) = match s.chars().last() {
+        Some('k' | 'K') => (&s[..s.len() - 1], 1e3),
+        Some('m' | 'M') => (&s[..s.len() - 1], 1e6),
+        Some('g' | 'G') => (&s[..s.len() - 1], 1e9),
+        _ => (s, 1.0),
+    };
+    let v: f64 = num
+        .parse()
+        .map_err(|_| format!("expected a count such as 1000000 or 30M, got '{s}'"))?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err(format!("expected a positive count, got '{s}'"));
+    }
+    Ok((v * mult).round() as u64)
+}
+
+fn parse_res(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WxH such as 512x512, got '{s}'"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad width in '{s}'"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad height in '{s}'"))?;
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(format!("resolution out of range (1..16384): '{s}'"));
+    }
+    Ok((w, h))
+}
+
+fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    match path {
+        None => Ok(scene::builtin::cornell_box()?),
+        Some(p) if p.as_os_str() == "builtin" => Ok(scene::builtin::cornell_box()?),
+        Some(p) => {
+            let s = scene::load(p)?;
+            for w in &s.warnings {
+                eprintln!("warning: {w}");
+            }
+            Ok(s)
+        }
+    }
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let r = match cli.command {
+        Command::Render(a) => render(a),
+        Command::Compare(a) => compare(a),
+        Command::Info { scene } => info(scene.as_deref()),
+        Command::Plot(a) => plot_cmd(a),
+        Command::Bench(a) => bench(a),
+    };
+    if let Err(e) = r {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn render(a: RenderArgs) -> Result<()> {
+    // Check the output path before spending any time.
+    let ext = a
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    if !matches!(ext.as_str(), "exr" | "pfm" | "png") {
+        bail!(
+            "output '{}' must end in .exr, .pfm or .png",
+            a.output.display()
+        );
+    }
+    if let Some(t) = a.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t.max(1))
+            .build_global()
+            .context("setting the thread count")?;
+    }
+    let t0 = Instant::now();
+    let mut scene = load_scene(a.scene.as_deref())?;
+    if let Some((w, h)) = a.res {
+        scene.set_resolution(w, h);
+    }
+    let reference = match &a.reference {
+        Some(p) => {
+            let r = image_io::read_image(p)?;
+            if (r.width, r.height) != (scene.camera.width, scene.camera.height) {
+                bail!(
+                    "reference {} is {}x{} but the render is {}x{}",
+                    p.display(),
+                    r.width,
+                    r.height,
+                    scene.camera.width,
+                    scene.camera.height
+                );
+            }
+            Some(r)
+        }
+        None => None,
+    };
+    let world = World::new(scene);
+    let load_s = t0.elapsed().as_secs_f64();
+    if world.lights.is_empty() {
+        eprintln!("warning: the scene has no emitters; the image will be black");
+    }
+    let opts = Options {
+        seed: a.seed,
+        max_depth: a.max_depth,
+        variant: a.variant.clone(),
+        discard: a.discard,
+    };
+    let mut method = methods::create(&a.method, &world, &opts)?;
+    let mut budget = Budget {
+        spp: a.spp,
+        time: a.time,
+        rays: a.rays,
+        passes: None,
+    };
+    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
+        budget.spp = Some(16.0);
+    }
+
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        // A second Ctrl-C while saving is left to the default handler.
+        let _ = ctrlc::set_handler(move || {
+            if c.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let bar = if a.quiet {
+        ProgressBar::hidden()
+    } else {
+        let b = ProgressBar::new(1000);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg} (ETA {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        b
+    };
+    let driver = Driver {
+        budget,
+        cancel: Some(&cancel),
+        reference: reference.as_ref(),
+        log_every: if a.log.is_some() { a.log_every } else { 0.0 },
+    };
+    let result = driver.run(method.as_mut(), &world, |p| {
+        bar.set_position((p.fraction * 1000.0) as u64);
+        let mrays = if p.elapsed > 0.0 {
+            p.rays as f64 / p.elapsed / 1e6
+        } else {
+            0.0
+        };
+        bar.set_message(format!("{} passes, {:.2} Mrays/s", p.passes, mrays));
+    });
+    bar.finish_and_clear();
+
+    let png = PngOptions {
+        exposure: a.exposure,
+        tonemap: match a.tonemap {
+            TonemapArg::Clamp => Tonemap::Clamp,
+            TonemapArg::Reinhard => Tonemap::Reinhard,
+            TonemapArg::Aces => Tonemap::Aces,
+        },
+    };
+    image_io::write_image(&a.output, &result.image, &png)?;
+    if let Some(log) = &a.log {
+        write_log(log, &result.log)?;
+    }
+    let mut line = format!(
+        "{}: {} {}x{}, {:.1} spp, {} passes, {:.2} s (+{:.2} s load/build), {:.1} M rays, {:.2} Mrays/s",
+        a.output.display(),
+        method.name(),
+        result.image.width,
+        result.image.height,
+        result.spp,
+        result.passes,
+        result.seconds,
+        load_s,
+        result.rays as f64 / 1e6,
+        result.rays as f64 / result.seconds.max(1e-9) / 1e6
+    );
+    if let Some(r) = &reference {
+        line += &format!(", relMSE {:.4e}", metrics::rel_mse(&result.image, r)?);
+    }
+    if result.interrupted {
+        line += " (interrupted: saved what was rendered)";
+    }
+    println!("{line}");
+    Ok(())
+}
+
+fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
+    let mut text = String::from("time_s,rays,spp,rel_mse\n");
+    for r in rows {
+        text += &format!(
+            "{:.4},{},{:.3},{}\n",
+            r.time_s,
+            r.rays,
+            r.spp,
+            r.rel_mse.map(|e| format!("{e:.6e}")).unwrap_or_default()
+        );
+    }
+    // atomic: a temporary file beside the target, then a rename
+    let tmp = path.with_extension(format!("csv.tmp-{}", std::process::id()));
+    std::fs::write(&tmp, text.as_bytes())
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+fn compare(a: CompareArgs) -> Result<()> {
+    let img = image_io::read_image(&a.image)?;
+    let r = image_io::read_image(&a.reference)?;
+    let rel = metrics::rel_mse(&img, &r)?;
+    let rmse = metrics::rmse(&img, &r)?;
+    let mi = metrics::channel_means(&img);
+    let mr = metrics::channel_means(&r);
+    println!("relMSE  {rel:.6e}");
+    println!("RMSE    {rmse:.6e}");
+    println!("relL1   {:.6e}", metrics::rel_l1(&img, &r)?);
+    println!(
+        "means   image ({:.6}, {:.6}, {:.6})  reference ({:.6}, {:.6}, {:.6})",
+        mi.x, mi.y, mi.z, mr.x, mr.y, mr.z
+    );
+    if let Some(out) = &a.error_image {
+        let e = metrics::false_color_error(&img, &r)?;
+        image_io::write_image(out, &e, &PngOptions::default())?;
+        println!("error image written to {}", out.display());
+    }
+    Ok(())
+}
+
+fn info(path: Option<&Path>) -> Result<()> {
+    let s = load_scene(path)?;
+    let (lo, hi) = s.bounds();
+    println!("scene      {}", s.source);
+    println!("triangles  {}", s.triangles.len());
+    println!("vertices   {}", s.positions.len());
+    println!("shapes     {}", s.shapes.len());
+    println!("materials  {}", s.materials.len());
+    for (i, m) in s.materials.iter().enumerate() {
+        println!("  [{i}] {}", material_name(m));
+    }
+    println!("emitters   {}", s.emitters.len());
+    for e in &s.emitters {
+        match e {
+            scene::EmitterDesc::Area { shape, radiance } => println!(
+                "  area on '{}', radiance ({}, {}, {})",
+                s.shapes[*shape as usize].name, radiance.x, radiance.y, radiance.z
+            ),
+            scene::EmitterDesc::Constant { radiance } => {
+                println!(
+                    "  constant, radiance ({}, {}, {})",
+                    radiance.x, radiance.y, radiance.z
+                )
+            }
+            scene::EmitterDesc::EnvMap { image, scale, .. } => {
+                println!("  envmap {}x{}, scale {scale}", image.width, image.height)
+            }
+        }
+    }
+    println!(
+        "bounds     ({}, {}, {}) .. ({}, {}, {})",
+        lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+    );
+    println!(
+        "camera     {}x{}, fov_x {:.3} deg",
+        s.camera.width, s.camera.height, s.camera.fov_x_deg
+    );
+    Ok(())
+}
+
+fn material_name(m: &scene::Material) -> String {
+    use scene::Material as M;
+    match m {
+        M::Diffuse { .. } => "diffuse".into(),
+        M::Phong { .. } => "phong".into(),
+        M::Conductor { .. } => "conductor".into(),
+        M::RoughConductor { .. } => "roughconductor".into(),
+        M::Plastic { .. } => "plastic".into(),
+        M::RoughPlastic { .. } => "roughplastic".into(),
+        M::Dielectric { .. } => "dielectric".into(),
+        M::ThinDielectric { .. } => "thindielectric".into(),
+        M::TwoSided(inner) => format!("twosided({})", material_name(inner)),
+    }
+}
+
+fn plot_cmd(a: PlotArgs) -> Result<()> {
+    let x = match a.x {
+        XArg::Time => XAxis::TimeSeconds,
+        XArg::Rays => XAxis::Rays,
+        XArg::Spp => XAxis::Spp,
+    };
+    let mut series = Vec::new();
+    for spec in &a.logs {
+        let (label, file) = match spec.split_once('=') {
+            Some((l, f)) => (l.to_string(), f.to_string()),
+            None => (
+                Path::new(spec)
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| spec.clone()),
+                spec.clone(),
+            ),
+        };
+        series.push(plot::series_from_csv(Path::new(&file), &label, x)?);
+    }
+    let mut opts = PlotOptions::for_axis(x);
+    opts.title = a.title;
+    plot::plot_convergence(&series, &a.output, &opts)?;
+    println!("plot written to {}", a.output.display());
+    Ok(())
+}
+
+fn bench(a: BenchArgs) -> Result<()> {
+    let scene = match &a.scene {
+        Some(p) => load_scene(Some(p))?,
+        None => kalos::bench::generated_scene(a.triangles),
+    };
+    println!(
+        "scene: {} ({} triangles)",
+        scene.source,
+        scene.triangles.len()
+    );
+    let t = Instant::now();
+    let world = World::new(scene);
+    println!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
+    let one = kalos::bench::incoherent_closest_hits(&world, a.rays, 1);
+    let all_threads = rayon::current_num_threads();
+    let all = kalos::bench::incoherent_closest_hits(&world, a.rays, all_threads);
+    println!(
+        "incoherent closest hits, 1 thread:  {:.2} Mrays/s ({} hits of {} rays)",
+        one.mrays_per_s, one.hits, one.rays
+    );
+    println!(
+        "incoherent closest hits, {all_threads} threads: {:.2} Mrays/s (ratio {:.2}x)",
+        all.mrays_per_s,
+        all.mrays_per_s / one.mrays_per_s
+    );
+    Ok(())
+}

@@ -1,1 +1,282 @@
-//! TODO
+//! The progressive methods, the trait they share, and the driver that gives
+//! them budgets, progress, Ctrl-C and convergence logs.
+//!
+//! Every method is a progressive estimator: [`Method::step`] adds one pass of
+//! work (one sample per pixel for `path`, a fixed batch of light paths for
+//! `light`...) and reports the rays it traced; [`Method::image`] is the
+//! current estimate. Methods never print and never touch files.
+
+pub mod light;
+pub mod path;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use crate::accel::Accel;
+use crate::camera::Camera;
+use crate::emitter::Lights;
+use crate::film::Image;
+use crate::metrics;
+use crate::scene::Scene;
+
+/// Everything a method reads: the scene and what is built from it once.
+pub struct World {
+    /// The scene.
+    pub scene: Scene,
+    /// The BVH.
+    pub accel: Accel,
+    /// The lights, ready for sampling.
+    pub lights: Lights,
+    /// The camera.
+    pub camera: Camera,
+}
+
+impl World {
+    /// Builds the BVH, the light distribution and the camera.
+    pub fn new(scene: Scene) -> Self {
+        let accel = Accel::build(&scene);
+        let lights = Lights::new(&scene);
+        let camera = Camera::new(&scene.camera);
+        World {
+            scene,
+            accel,
+            lights,
+            camera,
+        }
+    }
+}
+
+/// What one step did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepStats {
+    /// Rays traced (closest-hit and occlusion queries alike).
+    pub rays: u64,
+}
+
+/// A progressive estimator.
+pub trait Method: Send {
+    /// The method's name on the command line.
+    fn name(&self) -> &'static str;
+    /// Adds one pass of work; `pass` counts from 0 and keys the random streams.
+    fn step(&mut self, world: &World, pass: u64) -> StepStats;
+    /// The current estimate.
+    fn image(&self, world: &World) -> Image;
+    /// Work done so far, in samples per pixel or the method's equivalent
+    /// (light paths per pixel for the light-based methods).
+    fn spp(&self) -> f64;
+}
+
+/// Settings shared by the methods; each method reads what it needs.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Master seed.
+    pub seed: u64,
+    /// Longest path, in segments (Mitsuba's `max_depth`); None = unlimited.
+    pub max_depth: Option<u32>,
+    /// Method variant (`light`: `walk` or `iteration`).
+    pub variant: Option<String>,
+    /// Light tracing / iteration: number of first passes to discard (the
+    /// power-defect correction after eq. (18) of the 1999 paper).
+    pub discard: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            seed: 0,
+            max_depth: None,
+            variant: None,
+            discard: 0,
+        }
+    }
+}
+
+/// An error in the method's settings.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct MethodError(pub String);
+
+/// The names of the methods, in the order `--help` shows them.
+pub const METHODS: &[&str] = &["path", "light"];
+
+/// The method table: name → constructor (Tungsten's integrator factory).
+pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
+    match name {
+        "path" => Ok(Box::new(path::PathTracer::new(
+            world,
+            path::Settings::from_options(opts)?,
+        ))),
+        "light" => Ok(Box::new(light::LightTracer::new(
+            world,
+            light::Settings::from_options(opts)?,
+        ))),
+        other => Err(MethodError(format!(
+            "unknown method '{other}'; known methods: {}",
+            METHODS.join(", ")
+        ))),
+    }
+}
+
+/// When to stop. Several limits may be set; the first reached stops.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Budget {
+    /// Samples per pixel (passes, for methods whose pass is one spp).
+    pub spp: Option<f64>,
+    /// Wall time in seconds.
+    pub time: Option<f64>,
+    /// Rays traced.
+    pub rays: Option<u64>,
+    /// Number of passes.
+    pub passes: Option<u64>,
+}
+
+/// A row of the convergence log.
+#[derive(Clone, Copy, Debug)]
+pub struct LogRow {
+    /// Seconds since the start.
+    pub time_s: f64,
+    /// Rays traced so far.
+    pub rays: u64,
+    /// Samples per pixel so far.
+    pub spp: f64,
+    /// relMSE against the reference, when one was given.
+    pub rel_mse: Option<f64>,
+}
+
+/// Progress reported to the caller after every pass.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Passes done.
+    pub passes: u64,
+    /// Rays so far.
+    pub rays: u64,
+    /// Seconds so far.
+    pub elapsed: f64,
+    /// Fraction of the budget used, in [0, 1].
+    pub fraction: f64,
+}
+
+/// The outcome of a render.
+pub struct RenderResult {
+    /// The final estimate.
+    pub image: Image,
+    /// Rays traced.
+    pub rays: u64,
+    /// Passes run.
+    pub passes: u64,
+    /// Samples per pixel (or equivalent).
+    pub spp: f64,
+    /// Wall time in seconds.
+    pub seconds: f64,
+    /// True when the render was interrupted.
+    pub interrupted: bool,
+    /// The convergence log.
+    pub log: Vec<LogRow>,
+}
+
+/// Runs a method until its budget is spent or `cancel` is set (Ctrl-C).
+/// With a reference, records the relMSE every `log_every` seconds (and at the
+/// end); the time spent computing the error is not counted as render time.
+pub struct Driver<'a> {
+    /// The budget.
+    pub budget: Budget,
+    /// Set from another thread to stop after the current pass.
+    pub cancel: Option<&'a AtomicBool>,
+    /// Reference image for the convergence log.
+    pub reference: Option<&'a Image>,
+    /// Seconds between log rows (0 disables intermediate rows).
+    pub log_every: f64,
+}
+
+impl Driver<'_> {
+    /// Runs `method`; `on_progress` is called after every pass.
+    pub fn run(
+        &self,
+        method: &mut dyn Method,
+        world: &World,
+        mut on_progress: impl FnMut(&Progress),
+    ) -> RenderResult {
+        let start = Instant::now();
+        let mut excluded = 0.0f64; // time spent on logging, not rendering
+        let mut rays = 0u64;
+        let mut pass = 0u64;
+        let mut log = Vec::new();
+        let mut next_log = self.log_every;
+        let mut interrupted = false;
+        let budget = self.budget;
+        let unlimited = budget.spp.is_none()
+            && budget.time.is_none()
+            && budget.rays.is_none()
+            && budget.passes.is_none();
+        loop {
+            let elapsed = start.elapsed().as_secs_f64() - excluded;
+            let mut fraction: f64 = 0.0;
+            if let Some(s) = budget.spp {
+                fraction = fraction.max(method.spp() / s);
+            }
+            if let Some(t) = budget.time {
+                fraction = fraction.max(elapsed / t);
+            }
+            if let Some(r) = budget.rays {
+                fraction = fraction.max(rays as f64 / r as f64);
+            }
+            if let Some(p) = budget.passes {
+                fraction = fraction.max(pass as f64 / p as f64);
+            }
+            if unlimited && pass >= 1 {
+                fraction = 1.0;
+            }
+            on_progress(&Progress {
+                passes: pass,
+                rays,
+                elapsed,
+                fraction: fraction.min(1.0),
+            });
+            if fraction >= 1.0 {
+                break;
+            }
+            if self.cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                interrupted = true;
+                break;
+            }
+            let stats = method.step(world, pass);
+            rays += stats.rays;
+            pass += 1;
+            if let Some(r) = self.reference {
+                let now = start.elapsed().as_secs_f64() - excluded;
+                if self.log_every > 0.0 && now >= next_log {
+                    let t0 = Instant::now();
+                    let e = metrics::rel_mse(&method.image(world), r).ok();
+                    log.push(LogRow {
+                        time_s: now,
+                        rays,
+                        spp: method.spp(),
+                        rel_mse: e,
+                    });
+                    next_log = now + self.log_every;
+                    excluded += t0.elapsed().as_secs_f64();
+                }
+            }
+        }
+        let seconds = start.elapsed().as_secs_f64() - excluded;
+        let image = method.image(world);
+        let rel_mse = self
+            .reference
+            .and_then(|r| metrics::rel_mse(&image, r).ok());
+        log.push(LogRow {
+            time_s: seconds,
+            rays,
+            spp: method.spp(),
+            rel_mse,
+        });
+        RenderResult {
+            image,
+            rays,
+            passes: pass,
+            spp: method.spp(),
+            seconds,
+            interrupted,
+            log,
+        }
+    }
+}

@@ -1,0 +1,141 @@
+//! Ray-core measurements for `kalos bench`: a generated scene of a given
+//! triangle count, and incoherent closest-hit throughput. Benchmarks measure;
+//! nothing here is asserted by tests.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::geometry::Ray;
+use crate::methods::World;
+use crate::sampling::{uniform_sphere, Pcg32};
+use crate::scene::{CameraDesc, Material, Scene, Texture};
+
+/// A generated scene of about `triangles` triangles: randomly placed,
+/// overlapping tessellated spheres in a unit-ish box, lit by a quad.
+pub fn generated_scene(triangles: u64) -> Scene {
+    let mut scene = Scene::empty(format!("generated ({triangles} triangles)"));
+    let m = scene.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.5)),
+    });
+    // each sphere: 2·rings·segments triangles with rings = 16, segments = 32
+    let (rings, segs) = (16u32, 32u32);
+    let per = 2 * rings as u64 * segs as u64;
+    let count = (triangles / per).max(1);
+    let mut rng = Pcg32::new(7, 0);
+    let mut pos = Vec::new();
+    let mut idx = Vec::new();
+    for r in 0..=rings {
+        let theta = std::f32::consts::PI * r as f32 / rings as f32;
+        for s in 0..=segs {
+            let phi = 2.0 * std::f32::consts::PI * s as f32 / segs as f32;
+            pos.push(Vec3::new(
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                theta.sin() * phi.sin(),
+            ));
+        }
+    }
+    for r in 0..rings {
+        for s in 0..segs {
+            let a = r * (segs + 1) + s;
+            let b = a + segs + 1;
+            idx.push([a, b, a + 1]);
+            idx.push([a + 1, b, b + 1]);
+        }
+    }
+    let side = (count as f32).cbrt();
+    for i in 0..count {
+        let c = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
+        let radius = (0.6 / side) * (0.5 + rng.next_f32());
+        let p: Vec<Vec3> = pos.iter().map(|v| c + *v * radius).collect();
+        scene.add_mesh(format!("sphere{i}"), &p, Some(&pos), None, &idx, m, None);
+    }
+    let quad = [
+        Vec3::new(-0.5, 1.5, -0.5),
+        Vec3::new(0.5, 1.5, -0.5),
+        Vec3::new(0.5, 1.5, 0.5),
+        Vec3::new(-0.5, 1.5, 0.5),
+    ];
+    scene.add_mesh(
+        "light",
+        &quad,
+        None,
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        m,
+        Some(Vec3::splat(5.0)),
+    );
+    scene.camera = CameraDesc {
+        to_world: crate::geometry::look_at(Vec3::new(0.0, 0.0, -4.0), Vec3::ZERO, Vec3::Y),
+        fov_x_deg: 40.0,
+        width: 256,
+        height: 256,
+        near_clip: 1e-2,
+    };
+    scene
+}
+
+/// Throughput of one measurement.
+#[derive(Clone, Copy, Debug)]
+pub struct RayThroughput {
+    /// Rays traced.
+    pub rays: u64,
+    /// Rays that hit something.
+    pub hits: u64,
+    /// Million rays per second.
+    pub mrays_per_s: f64,
+}
+
+/// Traces `rays` incoherent rays (uniform origins in the scene bounds,
+/// uniform directions) for their closest hits on `threads` threads.
+pub fn incoherent_closest_hits(world: &World, rays: u64, threads: usize) -> RayThroughput {
+    let (lo, hi) = world.scene.bounds();
+    let chunks = 256u64;
+    let per = rays.div_ceil(chunks);
+    // pre-generate so that only traversal is timed
+    let batches: Vec<Vec<Ray>> = (0..chunks)
+        .map(|c| {
+            let mut rng = Pcg32::keyed(&[99, c]);
+            (0..per)
+                .map(|_| {
+                    let o =
+                        lo + (hi - lo) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+                    Ray::new(o, uniform_sphere(rng.next_2d()))
+                })
+                .collect()
+        })
+        .collect();
+    let pool = match rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .build()
+    {
+        Ok(p) => p,
+        Err(_) => {
+            return RayThroughput {
+                rays: 0,
+                hits: 0,
+                mrays_per_s: 0.0,
+            }
+        }
+    };
+    let t = Instant::now();
+    let hits: u64 = pool.install(|| {
+        batches
+            .par_iter()
+            .map(|b| {
+                b.iter()
+                    .filter(|r| world.accel.intersect(r).is_some())
+                    .count() as u64
+            })
+            .sum()
+    });
+    let secs = t.elapsed().as_secs_f64();
+    let n = per * chunks;
+    RayThroughput {
+        rays: n,
+        hits,
+        mrays_per_s: n as f64 / secs / 1e6,
+    }
+}

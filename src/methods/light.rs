@@ -1,0 +1,511 @@
+//! `light`: light tracing, the single-ray form of stochastic iteration (§4 of
+//! the 1999 stochastic-iteration paper).
+//!
+//! Particles leave the lights (chosen by power, cosine-distributed
+//! directions), and at every non-delta vertex x the walk is connected to the
+//! camera: Φ · f_r(ω_in, x, ω_eye) · cos θ · g(x) is added to the pixel that
+//! sees x when the segment is clear, g(x) being the pixel weight of §2 of the
+//! light-path-building paper ([`crate::camera::Camera::project`]). Emitter
+//! points connect to the camera directly, so visible lights appear. The BSDF
+//! is evaluated in importance mode, with the shading-normal correction.
+//!
+//! Two variants (`--variant`):
+//! - `walk` (default): independent random walks, each ended by Russian
+//!   roulette on the albedo, so a particle keeps its power while it lives.
+//! - `iteration`: the operator sequence L_n = Le + T*_n L_{n−1} of eq. (11),
+//!   with the single-ray operator of eq. (19). Each step sends one ray that
+//!   carries the whole power of L_{n−1}: from the point last hit, with
+//!   probability a·Φ_n / (Φ_e + a·Φ_n), or from the lights (for Φ_n = Φ_e this
+//!   is the a/(1+a) of the paper's end of §4, and the ray carries Φ(1+a)).
+//!   The image is the running average P̃ of eqs. (12)–(13); `--discard K`
+//!   drops the first K steps of each chain (the power-defect correction after
+//!   eq. (18)).
+//!
+//! Limit: a delta surface (mirror, smooth glass) seen directly by the camera
+//! cannot be reached by a camera connection, so with the raw method it stays
+//! black, as in other light tracers; caustics on diffuse surfaces do appear.
+//!
+//! Parallelism: a fixed number of lanes, each with its own film and random
+//! stream keyed by (seed, pass, lane); lanes are merged in order, so a seed
+//! gives the same image whatever the thread count.
+//!
+//! ```text
+//! kalos render scenes/cbox/cbox.xml --method light --time 10 -o l.exr
+//! ```
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::{Method, MethodError, Options, StepStats, World};
+use crate::bsdf::{Bsdf, Mode};
+use crate::film::{Film, Image};
+use crate::geometry::{offset_point, Frame, Ray};
+use crate::methods::path::orient;
+use crate::sampling::Pcg32;
+use crate::scene::{luminance, Rgb, SurfacePoint};
+
+/// Which form of the method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Variant {
+    /// Independent walks with Russian roulette on the albedo.
+    Walk,
+    /// The operator sequence of eq. (11), averaged as in eq. (13).
+    Iteration,
+}
+
+/// Settings of the light tracer.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// Master seed.
+    pub seed: u64,
+    /// Longest path in segments (None: unlimited).
+    pub max_depth: Option<u32>,
+    /// Walk or iteration.
+    pub variant: Variant,
+    /// Independent lanes (films and streams); fixed so that results do not
+    /// depend on the thread count.
+    pub lanes: usize,
+    /// Walks (or iteration steps) per pass; 0 means one per pixel.
+    pub paths_per_pass: u64,
+    /// Iteration variant: steps dropped at the start of each chain.
+    pub discard: u64,
+}
+
+impl Settings {
+    /// Reads the shared options.
+    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
+        let variant = match o.variant.as_deref() {
+            None | Some("walk") => Variant::Walk,
+            Some("iteration") => Variant::Iteration,
+            Some(v) => {
+                return Err(MethodError(format!(
+                    "unknown variant '{v}' for method light; expected 'walk' or 'iteration'"
+                )))
+            }
+        };
+        Ok(Settings {
+            seed: o.seed,
+            max_depth: o.max_depth,
+            variant,
+            lanes: 8,
+            paths_per_pass: 0,
+            discard: o.discard,
+        })
+    }
+}
+
+/// The state of one iteration chain between passes.
+#[derive(Clone, Debug, Default)]
+struct Chain {
+    /// Steps taken so far.
+    steps: u64,
+    /// Steps that were accumulated into the film.
+    counted: u64,
+    /// The point that received the last transfer, if the last ray hit one.
+    last: Option<Transfer>,
+}
+
+/// The single point of T*_n L_{n−1}: where the power landed and how much.
+#[derive(Clone, Debug)]
+struct Transfer {
+    sp: SurfacePoint,
+    /// Direction back toward where the power came from (world).
+    wo: Vec3,
+    /// RGB power transferred to the point.
+    phi: Rgb,
+    /// Segments of the walk so far.
+    depth: u32,
+}
+
+/// The light tracer's progressive state.
+pub struct LightTracer {
+    settings: Settings,
+    films: Vec<Film>,
+    chains: Vec<Chain>,
+    /// Walks traced (walk variant).
+    walks: u64,
+    pixels: u64,
+}
+
+impl LightTracer {
+    /// A light tracer for `world`.
+    pub fn new(world: &World, settings: Settings) -> Self {
+        let (w, h) = (world.camera.width, world.camera.height);
+        let lanes = settings.lanes.max(1);
+        LightTracer {
+            films: (0..lanes).map(|_| Film::new(w, h)).collect(),
+            chains: vec![Chain::default(); lanes],
+            settings,
+            walks: 0,
+            pixels: w as u64 * h as u64,
+        }
+    }
+
+    fn per_pass(&self) -> u64 {
+        if self.settings.paths_per_pass > 0 {
+            self.settings.paths_per_pass
+        } else {
+            self.pixels
+        }
+    }
+}
+
+impl Method for LightTracer {
+    fn name(&self) -> &'static str {
+        "light"
+    }
+
+    fn step(&mut self, world: &World, pass: u64) -> StepStats {
+        let n = self.per_pass();
+        let lanes = self.films.len() as u64;
+        let s = &self.settings;
+        let rays: u64 = self
+            .films
+            .par_iter_mut()
+            .zip(self.chains.par_iter_mut())
+            .enumerate()
+            .map(|(lane, (film, chain))| {
+                let count = n / lanes + u64::from((lane as u64) < n % lanes);
+                let mut rng = Pcg32::keyed(&[s.seed, pass, lane as u64, 0x11]);
+                match s.variant {
+                    Variant::Walk => (0..count)
+                        .map(|_| trace_walk(world, s, &mut rng, film))
+                        .sum::<u64>(),
+                    Variant::Iteration => (0..count)
+                        .map(|_| iterate(world, s, &mut rng, film, chain))
+                        .sum::<u64>(),
+                }
+            })
+            .sum();
+        self.walks += n;
+        StepStats { rays }
+    }
+
+    fn image(&self, world: &World) -> Image {
+        let mut total = Film::new(world.camera.width, world.camera.height);
+        for f in &self.films {
+            total.merge(f);
+        }
+        let n = match self.settings.variant {
+            Variant::Walk => self.walks,
+            Variant::Iteration => self.chains.iter().map(|c| c.counted).sum(),
+        };
+        total.to_image(if n == 0 { 0.0 } else { 1.0 / n as f64 })
+    }
+
+    fn spp(&self) -> f64 {
+        self.walks as f64 / self.pixels as f64
+    }
+}
+
+/// Connects a non-delta surface vertex to the camera, in importance mode:
+/// returns the film position and Φ · f(ω_in → ω_eye) · cos θ · g(x), with
+/// the shading-normal correction |wo·ns||wi·ng| / (|wo·ng||wi·ns|) (Veach's
+/// adjoint BSDF for shading normals), and counts one ray.
+#[inline]
+pub fn connect_to_camera(
+    world: &World,
+    sp: &SurfacePoint,
+    frame: &Frame,
+    ng: Vec3,
+    wo_world: Vec3,
+    bsdf: &Bsdf,
+    phi: Rgb,
+) -> Option<(Vec2, Rgb)> {
+    let cam = world.camera.position();
+    let (pix, g) = world.camera.project(sp.p)?;
+    let d = cam - sp.p;
+    let dist = d.length();
+    let wc = d / dist;
+    let wi = frame.to_local(wc);
+    let wo = frame.to_local(wo_world);
+    let cos_g = wc.dot(ng);
+    // the connection must leave on the side the BSDF says it does
+    if cos_g * wi.z <= 0.0 {
+        return None;
+    }
+    let f = bsdf.eval(wo, wi, Mode::Importance);
+    if f == Rgb::ZERO {
+        return None;
+    }
+    let wo_ng = wo_world.dot(ng).abs();
+    if wo_ng <= 0.0 {
+        return None;
+    }
+    let c = phi * f * (cos_g.abs() * wo.z.abs() / wo_ng * g);
+    if !c.is_finite() || c == Rgb::ZERO {
+        return None;
+    }
+    if world.accel.occluded(offset_point(sp.p, ng, wc), cam) {
+        return None;
+    }
+    Some((pix, c))
+}
+
+/// Connects an emission vertex to the camera (diffuse emitters: the
+/// directional profile is 1 on the front side).
+#[inline]
+fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
+    let Some((pix, g)) = world.camera.project(p) else {
+        return 0;
+    };
+    let d = world.camera.position() - p;
+    let cos = d.dot(n) / d.length();
+    if cos <= 0.0 {
+        return 0;
+    }
+    if !world
+        .accel
+        .occluded(offset_point(p, n, d), world.camera.position())
+    {
+        film.splat(pix.x, pix.y, phi_pos * (cos * g));
+    }
+    1
+}
+
+/// Scalar albedo for Russian roulette: the largest channel, capped below 1 so
+/// that every walk ends.
+#[inline]
+fn rr_albedo(bsdf: &Bsdf, wo: Vec3) -> f32 {
+    bsdf.albedo(wo).max_element().clamp(0.0, 0.99)
+}
+
+/// Scatters at a hit: the shading frame oriented for the material, the
+/// BSDF, and the local outgoing direction.
+#[inline]
+fn shade(world: &World, sp: &SurfacePoint, wo_world: Vec3) -> (Bsdf, Frame, Vec3) {
+    let material = world.scene.material_of(sp);
+    let bsdf = material.bsdf(sp.uv);
+    let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+    (bsdf, frame, ng)
+}
+
+/// Samples the next direction of a light path in importance mode; returns
+/// the world direction and the throughput factor f·|cos|/pdf with the
+/// shading-normal correction.
+#[inline]
+fn scatter(
+    bsdf: &Bsdf,
+    frame: &Frame,
+    ng: Vec3,
+    wo_world: Vec3,
+    rng: &mut Pcg32,
+) -> Option<(Vec3, Rgb)> {
+    let wo = frame.to_local(wo_world);
+    let uc = rng.next_f32();
+    let u = rng.next_2d();
+    let s = bsdf.sample(wo, uc, u, Mode::Importance)?;
+    let wi_world = frame.to_world(s.wi);
+    let wi_ng = wi_world.dot(ng);
+    let wo_ng = wo_world.dot(ng);
+    if wi_ng * s.wi.z <= 0.0 || wo_ng * wo.z <= 0.0 || s.pdf <= 0.0 || wo_ng == 0.0 {
+        return None;
+    }
+    // f |wi·ns| / pdf, times |wo·ns||wi·ng| / (|wo·ng||wi·ns|)
+    let w = s.f * (wo.z.abs() * wi_ng.abs() / (wo_ng.abs() * s.pdf));
+    if !w.is_finite() {
+        return None;
+    }
+    Some((wi_world, w))
+}
+
+/// One light-tracing walk; returns the rays traced.
+fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> u64 {
+    let max_depth = s.max_depth.unwrap_or(u32::MAX);
+    let mut rays = 0;
+    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+    let Some(es) = world
+        .lights
+        .sample_emission(&world.scene, u_sel, u_pos, u_dir)
+    else {
+        return 0;
+    };
+    // Emitter points connect to the camera directly
+    if !es.is_env {
+        rays += connect_emission(world, es.p, es.n, es.phi_pos, film);
+    }
+    let mut beta = es.phi;
+    let mut ray = if es.is_env {
+        Ray::new(es.p, es.d)
+    } else {
+        Ray::new(offset_point(es.p, es.n, es.d), es.d)
+    };
+    let mut depth = 1u32;
+    loop {
+        rays += 1;
+        let Some(hit) = world.accel.intersect(&ray) else {
+            break;
+        };
+        let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let wo_world = -ray.d;
+        let (bsdf, frame, ng) = shade(world, &sp, wo_world);
+
+        // Connect to the camera at every non-delta vertex
+        if bsdf.has_smooth() && depth < max_depth {
+            rays += u64::from(world.camera.project(sp.p).is_some());
+            if let Some((pix, c)) = connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, beta)
+            {
+                film.splat(pix.x, pix.y, c);
+            }
+        }
+        if depth + 1 >= max_depth {
+            break;
+        }
+
+        // Terminate the walk with Russian roulette on the albedo
+        let a = rr_albedo(&bsdf, frame.to_local(wo_world));
+        if rng.next_f32() >= a {
+            break;
+        }
+        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
+            break;
+        };
+        beta *= w / a;
+        if beta == Rgb::ZERO {
+            break;
+        }
+        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
+        depth += 1;
+    }
+    rays
+}
+
+/// One step of the operator sequence of eq. (11): estimates M(Le) with its
+/// own emission sample, picks where the next ray starts in proportion to the
+/// power of L_{n−1} (the lights, or the point last hit), sends the whole
+/// power along one ray, and measures the new point. Returns the rays traced.
+fn iterate(
+    world: &World,
+    s: &Settings,
+    rng: &mut Pcg32,
+    film: &mut Film,
+    chain: &mut Chain,
+) -> u64 {
+    let max_depth = s.max_depth.unwrap_or(u32::MAX);
+    let lights = &world.lights;
+    let phi_e = lights.total_power() as f32;
+    let mut rays = 0;
+    let counted = chain.steps >= s.discard;
+    chain.steps += 1;
+    if counted {
+        chain.counted += 1;
+    }
+    let mut sink = Film::new(0, 0);
+    let target: &mut Film = if counted { film } else { &mut sink };
+
+    // M(Le): the lights' own image, one emission sample per step
+    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+    if let Some(es) = lights.sample_emission(&world.scene, u_sel, u_pos, u_dir) {
+        if !es.is_env {
+            rays += connect_emission(world, es.p, es.n, es.phi_pos, target);
+        }
+    }
+
+    // The power of L_{n−1}: Φ_e from the lights plus a·Φ reflected by the
+    // point that received the last transfer.
+    let last = chain.last.take();
+    let mut start = None;
+    if let Some(t) = &last {
+        let (bsdf, frame, _) = shade(world, &t.sp, t.wo);
+        let a = bsdf
+            .albedo(frame.to_local(t.wo))
+            .max_element()
+            .clamp(0.0, 1.0);
+        let reflected = a * luminance(t.phi);
+        let p_point = reflected / (phi_e + reflected);
+        if t.depth < max_depth.saturating_sub(1) && p_point > 0.0 && rng.next_f32() < p_point {
+            start = Some((t, p_point));
+        } else if p_point > 0.0 {
+            // selected the lights with probability 1 − p_point
+            return rays + emit_and_transfer(world, rng, target, chain, 1.0 - p_point);
+        }
+    }
+    let Some((t, p_point)) = start else {
+        return rays + emit_and_transfer(world, rng, target, chain, 1.0);
+    };
+
+    // Reflect the point's power into a direction sampled from f cos
+    let (bsdf, frame, ng) = shade(world, &t.sp, t.wo);
+    let Some((wi, w)) = scatter(&bsdf, &frame, ng, t.wo, rng) else {
+        return rays;
+    };
+    let phi = t.phi * w / p_point;
+    rays + transfer(
+        world,
+        Ray::new(offset_point(t.sp.p, t.sp.ng, wi), wi),
+        phi,
+        t.depth + 1,
+        rng,
+        target,
+        chain,
+    )
+}
+
+/// Starts a new ray from the lights, carrying Φ_e/prob.
+fn emit_and_transfer(
+    world: &World,
+    rng: &mut Pcg32,
+    film: &mut Film,
+    chain: &mut Chain,
+    prob: f32,
+) -> u64 {
+    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+    let Some(es) = world
+        .lights
+        .sample_emission(&world.scene, u_sel, u_pos, u_dir)
+    else {
+        return 0;
+    };
+    let ray = if es.is_env {
+        Ray::new(es.p, es.d)
+    } else {
+        Ray::new(offset_point(es.p, es.n, es.d), es.d)
+    };
+    transfer(world, ray, es.phi / prob, 1, rng, film, chain)
+}
+
+/// Sends power `phi` along `ray`; the hit point becomes T*_n L_{n−1}, and is
+/// measured through a camera connection. Delta surfaces cannot be measured
+/// and pass the power on at once: the operator over a delta chain is one
+/// transfer to the first non-delta point.
+fn transfer(
+    world: &World,
+    mut ray: Ray,
+    mut phi: Rgb,
+    mut depth: u32,
+    rng: &mut Pcg32,
+    film: &mut Film,
+    chain: &mut Chain,
+) -> u64 {
+    let mut rays = 0;
+    loop {
+        rays += 1;
+        let Some(hit) = world.accel.intersect(&ray) else {
+            return rays;
+        };
+        let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let wo_world = -ray.d;
+        let (bsdf, frame, ng) = shade(world, &sp, wo_world);
+        if bsdf.has_smooth() || depth > 1000 {
+            rays += u64::from(world.camera.project(sp.p).is_some());
+            if let Some((pix, c)) = connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, phi)
+            {
+                film.splat(pix.x, pix.y, c);
+            }
+            chain.last = Some(Transfer {
+                sp,
+                wo: wo_world,
+                phi,
+                depth,
+            });
+            return rays;
+        }
+        // a purely specular surface: follow the delta chain
+        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
+            return rays;
+        };
+        phi *= w;
+        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
+        depth += 1;
+    }
+}
