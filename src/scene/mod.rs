@@ -4,6 +4,7 @@
 //! world-space triangles. Loaders live in the submodules ([`mitsuba`],
 //! [`obj`], [`ply`]); nothing else in the crate reads files.
 
+pub mod builtin;
 pub mod material;
 pub mod mitsuba;
 pub mod obj;
@@ -17,6 +18,34 @@ use glam::{Mat4, Vec2, Vec3};
 
 use crate::geometry::Frame;
 pub use material::{Material, MicrofacetKind, TexImage, Texture};
+pub use shapes::MeshData;
+
+/// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
+/// `.obj` (with its MTL; a camera is synthesised) or `.ply` (one mesh, default
+/// material, synthesised camera).
+pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    match ext.as_str() {
+        "xml" => mitsuba::load(path),
+        "obj" => obj::load_obj_scene(path),
+        "ply" => ply::load_ply_scene(path),
+        _ => Err(SceneError::new(
+            path,
+            0,
+            "unknown scene format: expected a .xml (Mitsuba 3), .obj or .ply file",
+        )),
+    }
+}
+
+/// Loads a Mitsuba 3 scene from a string; relative paths in it resolve
+/// against `base_dir`, and `name` stands for the file in messages.
+pub fn load_str(xml: &str, base_dir: &Path, name: &str) -> Result<Scene, SceneError> {
+    mitsuba::load_str(xml, base_dir, name)
+}
 
 /// Linear RGB colour (radiance, reflectance, power...).
 pub type Rgb = Vec3;
@@ -181,6 +210,9 @@ pub struct Scene {
     pub camera: CameraDesc,
     /// Where the scene came from (for messages).
     pub source: String,
+    /// Things the loader skipped or approximated (an `integrator` block, a
+    /// non-box reconstruction filter, a synthesised camera...), one per line.
+    pub warnings: Vec<String>,
 }
 
 /// A ray–surface hit with everything shading needs.
@@ -220,6 +252,7 @@ impl Scene {
                 near_clip: 1e-2,
             },
             source: source.into(),
+            warnings: Vec::new(),
         }
     }
 
@@ -248,17 +281,18 @@ impl Scene {
         let shape_id = self.shapes.len() as u32;
         self.positions.extend_from_slice(positions);
         match normals {
-            Some(n) if n.len() == positions.len() => self.normals.extend(
-                n.iter()
-                    .map(|v| v.try_normalize().unwrap_or(Vec3::Z)),
-            ),
+            Some(n) if n.len() == positions.len() => self
+                .normals
+                .extend(n.iter().map(|v| v.try_normalize().unwrap_or(Vec3::Z))),
             _ => self
                 .normals
                 .extend(std::iter::repeat_n(Vec3::Z, positions.len())),
         }
         match uvs {
             Some(t) if t.len() == positions.len() => self.uvs.extend_from_slice(t),
-            _ => self.uvs.extend(std::iter::repeat_n(Vec2::ZERO, positions.len())),
+            _ => self
+                .uvs
+                .extend(std::iter::repeat_n(Vec2::ZERO, positions.len())),
         }
         let first_tri = self.triangles.len() as u32;
         for t in indices {
@@ -274,8 +308,7 @@ impl Scene {
             if !(area2.is_finite() && area2 > 0.0) {
                 continue;
             }
-            self.triangles
-                .push([t[0] + base, t[1] + base, t[2] + base]);
+            self.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
             self.tri_shape.push(shape_id);
         }
         let tri_count = self.triangles.len() as u32 - first_tri;
