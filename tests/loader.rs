@@ -128,6 +128,33 @@ fn cornell_box_loads() {
     assert!(approx(hi, Vec3::new(1.0, 2.0, 1.0), 1e-3), "{hi}");
 }
 
+#[test]
+fn gltf_cornell_box_loads() {
+    let s = scene::load(&repo(
+        "scenes/cornell-box-gltf/cornellBox-2.80-Eevee-gltf.gltf",
+    ))
+    .unwrap_or_else(|e| panic!("{e}"));
+    // 12 meshes, 23 triangle primitives
+    assert_eq!(s.shapes.len(), 23);
+    // one emissive material, on the lamp, above the floor
+    assert_eq!(s.emitters.len(), 1);
+    let EmitterDesc::Area { shape, radiance } = s.emitters[0] else {
+        panic!("not an area light")
+    };
+    assert_eq!(radiance, Vec3::ONE);
+    let lamp = &s.shapes[shape as usize];
+    assert!(lamp.name.starts_with("lamp"), "{}", lamp.name);
+    // the checker textures became bitmaps
+    assert!(s.materials.iter().any(|m| matches!(
+        m,
+        Material::Diffuse {
+            reflectance: Texture::Bitmap { .. }
+        }
+    )));
+    // no glTF camera: one was synthesised
+    assert!(s.warnings.iter().any(|w| w.contains("camera")));
+}
+
 // ---------------------------------------------------------------------------
 // Analytic shapes
 

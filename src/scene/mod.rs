@@ -2,9 +2,10 @@
 //!
 //! Every shape, whatever file it came from, is flattened into one set of
 //! world-space triangles. Loaders live in the submodules ([`mitsuba`],
-//! [`obj`], [`ply`]); nothing else in the crate reads files.
+//! [`gltf`], [`obj`], [`ply`]); nothing else in the crate reads files.
 
 pub mod builtin;
+pub mod gltf;
 pub mod material;
 pub mod mitsuba;
 pub mod obj;
@@ -21,8 +22,8 @@ pub use material::{Material, MicrofacetKind, TexImage, Texture};
 pub use shapes::MeshData;
 
 /// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
-/// `.obj` (with its MTL; a camera is synthesised) or `.ply` (one mesh, default
-/// material, synthesised camera).
+/// `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a camera is synthesised)
+/// or `.ply` (one mesh, default material, synthesised camera).
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
     let ext = path
         .extension()
@@ -33,10 +34,11 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
         "xml" => mitsuba::load(path),
         "obj" => obj::load_obj_scene(path),
         "ply" => ply::load_ply_scene(path),
+        "gltf" | "glb" => gltf::load_gltf(path),
         _ => Err(SceneError::new(
             path,
             0,
-            "unknown scene format: expected a .xml (Mitsuba 3), .obj or .ply file",
+            "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
         )),
     }
 }

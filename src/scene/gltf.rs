@@ -1,0 +1,316 @@
+//! glTF 2.0 scenes (`.gltf` with its buffers and images, or `.glb`), through
+//! the `gltf` crate.
+//!
+//! What is read, and how the metallic–roughness model maps onto kalos's
+//! materials (a choice: glTF's BRDF is not one of Mitsuba's plugins):
+//!
+//! - every triangle primitive of every mesh node of the default scene, with
+//!   the node's world transform (a negative determinant reverses the winding,
+//!   as the glTF specification says), normals and the first uv set;
+//! - `baseColorFactor` × `baseColorTexture` (sRGB) → `diffuse` for
+//!   non-metals (`metallicFactor` < 0.5); metals become a mirror-Fresnel
+//!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
+//!   tinted by the base colour (glTF's F0 of a metal);
+//! - `doubleSided` → `twosided`;
+//! - a non-zero `emissiveFactor` → an area emitter with that radiance
+//!   (glTF's emission is unitless: it is read as W/(m²·sr), with a warning);
+//! - the first perspective camera (glTF cameras look along −z with +x to the
+//!   right; kalos's along +z with +x to the left, so the camera's world
+//!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
+//!   synthesised, with a warning.
+//!
+//! Skipped with a warning: non-triangle primitives, emissive and
+//! metallic-roughness textures, texture transforms, and punctual lights.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use glam::{Mat3, Mat4, Vec2, Vec3};
+
+use super::shapes::MeshData;
+use super::{CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, TexImage, Texture};
+
+/// Largest number of nodes visited (a guard against cyclic node graphs).
+const MAX_NODES: usize = 1 << 20;
+
+/// Loads a glTF 2.0 file as a scene.
+pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let (doc, buffers, images) =
+        gltf::import(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
+    let mut scene = Scene::empty(path.display().to_string());
+    let warn = |scene: &mut Scene, msg: String| {
+        scene.warnings.push(format!("{}: {msg}", path.display()));
+    };
+
+    // Materials, each with its emission
+    let mut mats = Vec::new();
+    let mut textures: Vec<Option<Arc<TexImage>>> = vec![None; images.len()];
+    for m in doc.materials() {
+        let pbr = m.pbr_metallic_roughness();
+        let f = pbr.base_color_factor();
+        let factor = Rgb::new(f[0], f[1], f[2]);
+        let base = match pbr.base_color_texture() {
+            Some(info) => {
+                let i = info.texture().source().index();
+                if info.tex_coord() != 0 {
+                    warn(
+                        &mut scene,
+                        format!("material `{}`: only uv set 0 is read", name_of(&m)),
+                    );
+                }
+                let img = match textures.get(i).cloned().flatten() {
+                    Some(img) => Some(img),
+                    None => {
+                        let img = images.get(i).and_then(to_tex_image).map(Arc::new);
+                        if let (Some(img), Some(slot)) = (&img, textures.get_mut(i)) {
+                            *slot = Some(img.clone());
+                        }
+                        img
+                    }
+                };
+                match img {
+                    Some(img) => {
+                        let img = if factor == Rgb::ONE {
+                            img
+                        } else {
+                            let mut scaled = (*img).clone();
+                            scaled.data.iter_mut().for_each(|c| *c *= factor);
+                            Arc::new(scaled)
+                        };
+                        // glTF's uv (0, 0) is the image's top-left corner, as
+                        // Mitsuba's; TexImage puts v = 0 at the bottom
+                        Texture::Bitmap {
+                            image: img,
+                            to_uv: glam::Affine2::from_mat2_translation(
+                                glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
+                                Vec2::new(0.0, 1.0),
+                            ),
+                        }
+                    }
+                    None => {
+                        warn(
+                            &mut scene,
+                            format!("material `{}`: unsupported texture format", name_of(&m)),
+                        );
+                        Texture::Constant(factor)
+                    }
+                }
+            }
+            None => Texture::Constant(factor),
+        };
+        if pbr.metallic_roughness_texture().is_some() || m.emissive_texture().is_some() {
+            warn(
+                &mut scene,
+                format!(
+                    "material `{}`: metallic-roughness and emissive textures are ignored",
+                    name_of(&m)
+                ),
+            );
+        }
+        let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
+        let material = if pbr.metallic_factor() >= 0.5 {
+            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+            let (eta, k) = (Rgb::ZERO, Rgb::ONE);
+            if roughness <= 0.0 {
+                Material::Conductor {
+                    eta,
+                    k,
+                    specular_reflectance: base,
+                }
+            } else {
+                Material::RoughConductor {
+                    distribution: MicrofacetKind::Ggx,
+                    alpha: (roughness * roughness).max(1e-3),
+                    eta,
+                    k,
+                    specular_reflectance: base,
+                }
+            }
+        } else {
+            Material::Diffuse { reflectance: base }
+        };
+        let material = if m.double_sided() {
+            Material::TwoSided(Box::new(material))
+        } else {
+            material
+        };
+        let e = Rgb::from(m.emissive_factor());
+        let emission = (e.max_element() > 0.0).then_some(e);
+        if emission.is_some() {
+            warn(
+                &mut scene,
+                format!(
+                    "material `{}`: glTF emission is unitless; read as radiance {e:?} W/(m²·sr)",
+                    name_of(&m)
+                ),
+            );
+        }
+        mats.push((scene.add_material(material), emission));
+    }
+    let mut default_mat = None;
+
+    // Walk the node tree of the default scene
+    let gscene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .ok_or_else(|| err("glTF file has no scene".into()))?;
+    let mut stack: Vec<(gltf::Node, Mat4)> = gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    let mut visited = 0usize;
+    let mut camera_seen = false;
+    while let Some((node, parent)) = stack.pop() {
+        visited += 1;
+        if visited > MAX_NODES {
+            return Err(err("glTF node graph too large or cyclic".into()));
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        if let Some(mesh) = node.mesh() {
+            for (k, prim) in mesh.primitives().enumerate() {
+                if prim.mode() != gltf::mesh::Mode::Triangles {
+                    warn(
+                        &mut scene,
+                        format!(
+                            "mesh `{}`: non-triangle primitive skipped",
+                            mesh.name().unwrap_or("?")
+                        ),
+                    );
+                    continue;
+                }
+                let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+                let Some(positions) = reader.read_positions() else {
+                    continue;
+                };
+                let positions: Vec<Vec3> = positions.map(Vec3::from).collect();
+                let n = positions.len();
+                let normals: Option<Vec<Vec3>> = reader
+                    .read_normals()
+                    .map(|it| it.map(Vec3::from).collect::<Vec<_>>())
+                    .filter(|v| v.len() == n);
+                let uvs: Option<Vec<Vec2>> = reader
+                    .read_tex_coords(0)
+                    .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
+                    .filter(|v| v.len() == n);
+                let flat: Vec<u32> = match reader.read_indices() {
+                    Some(ix) => ix.into_u32().collect(),
+                    None => (0..n as u32).collect(),
+                };
+                let indices = flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+                let mut m = MeshData {
+                    positions,
+                    normals,
+                    uvs,
+                    indices,
+                };
+                m.transform(&world);
+                if Mat3::from_mat4(world).determinant() < 0.0 {
+                    m.reverse_winding();
+                }
+                let (material, emission) = match prim.material().index().and_then(|i| mats.get(i)) {
+                    Some(&(mat, e)) => (mat, e),
+                    None => {
+                        let d = *default_mat.get_or_insert_with(|| {
+                            scene.add_material(Material::Diffuse {
+                                reflectance: Texture::Constant(Rgb::ONE),
+                            })
+                        });
+                        (d, None)
+                    }
+                };
+                let name = format!("{}.{k}", node.name().or(mesh.name()).unwrap_or("mesh"));
+                scene.add_mesh(
+                    name,
+                    &m.positions,
+                    m.normals.as_deref(),
+                    m.uvs.as_deref(),
+                    &m.indices,
+                    material,
+                    emission,
+                );
+            }
+        }
+        if let (Some(cam), false) = (node.camera(), camera_seen) {
+            if let gltf::camera::Projection::Perspective(p) = cam.projection() {
+                let aspect = p.aspect_ratio().filter(|a| *a > 0.0).unwrap_or(1.0);
+                let height = 512u32;
+                let width = ((height as f32 * aspect).round() as u32).clamp(1, 1 << 16);
+                let to_world = world * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+                if let Some(mut c) =
+                    CameraDesc::from_fov(to_world, p.yfov().to_degrees(), "y", width, height)
+                {
+                    c.near_clip = p.znear().max(1e-6);
+                    scene.camera = c;
+                    camera_seen = true;
+                }
+            }
+        }
+        for c in node.children() {
+            stack.push((c, world));
+        }
+    }
+    if scene.triangles.is_empty() {
+        return Err(err("glTF file has no triangles".into()));
+    }
+    if !camera_seen {
+        super::obj::synthesise_camera(&mut scene, path);
+    }
+    Ok(scene)
+}
+
+fn name_of(m: &gltf::Material) -> String {
+    m.name().unwrap_or("(unnamed)").to_string()
+}
+
+/// A decoded glTF image as linear RGB: 8- and 16-bit data are sRGB-encoded
+/// (base colour textures are, by the specification), float data linear.
+fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
+    use gltf::image::Format as F;
+    let (channels, bytes, float) = match d.format {
+        F::R8 => (1, 1, false),
+        F::R8G8 => (2, 1, false),
+        F::R8G8B8 => (3, 1, false),
+        F::R8G8B8A8 => (4, 1, false),
+        F::R16 => (1, 2, false),
+        F::R16G16 => (2, 2, false),
+        F::R16G16B16 => (3, 2, false),
+        F::R16G16B16A16 => (4, 2, false),
+        F::R32G32B32FLOAT => (3, 4, true),
+        F::R32G32B32A32FLOAT => (4, 4, true),
+    };
+    let px = channels * bytes;
+    let count = (d.width as usize).checked_mul(d.height as usize)?;
+    if d.pixels.len() < count.checked_mul(px)? || count == 0 {
+        return None;
+    }
+    let read = |b: &[u8]| -> f32 {
+        match (bytes, float) {
+            (1, _) => b[0] as f32 / 255.0,
+            (2, _) => u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0,
+            _ => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        }
+    };
+    let decode = |c: f32| {
+        if float {
+            c
+        } else if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let data = d.pixels[..count * px]
+        .chunks_exact(px)
+        .map(|p| {
+            let ch = |i: usize| decode(read(&p[i * bytes..(i + 1) * bytes]));
+            match channels {
+                1 => Rgb::splat(ch(0)),
+                2 => Rgb::new(ch(0), ch(1), 0.0),
+                _ => Rgb::new(ch(0), ch(1), ch(2)),
+            }
+        })
+        .collect();
+    Some(TexImage {
+        width: d.width,
+        height: d.height,
+        data,
+    })
+}
