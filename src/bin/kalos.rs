@@ -45,6 +45,12 @@ enum Command {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum OnOff {
+    On,
+    Off,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum TonemapArg {
     Clamp,
     Reinhard,
@@ -88,6 +94,10 @@ struct RenderArgs {
     /// Iteration variants: steps discarded at the start of each chain.
     #[arg(long, default_value_t = 0)]
     discard: u64,
+    /// Light-based methods: the camera pass for delta surfaces seen by the
+    /// camera (on), or the raw method (off).
+    #[arg(long, value_enum, default_value = "on")]
+    camera_pass: OnOff,
     /// Reference image, for the convergence log and the final error.
     #[arg(long = "ref")]
     reference: Option<PathBuf>,
@@ -270,6 +280,7 @@ fn render(a: RenderArgs) -> Result<()> {
         max_depth: a.max_depth,
         variant: a.variant.clone(),
         discard: a.discard,
+        camera_pass: matches!(a.camera_pass, OnOff::On),
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {

@@ -21,9 +21,12 @@
 //!   drops the first K steps of each chain (the power-defect correction after
 //!   eq. (18)).
 //!
-//! Limit: a delta surface (mirror, smooth glass) seen directly by the camera
-//! cannot be reached by a camera connection, so with the raw method it stays
-//! black, as in other light tracers; caustics on diffuse surfaces do appear.
+//! Limit of the raw method: a delta surface (mirror, smooth glass) seen
+//! directly by the camera cannot be reached by a camera connection, so it
+//! stays black, as in other light tracers (caustics on diffuse surfaces do
+//! appear). By default the camera pass ([`super::camera_pass`]) estimates
+//! exactly that part of path space from the camera; `--camera-pass off`
+//! shows the raw method.
 //!
 //! Parallelism: a fixed number of lanes, each with its own film and random
 //! stream keyed by (seed, pass, lane); lanes are merged in order, so a seed
@@ -36,6 +39,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::camera_pass::CameraPass;
 use super::{Method, MethodError, Options, StepStats, World};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
@@ -69,6 +73,9 @@ pub struct Settings {
     pub paths_per_pass: u64,
     /// Iteration variant: steps dropped at the start of each chain.
     pub discard: u64,
+    /// Estimate what light paths cannot reach (delta surfaces seen by the
+    /// camera, the environment) from the camera ([`super::camera_pass`]).
+    pub camera_pass: bool,
 }
 
 impl Settings {
@@ -90,6 +97,7 @@ impl Settings {
             lanes: 8,
             paths_per_pass: 0,
             discard: o.discard,
+            camera_pass: o.camera_pass,
         })
     }
 }
@@ -125,6 +133,7 @@ pub struct LightTracer {
     /// Walks traced (walk variant).
     walks: u64,
     pixels: u64,
+    camera_pass: CameraPass,
 }
 
 impl LightTracer {
@@ -133,6 +142,12 @@ impl LightTracer {
         let (w, h) = (world.camera.width, world.camera.height);
         let lanes = settings.lanes.max(1);
         LightTracer {
+            camera_pass: CameraPass::new(
+                world,
+                settings.camera_pass,
+                settings.seed,
+                settings.max_depth,
+            ),
             films: (0..lanes).map(|_| Film::new(w, h)).collect(),
             chains: vec![Chain::default(); lanes],
             settings,
@@ -178,7 +193,10 @@ impl Method for LightTracer {
             })
             .sum();
         self.walks += n;
-        StepStats { rays }
+        let camera_rays = self.camera_pass.step(world, pass);
+        StepStats {
+            rays: rays + camera_rays,
+        }
     }
 
     fn image(&self, world: &World) -> Image {
@@ -190,7 +208,9 @@ impl Method for LightTracer {
             Variant::Walk => self.walks,
             Variant::Iteration => self.chains.iter().map(|c| c.counted).sum(),
         };
-        total.to_image(if n == 0 { 0.0 } else { 1.0 / n as f64 })
+        let mut img = total.to_image(if n == 0 { 0.0 } else { 1.0 / n as f64 });
+        self.camera_pass.add_to(&mut img);
+        img
     }
 
     fn spp(&self) -> f64 {

@@ -6,6 +6,7 @@
 //! `light`...) and reports the rays it traced; [`Method::image`] is the
 //! current estimate. Methods never print and never touch files.
 
+pub mod camera_pass;
 pub mod light;
 pub mod path;
 
@@ -78,6 +79,9 @@ pub struct Options {
     /// Light tracing / iteration: number of first passes to discard (the
     /// power-defect correction after eq. (18) of the 1999 paper).
     pub discard: u64,
+    /// Light-based methods: run the camera pass for delta surfaces seen by
+    /// the camera and the environment (on by default).
+    pub camera_pass: bool,
 }
 
 impl Default for Options {
@@ -87,6 +91,7 @@ impl Default for Options {
             max_depth: None,
             variant: None,
             discard: 0,
+            camera_pass: true,
         }
     }
 }

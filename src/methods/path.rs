@@ -35,7 +35,8 @@ impl Settings {
         Ok(Settings {
             seed: o.seed,
             max_depth: o.max_depth,
-            rr_depth: 3,
+            // Mitsuba's default, so that noise compares like for like
+            rr_depth: 5,
         })
     }
 }
@@ -113,8 +114,22 @@ impl Method for PathTracer {
     }
 }
 
-/// Radiance arriving along `ray` and the number of rays traced for it.
-pub fn radiance(world: &World, settings: &Settings, mut ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
+/// Radiance arriving along a primary `ray` and the number of rays traced for it.
+pub fn radiance(world: &World, settings: &Settings, ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
+    radiance_from(world, settings, ray, rng, 1)
+}
+
+/// Radiance arriving along `ray`, which is the `depth`-th segment of a camera
+/// path whose previous scattering (if any) was a delta lobe, so that emission
+/// found by `ray` takes full weight. Used for primary rays (`depth` 1) and by
+/// the camera pass after a delta chain.
+pub fn radiance_from(
+    world: &World,
+    settings: &Settings,
+    mut ray: Ray,
+    rng: &mut Pcg32,
+    depth: u32,
+) -> (Rgb, u64) {
     let (scene, accel, lights) = (&world.scene, &world.accel, &world.lights);
     let max_depth = settings.max_depth.unwrap_or(u32::MAX);
     let mut l = Rgb::ZERO;
@@ -125,7 +140,7 @@ pub fn radiance(world: &World, settings: &Settings, mut ray: Ray, rng: &mut Pcg3
     let mut specular = true;
     let mut prev_p = ray.o;
     let mut eta_scale = 1.0f32;
-    let mut depth = 1u32;
+    let mut depth = depth;
     loop {
         rays += 1;
         let Some(hit) = accel.intersect(&ray) else {
@@ -170,7 +185,7 @@ pub fn radiance(world: &World, settings: &Settings, mut ray: Ray, rng: &mut Pcg3
         let wo = frame.to_local(wo_world);
 
         // Next-event estimation with MIS
-        if bsdf.has_smooth() && depth + 1 <= max_depth {
+        if bsdf.has_smooth() && depth < max_depth {
             let u_sel = rng.next_f32();
             let u_l = rng.next_2d();
             if let Some(ls) = lights.sample_li(scene, sp.p, u_sel, u_l) {

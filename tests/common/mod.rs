@@ -65,13 +65,23 @@ pub fn furnace(a: f32, le: f32, res: u32) -> Scene {
 
 /// Renders `scene` with `method` for `passes` passes.
 pub fn render(scene: &Scene, method: &str, opts: &Options, passes: u64) -> (Image, u64) {
-    let world = World::new(scene.clone());
-    let mut m = methods::create(method, &world, opts).expect("method");
-    let driver = Driver {
-        budget: Budget {
+    render_budget(
+        scene,
+        method,
+        opts,
+        Budget {
             passes: Some(passes),
             ..Default::default()
         },
+    )
+}
+
+/// Renders `scene` with `method` until `budget` is spent.
+pub fn render_budget(scene: &Scene, method: &str, opts: &Options, budget: Budget) -> (Image, u64) {
+    let world = World::new(scene.clone());
+    let mut m = methods::create(method, &world, opts).expect("method");
+    let driver = Driver {
+        budget,
         cancel: None,
         reference: None,
         log_every: 0.0,
@@ -89,4 +99,68 @@ pub fn mean_and_se(img: &Image, ch: usize) -> (f64, f64) {
     let mean = v.iter().sum::<f64>() / n;
     let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
     (mean, (var / n).sqrt())
+}
+
+/// Block means of an estimate made of two independent renders, and the
+/// variance of each block mean: per pixel, var((x₁+x₂)/2) is estimated by
+/// (x₁−x₂)²/4 (E[(x₁−x₂)²] = 2σ²), and a block mean's variance is the sum
+/// over its pixels divided by n². Blocks are `b`×`b` pixels; pixels where
+/// `keep` is false are left out, and blocks with fewer than b²/2 kept pixels
+/// are dropped (None).
+pub fn block_stats(
+    x1: &Image,
+    x2: &Image,
+    b: u32,
+    keep: &dyn Fn(u32, u32) -> bool,
+) -> Vec<Option<([f64; 3], [f64; 3])>> {
+    let (bw, bh) = (x1.width / b, x1.height / b);
+    let mut out = Vec::new();
+    for by in 0..bh {
+        for bx in 0..bw {
+            let mut sum = [0.0; 3];
+            let mut var = [0.0; 3];
+            let mut n = 0.0;
+            for y in by * b..(by + 1) * b {
+                for x in bx * b..(bx + 1) * b {
+                    if !keep(x, y) {
+                        continue;
+                    }
+                    let (p, q) = (x1.get(x, y), x2.get(x, y));
+                    for c in 0..3 {
+                        sum[c] += (p[c] + q[c]) as f64 / 2.0;
+                        var[c] += ((p[c] - q[c]) as f64).powi(2) / 4.0;
+                    }
+                    n += 1.0;
+                }
+            }
+            if n < (b * b) as f64 / 2.0 {
+                out.push(None);
+            } else {
+                out.push(Some((sum.map(|s| s / n), var.map(|v| v / (n * n)))));
+            }
+        }
+    }
+    out
+}
+
+/// The largest |z| over blocks and channels between two block statistics,
+/// z = (m_a − m_b) / √(var_a + var_b + floor²), where `floor` is a small
+/// absolute allowance for blocks whose both estimates are (near) noise-free.
+pub fn max_block_z(
+    a: &[Option<([f64; 3], [f64; 3])>],
+    b: &[Option<([f64; 3], [f64; 3])>],
+    floor: f64,
+) -> (f64, usize) {
+    let mut worst = (0.0f64, 0usize);
+    for (i, (p, q)) in a.iter().zip(b).enumerate() {
+        if let (Some((ma, va)), Some((mb, vb))) = (p, q) {
+            for c in 0..3 {
+                let z = (ma[c] - mb[c]).abs() / (va[c] + vb[c] + floor * floor).sqrt();
+                if z > worst.0 {
+                    worst = (z, i);
+                }
+            }
+        }
+    }
+    worst
 }

@@ -1,0 +1,211 @@
+//! The camera pass of the light-based methods (`light`, `plb`): the part of
+//! path space that light paths cannot reach.
+//!
+//! A light-path vertex reaches the camera by an explicit connection, which
+//! evaluates the BSDF at the first camera vertex x₁; a delta lobe evaluates
+//! to zero there, so every path whose first camera vertex scatters through a
+//! delta lobe (mirror, smooth conductor, smooth glass, thin glass, the coat
+//! of smooth plastic) has zero probability in the light-based estimator, and
+//! so has the environment seen directly. The path space is therefore
+//! partitioned by the lobe used at x₁:
+//!
+//! - non-delta lobe at x₁ (and emission at x₁): the light-based method, as
+//!   before: its connection evaluates exactly the non-delta part of the BSDF;
+//! - delta lobe at x₁, or no x₁ (the primary ray escapes to the
+//!   environment): this camera pass. It samples the BSDF at x₁ and keeps
+//!   only delta samples (a non-delta sample contributes nothing here: that
+//!   part belongs to the light-based method), follows the ray onward with the
+//!   path tracer's estimator (delta chains, then next-event estimation with
+//!   MIS and further bounces), [`super::path::radiance_from`].
+//!
+//! The two parts are disjoint and cover everything, so nothing is counted
+//! twice: the light-based method never splats a path whose x₁ scatters
+//! through a delta lobe (its connection weight is zero there), and the camera
+//! pass drops every path whose x₁ scatters through a non-delta lobe and never
+//! adds emission at x₁.
+//!
+//! Budget. Scenes with neither delta lobes nor an environment need no camera
+//! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass of
+//! 4×4 stratified primary rays per pixel marks the pixels whose first hit has
+//! a delta lobe or that see the environment; marked pixels get one camera
+//! sample per pass, and the others, so that a sliver the pre-pass missed
+//! still converges, one with probability 1/16 (weighted by 16). The effort
+//! thus follows the fraction of pixels whose first hit is delta, as the
+//! light-based method gives about one light path per pixel per pass.
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::path::{orient, radiance_from, Settings as PathSettings};
+use super::World;
+use crate::bsdf::Mode;
+use crate::film::Image;
+use crate::geometry::{offset_point, Ray};
+use crate::sampling::Pcg32;
+use crate::scene::Rgb;
+
+/// Probability with which an unmarked pixel is sampled in a pass.
+const UNMARKED_PROB: f32 = 1.0 / 16.0;
+
+/// The camera pass's state: the pixel mask and the per-pixel sums.
+pub struct CameraPass {
+    active: bool,
+    marked: Vec<bool>,
+    sum: Vec<DVec3>,
+    passes: u64,
+    settings: PathSettings,
+}
+
+impl CameraPass {
+    /// Prepares the camera pass; `enabled = false` (`--camera-pass off`)
+    /// gives the raw light-based method.
+    pub fn new(world: &World, enabled: bool, seed: u64, max_depth: Option<u32>) -> Self {
+        let (w, h) = (world.camera.width as usize, world.camera.height as usize);
+        let needed = world.lights.env.is_some()
+            || world
+                .scene
+                .materials
+                .iter()
+                .any(|m| m.bsdf(glam::Vec2::ZERO).has_delta());
+        let active = enabled && needed;
+        let marked = if active {
+            (0..w * h)
+                .into_par_iter()
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    (0..16).any(|k| {
+                        let (sx, sy) = ((k % 4) as f32 + 0.5, (k / 4) as f32 + 0.5);
+                        let ray = world.camera.ray(x + sx / 4.0, y + sy / 4.0);
+                        match world.accel.intersect(&ray) {
+                            None => world.lights.env.is_some(),
+                            Some(hit) => {
+                                let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+                                world.scene.material_of(&sp).bsdf(sp.uv).has_delta()
+                            }
+                        }
+                    })
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        CameraPass {
+            active,
+            marked,
+            sum: if active {
+                vec![DVec3::ZERO; w * h]
+            } else {
+                Vec::new()
+            },
+            passes: 0,
+            settings: PathSettings {
+                seed,
+                max_depth,
+                rr_depth: 3,
+            },
+        }
+    }
+
+    /// True when this scene and setting use a camera pass.
+    pub fn is_active(&self) -> bool {
+        self.active
+    }
+
+    /// Fraction of pixels marked as seeing a delta surface or the environment.
+    pub fn marked_fraction(&self) -> f64 {
+        if self.marked.is_empty() {
+            0.0
+        } else {
+            self.marked.iter().filter(|&&m| m).count() as f64 / self.marked.len() as f64
+        }
+    }
+
+    /// One pass; returns the rays traced.
+    pub fn step(&mut self, world: &World, pass: u64) -> u64 {
+        if !self.active {
+            return 0;
+        }
+        self.passes += 1;
+        let w = world.camera.width as usize;
+        let settings = &self.settings;
+        let marked = &self.marked;
+        self.sum
+            .par_chunks_mut(w)
+            .enumerate()
+            .map(|(y, row)| {
+                let mut rays = 0;
+                for (x, acc) in row.iter_mut().enumerate() {
+                    let i = y * w + x;
+                    let mut rng = Pcg32::keyed(&[settings.seed, pass, i as u64, 0xCA]);
+                    let weight = if marked[i] {
+                        1.0
+                    } else if rng.next_f32() < UNMARKED_PROB {
+                        1.0 / UNMARKED_PROB
+                    } else {
+                        continue;
+                    };
+                    let (l, r) = sample_pixel(world, settings, x, y, &mut rng);
+                    rays += r;
+                    let v = l * weight;
+                    if v.is_finite() {
+                        *acc += v.as_dvec3();
+                    }
+                }
+                rays
+            })
+            .sum()
+    }
+
+    /// Adds the camera pass's estimate to `img`.
+    pub fn add_to(&self, img: &mut Image) {
+        if !self.active || self.passes == 0 {
+            return;
+        }
+        let scale = 1.0 / self.passes as f64;
+        for (p, s) in img.data.iter_mut().zip(&self.sum) {
+            *p += (*s * scale).as_vec3();
+        }
+    }
+}
+
+/// The camera-pass estimate for one sample of pixel (x, y): the environment
+/// seen directly, or what arrives through a delta lobe at the first hit.
+fn sample_pixel(
+    world: &World,
+    settings: &PathSettings,
+    x: usize,
+    y: usize,
+    rng: &mut Pcg32,
+) -> (Rgb, u64) {
+    let j = rng.next_2d();
+    let ray = world.camera.ray(x as f32 + j.x, y as f32 + j.y);
+    let Some(hit) = world.accel.intersect(&ray) else {
+        return (world.lights.le_env(ray.d), 1);
+    };
+    let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+    let material = world.scene.material_of(&sp);
+    let bsdf = material.bsdf(sp.uv);
+    if !bsdf.has_delta() {
+        return (Rgb::ZERO, 1);
+    }
+    let wo_world = -ray.d;
+    let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+    let wo = frame.to_local(wo_world);
+    let uc = rng.next_f32();
+    let u = rng.next_2d();
+    // Keep only delta lobes: the non-delta part belongs to the light method
+    let Some(s) = bsdf.sample(wo, uc, u, Mode::Radiance) else {
+        return (Rgb::ZERO, 1);
+    };
+    if !s.delta || s.pdf <= 0.0 {
+        return (Rgb::ZERO, 1);
+    }
+    let wi = frame.to_world(s.wi);
+    if wi.dot(ng) * s.wi.z <= 0.0 {
+        return (Rgb::ZERO, 1);
+    }
+    let beta = s.f * (s.wi.z.abs() / s.pdf);
+    let next = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
+    let (l, r) = radiance_from(world, settings, next, rng, 2);
+    (beta * l, 1 + r)
+}
