@@ -10,6 +10,7 @@ use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray as ORay, RayHit};
+use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
@@ -33,8 +34,9 @@ pub struct Hit {
 pub struct Accel {
     bvh: CwBvh,
     /// Triangles in BVH leaf order (duplicated where spatial splits put one
-    /// triangle in several leaves), so that traversal reads them in sequence.
-    tris: Vec<Triangle>,
+    /// triangle in several leaves), so that traversal reads them in sequence;
+    /// stored with precomputed edges and normal for the intersection test.
+    tris: Vec<RtTriangle>,
     /// Scene triangle index of each entry of `tris`.
     ids: Vec<u32>,
 }
@@ -55,7 +57,7 @@ impl Accel {
         if tris.is_empty() {
             return Accel {
                 bvh: CwBvh::default(),
-                tris,
+                tris: Vec::new(),
                 ids: Vec::new(),
             };
         }
@@ -65,7 +67,10 @@ impl Accel {
             &mut Duration::default(),
         );
         let ids: Vec<u32> = bvh.primitive_indices.clone();
-        let ordered = ids.iter().map(|&i| tris[i as usize]).collect();
+        let ordered = ids
+            .iter()
+            .map(|&i| RtTriangle::from(&tris[i as usize]))
+            .collect();
         Accel {
             bvh,
             tris: ordered,
@@ -134,10 +139,11 @@ impl Accel {
 /// into the triangle. obvhs's own helper divides by a normalised normal, so
 /// its weights are scaled by twice the triangle's area; we compute our own.
 #[inline]
-fn barycentric(tri: &Triangle, o: Vec3, d: Vec3) -> (f32, f32) {
-    let (v0, v1, v2) = (Vec3::from(tri.v0), Vec3::from(tri.v1), Vec3::from(tri.v2));
-    let e1 = v1 - v0;
-    let e2 = v2 - v0;
+fn barycentric(tri: &RtTriangle, o: Vec3, d: Vec3) -> (f32, f32) {
+    // RtTriangle keeps e1 = v0 − v1 and e2 = v2 − v0
+    let v0 = Vec3::from(tri.v0);
+    let e1 = -Vec3::from(tri.e1);
+    let e2 = Vec3::from(tri.e2);
     let pvec = d.cross(e2);
     let det = e1.dot(pvec);
     if det == 0.0 {
