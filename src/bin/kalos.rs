@@ -88,6 +88,24 @@ struct RenderArgs {
     /// Iteration variants: steps discarded at the start of each chain.
     #[arg(long, default_value_t = 0)]
     discard: u64,
+    /// bundle: target number of patches.
+    #[arg(long)]
+    patches: Option<usize>,
+    /// bundle: target patch edge length in scene units (overrides --patches).
+    #[arg(long)]
+    patch_edge: Option<f32>,
+    /// bundle: global directions (random, halton, hammersley, frac).
+    #[arg(long)]
+    sequence: Option<String>,
+    /// bundle: visibility-map resolution.
+    #[arg(long)]
+    map_res: Option<u32>,
+    /// bundle: image estimate (phong, gouraud).
+    #[arg(long)]
+    bundle_image: Option<String>,
+    /// bundle: visibility algorithm (painter, zbuffer).
+    #[arg(long)]
+    visibility: Option<String>,
     /// Reference image, for the convergence log and the final error.
     #[arg(long = "ref")]
     reference: Option<PathBuf>,
@@ -270,6 +288,12 @@ fn render(a: RenderArgs) -> Result<()> {
         max_depth: a.max_depth,
         variant: a.variant.clone(),
         discard: a.discard,
+        patches: a.patches,
+        patch_edge: a.patch_edge,
+        sequence: a.sequence.clone(),
+        map_res: a.map_res,
+        bundle_image: a.bundle_image.clone(),
+        visibility: a.visibility.clone(),
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {
@@ -353,6 +377,9 @@ fn render(a: RenderArgs) -> Result<()> {
         line += " (interrupted: saved what was rendered)";
     }
     println!("{line}");
+    if let Some(r) = method.report() {
+        println!("{r}");
+    }
     Ok(())
 }
 
