@@ -89,7 +89,12 @@ impl View {
                 let j = rng.next_2d();
                 let fx = ((s % 2) as f32 + j.x) * 0.5;
                 let fy = ((s / 2 % 2) as f32 + j.y) * 0.5;
-                trace(world, patches, world.camera.ray(x as f32 + fx, y as f32 + fy), &mut rng)
+                trace(
+                    world,
+                    patches,
+                    world.camera.ray(x as f32 + fx, y as f32 + fy),
+                    &mut rng,
+                )
             })
             .collect();
         let rays = results.iter().map(|r| r.1).sum();
