@@ -42,6 +42,16 @@ enum Command {
     Plot(PlotArgs),
     /// Measure the ray core's throughput (Mrays/s), one thread and all.
     Bench(BenchArgs),
+    /// Write a generated scene (sphereflake, teapot-room, terrain) as
+    /// Mitsuba XML plus OBJ meshes.
+    Gen {
+        /// Scene name.
+        #[arg(value_parser = clap::builder::PossibleValuesParser::new(scene::gen::SCENES))]
+        name: String,
+        /// Output directory.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -229,6 +239,9 @@ fn main() {
         Command::Info { scene } => info(scene.as_deref()),
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench(a),
+        Command::Gen { name, output } => scene::gen::generate(&name, &output)
+            .map(|p| println!("wrote {}", p.display()))
+            .with_context(|| format!("writing {}", output.display())),
     };
     if let Err(e) = r {
         eprintln!("error: {e:#}");
