@@ -269,7 +269,7 @@ impl Method for Bundle {
         if self.iter == 0 {
             // ω_1 and L[i] = L_i^e(±ω_1)
             rays += self.view.rays;
-            self.d = self.dirs.next();
+            self.d = self.dirs.next_dir();
             let d = self.d;
             self.l_plus = self.patches.p.par_iter().map(|p| p.le(d)).collect();
             self.l_minus = self.patches.p.par_iter().map(|p| p.le(-d)).collect();
@@ -316,7 +316,7 @@ impl Method for Bundle {
 
         // New direction ω_{m+1}; reflect what arrived into ±ω_{m+1}
         let t = Instant::now();
-        let dn = self.dirs.next();
+        let dn = self.dirs.next_dir();
         let (lp, lm): (Vec<Rgb>, Vec<Rgb>) = self
             .patches
             .p

@@ -61,7 +61,7 @@ pub fn radical_inverse(mut i: u64, b: u64) -> f64 {
     r
 }
 
-/// A generator of directions; `next` must be called in order (the `frac`
+/// A generator of directions; `next_dir` must be called in order (the `frac`
 /// recurrence has state), `direction(m)` is the m-th (0-based) direction.
 #[derive(Clone, Debug)]
 pub struct Directions {
@@ -113,7 +113,7 @@ impl Directions {
     }
 
     /// The next direction, uniform on the sphere.
-    pub fn next(&mut self) -> Vec3 {
+    pub fn next_dir(&mut self) -> Vec3 {
         let m = self.made;
         let u = self.point(m);
         self.made += 1;
