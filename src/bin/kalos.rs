@@ -42,6 +42,16 @@ enum Command {
     Plot(PlotArgs),
     /// Measure the ray core's throughput (Mrays/s), one thread and all.
     Bench(BenchArgs),
+    /// Write a generated scene (sphereflake, teapot-room, terrain) as
+    /// Mitsuba XML plus OBJ meshes.
+    Gen {
+        /// Scene name.
+        #[arg(value_parser = clap::builder::PossibleValuesParser::new(scene::gen::SCENES))]
+        name: String,
+        /// Output directory.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -98,6 +108,24 @@ struct RenderArgs {
     /// camera (on), or the raw method (off).
     #[arg(long, value_enum, default_value = "on")]
     camera_pass: OnOff,
+    /// bundle: target number of patches.
+    #[arg(long)]
+    patches: Option<usize>,
+    /// bundle: target patch edge length in scene units (overrides --patches).
+    #[arg(long)]
+    patch_edge: Option<f32>,
+    /// bundle: global directions (random, halton, hammersley, frac).
+    #[arg(long)]
+    sequence: Option<String>,
+    /// bundle: visibility-map resolution.
+    #[arg(long)]
+    map_res: Option<u32>,
+    /// bundle: image estimate (phong, gouraud).
+    #[arg(long)]
+    bundle_image: Option<String>,
+    /// bundle: visibility algorithm (painter, zbuffer).
+    #[arg(long)]
+    visibility: Option<String>,
     /// Reference image, for the convergence log and the final error.
     #[arg(long = "ref")]
     reference: Option<PathBuf>,
@@ -221,6 +249,9 @@ fn main() {
         Command::Info { scene } => info(scene.as_deref()),
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench(a),
+        Command::Gen { name, output } => scene::gen::generate(&name, &output)
+            .map(|p| println!("wrote {}", p.display()))
+            .with_context(|| format!("writing {}", output.display())),
     };
     if let Err(e) = r {
         eprintln!("error: {e:#}");
@@ -281,6 +312,12 @@ fn render(a: RenderArgs) -> Result<()> {
         variant: a.variant.clone(),
         discard: a.discard,
         camera_pass: matches!(a.camera_pass, OnOff::On),
+        patches: a.patches,
+        patch_edge: a.patch_edge,
+        sequence: a.sequence.clone(),
+        map_res: a.map_res,
+        bundle_image: a.bundle_image.clone(),
+        visibility: a.visibility.clone(),
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {
@@ -364,6 +401,9 @@ fn render(a: RenderArgs) -> Result<()> {
         line += " (interrupted: saved what was rendered)";
     }
     println!("{line}");
+    if let Some(r) = method.report() {
+        println!("{r}");
+    }
     Ok(())
 }
 

@@ -7,6 +7,7 @@
 //! current estimate. Methods never print and never touch files.
 
 pub mod camera_pass;
+pub mod bundle;
 pub mod light;
 pub mod path;
 
@@ -65,6 +66,11 @@ pub trait Method: Send {
     /// Work done so far, in samples per pixel or the method's equivalent
     /// (light paths per pixel for the light-based methods).
     fn spp(&self) -> f64;
+    /// A one-line summary of method-specific statistics (phase timings,
+    /// memory), printed by the CLI after a render.
+    fn report(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Settings shared by the methods; each method reads what it needs.
@@ -82,6 +88,18 @@ pub struct Options {
     /// Light-based methods: run the camera pass for delta surfaces seen by
     /// the camera and the environment (on by default).
     pub camera_pass: bool,
+    /// `bundle`: target number of patches.
+    pub patches: Option<usize>,
+    /// `bundle`: target patch edge length (overrides `patches`).
+    pub patch_edge: Option<f32>,
+    /// `bundle`: sequence of global directions (random, halton, hammersley, frac).
+    pub sequence: Option<String>,
+    /// `bundle`: visibility-map resolution.
+    pub map_res: Option<u32>,
+    /// `bundle`: image estimate (phong, gouraud).
+    pub bundle_image: Option<String>,
+    /// `bundle`: visibility algorithm (painter, zbuffer).
+    pub visibility: Option<String>,
 }
 
 impl Default for Options {
@@ -92,6 +110,12 @@ impl Default for Options {
             variant: None,
             discard: 0,
             camera_pass: true,
+            patches: None,
+            patch_edge: None,
+            sequence: None,
+            map_res: None,
+            bundle_image: None,
+            visibility: None,
         }
     }
 }
@@ -102,7 +126,7 @@ impl Default for Options {
 pub struct MethodError(pub String);
 
 /// The names of the methods, in the order `--help` shows them.
-pub const METHODS: &[&str] = &["path", "light"];
+pub const METHODS: &[&str] = &["path", "light", "bundle"];
 
 /// The method table: name → constructor (Tungsten's integrator factory).
 pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
@@ -114,6 +138,10 @@ pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Metho
         "light" => Ok(Box::new(light::LightTracer::new(
             world,
             light::Settings::from_options(opts)?,
+        ))),
+        "bundle" => Ok(Box::new(bundle::Bundle::new(
+            world,
+            bundle::Settings::from_options(opts)?,
         ))),
         other => Err(MethodError(format!(
             "unknown method '{other}'; known methods: {}",

@@ -1,0 +1,258 @@
+//! The image estimate of §5, both kinds, from the incoming radiance of one
+//! sweep (the field that arrived from ±ω_m):
+//!
+//! - **Phong**: per pixel, the visible point's own normal, view direction and
+//!   BRDF reflect the incoming radiance: L = Le + 2π Σ_± f(±ω_m → wo) E_±/A.
+//!   The visible point, normal and direction are found once, in a
+//!   preprocessing pass, and stored ("stored in a map", §5). Glossy
+//!   highlights follow the per-pixel BRDF.
+//! - **Gouraud**: the BRDF is evaluated once per patch toward the eye
+//!   (L^eye[i] of §5), the values are averaged onto the shared vertices
+//!   (area-weighted) and interpolated over each patch.
+//!
+//! Both take emission at the visible point exactly. Delta surfaces seen by
+//! the camera (mirrors, glass) are followed in the preprocessing pass with
+//! one sampled chain per pixel sample, so a mirror shows a sharp reflection
+//! of the patch radiance field.
+//!
+//! Each pixel keeps [`SAMPLES`] stratified sub-pixel positions; iteration m
+//! uses position m mod [`SAMPLES`], so averaging over iterations also
+//! anti-aliases.
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::patches::Patches;
+use super::transfer;
+use crate::bsdf::Mode;
+use crate::geometry::{offset_point, Ray};
+use crate::methods::path::orient;
+use crate::methods::World;
+use crate::sampling::Pcg32;
+use crate::scene::Rgb;
+
+/// Sub-pixel positions per pixel.
+pub const SAMPLES: usize = 4;
+const NO_PATCH: u32 = u32::MAX;
+/// Longest chain of delta bounces followed from the camera.
+const MAX_DELTA: u32 = 8;
+
+/// Which image estimate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageMode {
+    /// Per-pixel BRDF (the default).
+    Phong,
+    /// Per-patch radiance interpolated over the vertices.
+    Gouraud,
+}
+
+/// What a pixel sample sees, found once.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelSample {
+    /// The patch seen (after delta bounces), or none.
+    pub patch: u32,
+    /// Barycentric weights on the patch corners.
+    pub w: Vec3,
+    /// Throughput of the delta chain.
+    pub thr: Rgb,
+    /// Emission seen along the chain (already weighted).
+    pub le: Rgb,
+    /// Direction toward the viewer at the visible point.
+    pub wo: Vec3,
+    /// Shading normal at the visible point (front side).
+    pub ns: Vec3,
+}
+
+/// The preprocessed view: [`SAMPLES`] samples per pixel, sample-major.
+pub struct View {
+    /// Samples, `SAMPLES` blocks of width × height.
+    pub samples: Vec<PixelSample>,
+    /// Area-weighted patch lists per vertex (CSR) for Gouraud.
+    vstart: Vec<u32>,
+    vpatch: Vec<u32>,
+    /// Rays traced by the preprocessing.
+    pub rays: u64,
+}
+
+impl View {
+    /// Traces the camera rays once.
+    pub fn new(world: &World, patches: &Patches, seed: u64) -> Self {
+        let (w, h) = (world.camera.width as usize, world.camera.height as usize);
+        let n = w * h;
+        let results: Vec<(PixelSample, u64)> = (0..SAMPLES * n)
+            .into_par_iter()
+            .map(|k| {
+                let (s, pix) = (k / n, k % n);
+                let (x, y) = (pix % w, pix / w);
+                let mut rng = Pcg32::keyed(&[seed, pix as u64, s as u64, 0x1A]);
+                // 2×2 strata
+                let j = rng.next_2d();
+                let fx = ((s % 2) as f32 + j.x) * 0.5;
+                let fy = ((s / 2 % 2) as f32 + j.y) * 0.5;
+                trace(
+                    world,
+                    patches,
+                    world.camera.ray(x as f32 + fx, y as f32 + fy),
+                    &mut rng,
+                )
+            })
+            .collect();
+        let rays = results.iter().map(|r| r.1).sum();
+        let samples = results.into_iter().map(|r| r.0).collect();
+        // vertex → patches
+        let mut count = vec![0u32; patches.vertex_count + 1];
+        for v in &patches.vid {
+            for &x in v {
+                count[x as usize + 1] += 1;
+            }
+        }
+        for i in 1..count.len() {
+            count[i] += count[i - 1];
+        }
+        let vstart = count.clone();
+        let mut fill = count;
+        let mut vpatch = vec![0u32; *vstart.last().unwrap_or(&0) as usize];
+        for (p, v) in patches.vid.iter().enumerate() {
+            for &x in v {
+                vpatch[fill[x as usize] as usize] = p as u32;
+                fill[x as usize] += 1;
+            }
+        }
+        View {
+            samples,
+            vstart,
+            vpatch,
+            rays,
+        }
+    }
+
+    /// Adds one estimate to `sum` (one entry per pixel), using sample block
+    /// `iter mod SAMPLES`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn accumulate(
+        &self,
+        world: &World,
+        patches: &Patches,
+        mode: ImageMode,
+        d: Vec3,
+        e_plus: &[Rgb],
+        e_minus: &[Rgb],
+        iter: u64,
+        sum: &mut [DVec3],
+    ) {
+        let n = sum.len();
+        let block = &self.samples[(iter as usize % SAMPLES) * n..][..n];
+        match mode {
+            ImageMode::Phong => {
+                sum.par_iter_mut().zip(block).for_each(|(acc, s)| {
+                    let mut l = s.le;
+                    if s.patch != NO_PATCH {
+                        let i = s.patch as usize;
+                        let p = &patches.p[i];
+                        let k = 2.0 * std::f32::consts::PI / p.area;
+                        let mut r = Rgb::ZERO;
+                        if e_plus[i] != Rgb::ZERO {
+                            r += transfer::brdf(p, s.ns, d, s.wo) * e_plus[i];
+                        }
+                        if e_minus[i] != Rgb::ZERO {
+                            r += transfer::brdf(p, s.ns, -d, s.wo) * e_minus[i];
+                        }
+                        l += s.thr * r * k;
+                    }
+                    if l.is_finite() {
+                        *acc += l.as_dvec3();
+                    }
+                });
+            }
+            ImageMode::Gouraud => {
+                // L^eye[i] of §5, reflected part only (emission is exact per pixel)
+                let eye = world.camera.position();
+                let leye: Vec<Rgb> = patches
+                    .p
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, p)| {
+                        let w = (eye - p.centroid()).normalize_or(p.ng);
+                        (transfer::reflect(p, d, e_plus[i], e_minus[i], w) - p.le(w)) * p.area
+                    })
+                    .collect();
+                let vert: Vec<Rgb> = (0..patches.vertex_count)
+                    .into_par_iter()
+                    .map(|v| {
+                        let (a, b) = (self.vstart[v] as usize, self.vstart[v + 1] as usize);
+                        let (mut s, mut wsum) = (Rgb::ZERO, 0.0f32);
+                        for &p in &self.vpatch[a..b] {
+                            s += leye[p as usize];
+                            wsum += patches.p[p as usize].area;
+                        }
+                        if wsum > 0.0 {
+                            s / wsum
+                        } else {
+                            Rgb::ZERO
+                        }
+                    })
+                    .collect();
+                sum.par_iter_mut().zip(block).for_each(|(acc, s)| {
+                    let mut l = s.le;
+                    if s.patch != NO_PATCH {
+                        let vid = patches.vid[s.patch as usize];
+                        let r = vert[vid[0] as usize] * s.w.x
+                            + vert[vid[1] as usize] * s.w.y
+                            + vert[vid[2] as usize] * s.w.z;
+                        l += s.thr * r;
+                    }
+                    if l.is_finite() {
+                        *acc += l.as_dvec3();
+                    }
+                });
+            }
+        }
+    }
+}
+
+/// Follows a camera ray through delta surfaces to the first non-delta one.
+fn trace(world: &World, patches: &Patches, mut ray: Ray, rng: &mut Pcg32) -> (PixelSample, u64) {
+    let mut out = PixelSample {
+        patch: NO_PATCH,
+        w: Vec3::ZERO,
+        thr: Rgb::ONE,
+        le: Rgb::ZERO,
+        wo: Vec3::Z,
+        ns: Vec3::Z,
+    };
+    let mut rays = 0;
+    for _ in 0..=MAX_DELTA {
+        rays += 1;
+        let Some(hit) = world.accel.intersect(&ray) else {
+            out.le += out.thr * world.lights.le_env(ray.d);
+            break;
+        };
+        let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let wo_world = -ray.d;
+        out.le += out.thr * world.lights.le_tri(hit.tri, sp.ng, wo_world);
+        let material = world.scene.material_of(&sp);
+        let bsdf = material.bsdf(sp.uv);
+        if !bsdf.is_delta() {
+            let (patch, w) = patches.locate(hit.tri, hit.b1, hit.b2);
+            out.patch = patch;
+            out.w = w;
+            out.wo = wo_world;
+            out.ns = sp.frame.n;
+            break;
+        }
+        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+        let wo = frame.to_local(wo_world);
+        let uc = rng.next_f32();
+        let u = rng.next_2d();
+        let Some(s) = bsdf.sample(wo, uc, u, Mode::Radiance) else {
+            break;
+        };
+        if s.pdf <= 0.0 {
+            break;
+        }
+        out.thr *= s.f * (s.wi.z.abs() / s.pdf);
+        let wi = frame.to_world(s.wi);
+        ray = Ray::new(offset_point(sp.p, ng, wi), wi);
+    }
+    (out, rays)
+}

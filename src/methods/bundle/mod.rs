@@ -1,0 +1,379 @@
+//! `bundle`: stochastic iteration with global ray bundles (§5 and §6 of the
+//! 1999 stochastic-iteration paper).
+//!
+//! The surfaces are cut into patches ([`patches`]), each holding one RGB
+//! radiance for the current global direction (two with the bi-directional
+//! transfer: +ω and −ω). Every iteration (one pass of the driver):
+//!
+//! 1. the radiance of all patches is transferred along ±ω_m through a
+//!    visibility map on the transillumination plane ([`visibility`]: the
+//!    painter's algorithm, or a z-buffer for comparison);
+//! 2. the received radiance is reflected toward the eye and averaged into
+//!    the image ([`image`]: Phong or Gouraud estimate);
+//! 3. a new direction ω_{m+1} is drawn ([`sequence`]) and the received
+//!    radiance is reflected into it: L_new[i] = L_i^e(ω_{m+1}) +
+//!    4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L[j] ([`transfer`]).
+//!
+//! The image converges to the exact image up to the patch and map
+//! discretisation: radiance is constant over a patch in each direction
+//! (eq. (23)), and the painter's sort by centroid can misorder overlapping
+//! patches. Memory is O(patches), independent of the BRDFs.
+//!
+//! ```text
+//! kalos render scenes/cbox/cbox.xml --method bundle --time 10 -o b.exr
+//! kalos render scene.xml --method bundle --patches 57000 --map-res 1024 \
+//!     --sequence random --bundle-image phong --visibility painter --discard 20
+//! ```
+//!
+//! Left out: glass (dielectrics absorb in the transfer; the camera sees
+//! through them, with a sampled chain, in the image estimate), and smooth
+//! plastic's coat (its diffuse base is kept).
+
+pub mod image;
+pub mod patches;
+pub mod sequence;
+pub mod transfer;
+pub mod visibility;
+
+use std::time::Instant;
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::{Method, MethodError, Options, StepStats, World};
+use crate::film::Image;
+use crate::scene::Rgb;
+use image::{ImageMode, View};
+use patches::Patches;
+use sequence::{Directions, Sequence};
+use visibility::{SweepInput, Visibility};
+
+/// Settings of the ray-bundle iteration.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// Master seed.
+    pub seed: u64,
+    /// Target number of patches (used when `edge` is None).
+    pub patches: usize,
+    /// Target patch edge length in scene units (overrides `patches`).
+    pub edge: Option<f32>,
+    /// Visibility-map resolution across the scene's bounding sphere; None
+    /// picks 8R/h (four pixels per patch edge), clamped to 1024..=4096
+    /// (below 1024 the cbox image was measurably too dark, see
+    /// BENCHMARKS-bundle.md).
+    pub map_res: Option<u32>,
+    /// The sequence of global directions.
+    pub sequence: Sequence,
+    /// Phong or Gouraud image estimate.
+    pub image: ImageMode,
+    /// Painter's algorithm or z-buffer.
+    pub visibility: Visibility,
+    /// Iterations left out of the image average (power defect, eq. (18)).
+    pub discard: u64,
+    /// Sub-pixel patches by pixel-centre roulette (true, the default) or by
+    /// single-pixel roulette (see [`visibility`]).
+    pub centre_rr: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            seed: 0,
+            patches: 5_000,
+            edge: None,
+            map_res: None,
+            sequence: Sequence::Random,
+            image: ImageMode::Phong,
+            visibility: Visibility::Painter,
+            discard: 0,
+            centre_rr: true,
+        }
+    }
+}
+
+impl Settings {
+    /// Reads the shared options.
+    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
+        let mut s = Settings {
+            seed: o.seed,
+            discard: o.discard,
+            ..Default::default()
+        };
+        if let Some(n) = o.patches {
+            if n == 0 {
+                return Err(MethodError("--patches must be at least 1".into()));
+            }
+            s.patches = n;
+        }
+        if let Some(e) = o.patch_edge {
+            if !(e.is_finite() && e > 0.0) {
+                return Err(MethodError(format!(
+                    "--patch-edge must be a positive length, got {e}"
+                )));
+            }
+            s.edge = Some(e);
+        }
+        if let Some(r) = o.map_res {
+            if !(8..=16384).contains(&r) {
+                return Err(MethodError(format!(
+                    "--map-res must be in 8..=16384, got {r}"
+                )));
+            }
+            s.map_res = Some(r);
+        }
+        if let Some(q) = &o.sequence {
+            s.sequence = Sequence::parse(q).ok_or_else(|| {
+                MethodError(format!(
+                    "unknown sequence '{q}'; expected random, halton, hammersley or frac"
+                ))
+            })?;
+        }
+        if let Some(m) = &o.bundle_image {
+            s.image = match m.as_str() {
+                "phong" => ImageMode::Phong,
+                "gouraud" => ImageMode::Gouraud,
+                _ => {
+                    return Err(MethodError(format!(
+                        "unknown --bundle-image '{m}'; expected phong or gouraud"
+                    )))
+                }
+            };
+        }
+        if let Some(v) = &o.visibility {
+            s.visibility = match v.as_str() {
+                "painter" => Visibility::Painter,
+                "painter-rr" => {
+                    s.centre_rr = false;
+                    Visibility::Painter
+                }
+                "zbuffer" => Visibility::ZBuffer,
+                _ => {
+                    return Err(MethodError(format!(
+                        "unknown --visibility '{v}'; expected painter, painter-rr or zbuffer"
+                    )))
+                }
+            };
+        }
+        Ok(s)
+    }
+}
+
+/// Seconds spent in each phase, summed over the iterations.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Timings {
+    /// Building the patches and the view (once).
+    pub setup: f64,
+    /// Sorting along ω.
+    pub sort: f64,
+    /// Projection and scan conversion.
+    pub raster: f64,
+    /// The transfer into ω_{m+1}.
+    pub transfer: f64,
+    /// The image estimate.
+    pub image: f64,
+}
+
+/// The iteration's state.
+pub struct Bundle {
+    settings: Settings,
+    patches: Patches,
+    view: View,
+    res: u32,
+    dirs: Directions,
+    /// Current direction ω_m.
+    d: Vec3,
+    /// L[i] toward +ω_m and −ω_m.
+    l_plus: Vec<Rgb>,
+    l_minus: Vec<Rgb>,
+    sum: Vec<DVec3>,
+    iter: u64,
+    counted: u64,
+    timings: Timings,
+}
+
+impl Bundle {
+    /// Tessellates the scene and precomputes the view.
+    pub fn new(world: &World, settings: Settings) -> Self {
+        let t0 = Instant::now();
+        let edge = settings
+            .edge
+            .unwrap_or_else(|| patches::edge_for_count(&world.scene, settings.patches));
+        let patches = Patches::build(&world.scene, &world.lights, edge);
+        let radius = world.lights.radius;
+        let res = settings.map_res.unwrap_or_else(|| {
+            let r = (8.0 * radius / edge.max(1e-9)).ceil();
+            (r.min(4096.0) as u32).max(1024)
+        });
+        let view = View::new(world, &patches, settings.seed);
+        let n = patches.len();
+        let npix = world.camera.width as usize * world.camera.height as usize;
+        let dirs = Directions::new(settings.sequence, settings.seed);
+        Bundle {
+            patches,
+            view,
+            res,
+            dirs,
+            d: Vec3::Z,
+            l_plus: vec![Rgb::ZERO; n],
+            l_minus: vec![Rgb::ZERO; n],
+            sum: vec![DVec3::ZERO; npix],
+            iter: 0,
+            counted: 0,
+            timings: Timings {
+                setup: t0.elapsed().as_secs_f64(),
+                ..Default::default()
+            },
+            settings,
+        }
+    }
+
+    /// The patches.
+    pub fn patches(&self) -> &Patches {
+        &self.patches
+    }
+
+    /// The visibility-map resolution in use.
+    pub fn map_res(&self) -> u32 {
+        self.res
+    }
+
+    /// Time per phase so far.
+    pub fn timings(&self) -> Timings {
+        self.timings
+    }
+
+    /// Iterations run.
+    pub fn iterations(&self) -> u64 {
+        self.iter
+    }
+
+    /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
+    /// corner ids) and of the transient per-iteration buffers per patch
+    /// (incoming radiance, band accumulators, sort keys, projections).
+    pub fn bytes_per_patch() -> (usize, usize) {
+        use std::mem::size_of;
+        let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
+        let transient = 2 * size_of::<Rgb>() * (1 + visibility::BANDS) + size_of::<u64>() + 48;
+        (state, transient)
+    }
+}
+
+impl Method for Bundle {
+    fn name(&self) -> &'static str {
+        "bundle"
+    }
+
+    fn step(&mut self, world: &World, _pass: u64) -> StepStats {
+        let seed = self.settings.seed;
+        let mut rays = 0;
+        if self.iter == 0 {
+            // ω_1 and L[i] = L_i^e(±ω_1)
+            rays += self.view.rays;
+            self.d = self.dirs.next_dir();
+            let d = self.d;
+            self.l_plus = self.patches.p.par_iter().map(|p| p.le(d)).collect();
+            self.l_minus = self.patches.p.par_iter().map(|p| p.le(-d)).collect();
+        }
+        let d = self.d;
+
+        // Transfer along ±ω_m through the visibility map
+        let inc = visibility::sweep(
+            &self.patches,
+            &SweepInput {
+                d,
+                l_plus: &self.l_plus,
+                l_minus: &self.l_minus,
+                sky_plus: world.lights.le_env(-d),
+                sky_minus: world.lights.le_env(d),
+                res: self.res,
+                center: world.lights.center,
+                radius: world.lights.radius,
+                keys: [seed, self.iter],
+                visibility: self.settings.visibility,
+                centre_rr: self.settings.centre_rr,
+            },
+        );
+        self.timings.sort += inc.t_sort;
+        self.timings.raster += inc.t_raster;
+        rays += inc.fragments;
+
+        // Image estimate, averaged over the kept iterations
+        let t = Instant::now();
+        if self.iter >= self.settings.discard {
+            self.view.accumulate(
+                world,
+                &self.patches,
+                self.settings.image,
+                d,
+                &inc.e_plus,
+                &inc.e_minus,
+                self.iter,
+                &mut self.sum,
+            );
+            self.counted += 1;
+        }
+        self.timings.image += t.elapsed().as_secs_f64();
+
+        // New direction ω_{m+1}; reflect what arrived into ±ω_{m+1}
+        let t = Instant::now();
+        let dn = self.dirs.next_dir();
+        let (lp, lm): (Vec<Rgb>, Vec<Rgb>) = self
+            .patches
+            .p
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
+                (
+                    transfer::reflect(p, d, ep, em, dn),
+                    transfer::reflect(p, d, ep, em, -dn),
+                )
+            })
+            .unzip();
+        self.l_plus = lp;
+        self.l_minus = lm;
+        self.d = dn;
+        self.iter += 1;
+        self.timings.transfer += t.elapsed().as_secs_f64();
+        StepStats { rays }
+    }
+
+    fn image(&self, world: &World) -> Image {
+        let scale = if self.counted == 0 {
+            0.0
+        } else {
+            1.0 / self.counted as f64
+        };
+        Image {
+            width: world.camera.width,
+            height: world.camera.height,
+            data: self.sum.iter().map(|v| (*v * scale).as_vec3()).collect(),
+        }
+    }
+
+    fn spp(&self) -> f64 {
+        self.iter as f64
+    }
+
+    fn report(&self) -> Option<String> {
+        let t = self.timings;
+        let it = self.iter.max(1) as f64 * 1e-3;
+        let (state, transient) = Bundle::bytes_per_patch();
+        Some(format!(
+            "bundle: {} patches (edge {:.4}), map {}², {} iterations; setup {:.2} s; \
+             per iteration: sort {:.2} ms, scan {:.2} ms, transfer {:.2} ms, image {:.2} ms; \
+             memory per patch {} B state + {} B transient",
+            self.patches.len(),
+            self.patches.edge,
+            self.res,
+            self.iter,
+            t.setup,
+            t.sort / it,
+            t.raster / it,
+            t.transfer / it,
+            t.image / it,
+            state,
+            transient
+        ))
+    }
+}

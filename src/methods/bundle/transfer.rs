@@ -1,0 +1,80 @@
+//! The random transport operator of eq. (27) and the loop of §5:
+//!
+//! L_new[i] = L_i^e(ω_{m+1}) + 4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L[j].
+//!
+//! With the bi-directional transfer both ω_m and −ω_m carry radiance in one
+//! sweep, so each patch keeps two values, L[i](+ω) and L[i](−ω), and the
+//! operator averages the two antithetic directions: 4π → 2π per direction,
+//! still unbiased (E over uniform ω of ½(g(ω) + g(−ω)) = E g).
+//!
+//! f̃_i is the patch's BRDF evaluated in the frame of the side that faces
+//! both the incoming flow and ω_{m+1} (zero when they are on different
+//! sides: no transmission; zero on the back of one-sided materials).
+//!
+//! Mirror-like conductors: a Dirac BRDF can never map ω_m onto a random
+//! ω_{m+1}, so in the transfer a smooth conductor is replaced by a Phong lobe
+//! of exponent [`MIRROR_EXPONENT`] around the mirror direction, scaled by the
+//! conductor's Fresnel reflectance (the paper's "mirror-like" patches are
+//! glossy in the same sense). The camera side still sees a perfect mirror
+//! (see `image.rs`). Glass (dielectrics) is left out: it neither reflects nor
+//! transmits in the transfer.
+
+use std::f32::consts::PI;
+
+use glam::Vec3;
+
+use super::patches::Patch;
+use crate::bsdf::fresnel::fresnel_conductor;
+use crate::bsdf::{Bsdf, Mode};
+use crate::geometry::Frame;
+use crate::scene::Rgb;
+
+/// Phong exponent standing in for a smooth conductor in the transfer.
+pub const MIRROR_EXPONENT: f32 = 400.0;
+
+/// f(wo, wi) of `bsdf` in a local frame, with smooth conductors replaced by
+/// a narrow Phong lobe.
+#[inline]
+pub fn eval_local(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
+    match *bsdf {
+        Bsdf::Conductor { eta, k, s } => {
+            if wo.z <= 0.0 || wi.z <= 0.0 {
+                return Rgb::ZERO;
+            }
+            let r = Vec3::new(-wo.x, -wo.y, wo.z);
+            let c = r.dot(wi).max(0.0);
+            let n = MIRROR_EXPONENT;
+            s * fresnel_conductor(wo.z, eta, k) * ((n + 2.0) / (2.0 * PI) * c.powf(n))
+        }
+        _ => bsdf.eval(wo, wi, Mode::Radiance),
+    }
+}
+
+/// f̃_i for radiance flowing along `d` into the patch and leaving toward `w`
+/// (both unit, world space), with shading normal `ns` (on the front side).
+#[inline]
+pub fn brdf(p: &Patch, ns: Vec3, d: Vec3, w: Vec3) -> Rgb {
+    let front_in = p.ng.dot(d) < 0.0;
+    let front_out = p.ng.dot(w) > 0.0;
+    if front_in != front_out || (!front_in && !p.two_sided) {
+        return Rgb::ZERO;
+    }
+    let n = if front_in { ns } else { -ns };
+    let frame = Frame::from_normal(n);
+    eval_local(&p.bsdf, frame.to_local(w), frame.to_local(-d))
+}
+
+/// Radiance leaving patch `p` toward `w` after reflecting what it received
+/// from the sweep along ±d: Le(w) + 2π Σ_{±} f̃(±d, w) E_±/A.
+#[inline]
+pub fn reflect(p: &Patch, d: Vec3, e_plus: Rgb, e_minus: Rgb, w: Vec3) -> Rgb {
+    let mut l = p.le(w);
+    let k = 2.0 * PI / p.area;
+    if e_plus != Rgb::ZERO {
+        l += brdf(p, p.ns, d, w) * e_plus * k;
+    }
+    if e_minus != Rgb::ZERO {
+        l += brdf(p, p.ns, -d, w) * e_minus * k;
+    }
+    l
+}

@@ -1,0 +1,296 @@
+//! Tests of `--method bundle` (stochastic iteration with global ray bundles).
+//!
+//! Tolerances are derived, not tuned:
+//! - furnace and form factor: independent replicas (seeds or directions)
+//!   give a sample standard error; the bound is a Student-t / 4σ quantile of
+//!   it plus, for the furnace, the power-defect bias bound of eq. (18);
+//! - cbox and the glossy plane: see [`check_against`].
+
+mod common;
+
+use std::path::PathBuf;
+
+use glam::{Vec2, Vec3};
+use kalos::emitter::Lights;
+use kalos::film::Image;
+use kalos::geometry::look_at;
+use kalos::image_io::read_image;
+use kalos::methods::bundle::patches::Patches;
+use kalos::methods::bundle::visibility::{sweep, SweepInput, Visibility};
+use kalos::methods::Options;
+use kalos::metrics::{rel_mse, rel_mse_pair};
+use kalos::sampling::{uniform_sphere, Pcg32};
+use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// White furnace (a = 0.5, Le = 1: L = 2 everywhere). Eight seeds of 100
+/// iterations are independent replicas of the image mean; the bound is the
+/// two-sided 99.9 % Student-t quantile for 7 degrees of freedom (5.41) times
+/// their standard error, plus the power defect of eq. (18),
+/// |ΔP| ≤ (1/M) λ²/(1 − λ)² ‖Le‖ = 1/M for λ = a = 0.5.
+#[test]
+fn furnace() {
+    let scene = common::furnace(0.5, 1.0, 16);
+    let m = 100u64;
+    let means: Vec<f64> = (0..8)
+        .map(|seed| {
+            let o = Options {
+                seed,
+                patches: Some(600),
+                map_res: Some(256),
+                ..Default::default()
+            };
+            let (img, _) = common::render(&scene, "bundle", &o, m);
+            (0..3).map(|c| common::mean_and_se(&img, c).0).sum::<f64>() / 3.0
+        })
+        .collect();
+    let n = means.len() as f64;
+    let mean = means.iter().sum::<f64>() / n;
+    let var = means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let tol = 5.41 * (var / n).sqrt() + 1.0 / m as f64;
+    eprintln!("furnace: mean {mean:.4} (expected 2), tolerance {tol:.4}, replicas {means:?}");
+    assert!(
+        (mean - 2.0).abs() <= tol,
+        "furnace mean {mean} vs 2 ± {tol}"
+    );
+}
+
+/// Two parallel unit squares, one above the other at distance 1.
+fn squares() -> Scene {
+    let mut s = Scene::empty("squares");
+    let m = s.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.5)),
+    });
+    let quad = |z: f32, up: bool| {
+        let p = vec![
+            Vec3::new(0.0, 0.0, z),
+            Vec3::new(1.0, 0.0, z),
+            Vec3::new(1.0, 1.0, z),
+            Vec3::new(0.0, 1.0, z),
+        ];
+        let t = if up {
+            vec![[0, 1, 2], [0, 2, 3]]
+        } else {
+            vec![[0, 2, 1], [0, 3, 2]]
+        };
+        (p, t)
+    };
+    let (p, t) = quad(0.0, true);
+    s.add_mesh("a", &p, None, None, &t, m, None);
+    let (p, t) = quad(1.0, false);
+    s.add_mesh("b", &p, None, None, &t, m, None);
+    s
+}
+
+/// The closed form for directly opposed parallel rectangles a × b at
+/// distance c (Howell's catalogue, C-11), here X = Y = 1.
+fn parallel_squares_ff() -> f64 {
+    let (x, y) = (1.0f64, 1.0f64);
+    let (x2, y2) = (x * x, y * y);
+    2.0 / (std::f64::consts::PI * x * y)
+        * ((((1.0 + x2) * (1.0 + y2)) / (1.0 + x2 + y2)).sqrt().ln()
+            + x * (1.0 + y2).sqrt() * (x / (1.0 + y2).sqrt()).atan()
+            + y * (1.0 + x2).sqrt() * (y / (1.0 + x2).sqrt()).atan()
+            - x * x.atan()
+            - y * y.atan())
+}
+
+/// F_AB = (1/(π A_B)) ∫ A(B, A, ω) dω: with radiance 1 on A (both ±ω) and 0
+/// elsewhere, one sweep gives A(B, A, ω) + A(B, A, −ω) summed over B's
+/// patches, so F̂ = 2 · mean over uniform ω of that sum (A_B = 1). The
+/// directions are independent, so the sample standard error is exact up to
+/// its own noise; the bound is 4 of them (the map's random offset makes the
+/// coverage unbiased and the squares cannot be misordered).
+fn form_factor(vis: Visibility) {
+    let scene = squares();
+    let lights = Lights::new(&scene);
+    let patches = Patches::build(&scene, &lights, 0.26);
+    let on_a: Vec<bool> = patches.p.iter().map(|p| p.centroid().z < 0.5).collect();
+    let l: Vec<Vec3> = on_a
+        .iter()
+        .map(|&a| if a { Vec3::ONE } else { Vec3::ZERO })
+        .collect();
+    let n = 1500;
+    let samples: Vec<f64> = (0..n)
+        .map(|k| {
+            let d = uniform_sphere(Pcg32::keyed(&[7, k]).next_2d());
+            let inc = sweep(
+                &patches,
+                &SweepInput {
+                    d,
+                    l_plus: &l,
+                    l_minus: &l,
+                    sky_plus: Vec3::ZERO,
+                    sky_minus: Vec3::ZERO,
+                    res: 128,
+                    center: lights.center,
+                    radius: lights.radius,
+                    keys: [3, k],
+                    visibility: vis,
+                    centre_rr: true,
+                },
+            );
+            let e: f64 = (0..patches.len())
+                .filter(|&i| !on_a[i])
+                .map(|i| (inc.e_plus[i].x + inc.e_minus[i].x) as f64)
+                .sum();
+            2.0 * e
+        })
+        .collect();
+    let mean = samples.iter().sum::<f64>() / n as f64;
+    let var = samples.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n as f64 - 1.0);
+    let se = (var / n as f64).sqrt();
+    let exact = parallel_squares_ff();
+    eprintln!("{vis:?}: F = {mean:.5} ± {se:.5}, closed form {exact:.5}");
+    assert!(
+        (mean - exact).abs() <= 4.0 * se,
+        "{mean} vs {exact} (4σ = {})",
+        4.0 * se
+    );
+}
+
+#[test]
+fn form_factor_painter() {
+    form_factor(Visibility::Painter);
+}
+
+#[test]
+fn form_factor_zbuffer() {
+    form_factor(Visibility::ZBuffer);
+}
+
+fn render(scene: &Scene, seed: u64, patches: usize, map_res: u32, iters: u64) -> Image {
+    let o = Options {
+        seed,
+        patches: Some(patches),
+        map_res: Some(map_res),
+        discard: 10,
+        ..Default::default()
+    };
+    common::render(scene, "bundle", &o, iters).0
+}
+
+/// Checks `bundle` against a reference with a bound built from its parts.
+///
+/// E[relMSE(I_h, ref)] = b_h² + v_h + v_ref, with b_h the discretisation
+/// bias at patch edge h (and the map resolution that goes with it), v_h the
+/// bundle's variance and v_ref the reference's. Radiance constant per patch
+/// is a first-order approximation, b_h ≈ C·h, so a render I_2h with twice
+/// the edge (a quarter of the patches, half the map resolution) and another
+/// seed has E[relMSE(I_h, I_2h)] ≈ (b_2h − b_h)² + v_h + v_2h ≈ b_h² + v_h +
+/// v_2h: it bounds the first two terms (v_2h ≥ 0 is slack). v_ref comes
+/// from the reference's half-versus-half figure (/4, as in reference.rs).
+/// The test asserts relMSE(I_h, ref) ≤ 1.5 × (relMSE(I_h, I_2h) + v_ref),
+/// the 1.5 being the foundation issue's margin for the noise of the
+/// estimates themselves.
+fn check_against(
+    name: &str,
+    scene: &Scene,
+    reference: &Image,
+    v_ref: f64,
+    patches: usize,
+    map_res: u32,
+    iters: u64,
+) {
+    let ih = render(scene, 1, patches, map_res, iters);
+    let i2h = render(scene, 2, patches / 4, map_res / 2, iters);
+    let got = rel_mse(&ih, reference).expect("sizes");
+    let disc = rel_mse(&ih, &i2h).expect("sizes");
+    let bound = 1.5 * (disc + v_ref);
+    eprintln!(
+        "{name}: relMSE {got:.4e}; bound 1.5 × ({disc:.4e} + {v_ref:.4e}) = {bound:.4e} (ratio {:.3})",
+        got / bound
+    );
+    assert!(got <= bound, "{name}: relMSE {got:.4e} > bound {bound:.4e}");
+}
+
+/// cbox against the Mitsuba reference.
+#[test]
+fn cbox() {
+    let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
+    let reference = read_image(&root().join("refs/cbox.pfm")).expect("reference");
+    // refs/NOISE: cbox half-vs-half relMSE 1.525e-5
+    check_against("cbox", &scene, &reference, 1.525e-5 / 4.0, 4000, 1024, 300);
+}
+
+/// A Phong plane (kd 0.2, ks 0.6, n 20) under a small square light, seen
+/// at an angle that puts the highlight in view.
+fn glossy_plane() -> Scene {
+    let mut s = Scene::empty("glossy-plane");
+    let phong = s.add_material(Material::Phong {
+        diffuse_reflectance: Texture::Constant(Vec3::splat(0.2)),
+        specular_reflectance: Texture::Constant(Vec3::splat(0.6)),
+        exponent: 20.0,
+    });
+    let black = s.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::ZERO),
+    });
+    let p = [
+        Vec3::new(-1.0, 0.0, -1.0),
+        Vec3::new(1.0, 0.0, -1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(-1.0, 0.0, 1.0),
+    ];
+    s.add_mesh(
+        "plane",
+        &p,
+        None,
+        None,
+        &[[0, 2, 1], [0, 3, 2]],
+        phong,
+        None,
+    );
+    let (c, h) = (Vec2::new(0.0, -0.4), 0.25);
+    let q = [
+        Vec3::new(c.x - h, 1.0, c.y - h),
+        Vec3::new(c.x + h, 1.0, c.y - h),
+        Vec3::new(c.x + h, 1.0, c.y + h),
+        Vec3::new(c.x - h, 1.0, c.y + h),
+    ];
+    s.add_mesh(
+        "light",
+        &q,
+        None,
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        black,
+        Some(Vec3::splat(10.0)),
+    );
+    s.camera = CameraDesc {
+        to_world: look_at(Vec3::new(0.0, 1.0, 2.0), Vec3::new(0.0, 0.0, 0.2), Vec3::Y),
+        fov_x_deg: 60.0,
+        width: 48,
+        height: 48,
+        near_clip: 1e-3,
+    };
+    s
+}
+
+/// bundle against path on the glossy plane: the same bound as cbox, with
+/// v_ref measured from two path renders (relMSE_pair / 4 of the mean of two
+/// renders, and the reference is that mean).
+#[test]
+fn glossy_plane_vs_path() {
+    let scene = glossy_plane();
+    let po = |seed| Options {
+        seed,
+        ..Default::default()
+    };
+    let (p1, _) = common::render(&scene, "path", &po(11), 512);
+    let (p2, _) = common::render(&scene, "path", &po(12), 512);
+    let v_ref = rel_mse_pair(&p1, &p2).expect("sizes") / 4.0;
+    let reference = Image {
+        width: p1.width,
+        height: p1.height,
+        data: p1
+            .data
+            .iter()
+            .zip(&p2.data)
+            .map(|(a, b)| (*a + *b) * 0.5)
+            .collect(),
+    };
+    check_against("glossy plane", &scene, &reference, v_ref, 2000, 256, 3000);
+}
