@@ -88,6 +88,15 @@ struct RenderArgs {
     /// Iteration variants: steps discarded at the start of each chain.
     #[arg(long, default_value_t = 0)]
     discard: u64,
+    /// plb: λ, the weight of the children's image impact in the importance.
+    #[arg(long)]
+    lambda: Option<f32>,
+    /// plb: steps per phase (default 400).
+    #[arg(long)]
+    phase_len: Option<u32>,
+    /// plb: population cap after each purge (default 100).
+    #[arg(long)]
+    population: Option<usize>,
     /// Reference image, for the convergence log and the final error.
     #[arg(long = "ref")]
     reference: Option<PathBuf>,
@@ -270,6 +279,9 @@ fn render(a: RenderArgs) -> Result<()> {
         max_depth: a.max_depth,
         variant: a.variant.clone(),
         discard: a.discard,
+        lambda: a.lambda,
+        phase_len: a.phase_len,
+        population: a.population,
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {

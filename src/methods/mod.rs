@@ -8,6 +8,7 @@
 
 pub mod light;
 pub mod path;
+pub mod plb;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -78,6 +79,12 @@ pub struct Options {
     /// Light tracing / iteration: number of first passes to discard (the
     /// power-defect correction after eq. (18) of the 1999 paper).
     pub discard: u64,
+    /// `plb`: λ of `ComputeImportance` (None: the method's default).
+    pub lambda: Option<f32>,
+    /// `plb`: steps per phase (None: the method's default).
+    pub phase_len: Option<u32>,
+    /// `plb`: population cap after each purge (None: the method's default).
+    pub population: Option<usize>,
 }
 
 impl Default for Options {
@@ -87,6 +94,9 @@ impl Default for Options {
             max_depth: None,
             variant: None,
             discard: 0,
+            lambda: None,
+            phase_len: None,
+            population: None,
         }
     }
 }
@@ -97,7 +107,7 @@ impl Default for Options {
 pub struct MethodError(pub String);
 
 /// The names of the methods, in the order `--help` shows them.
-pub const METHODS: &[&str] = &["path", "light"];
+pub const METHODS: &[&str] = &["path", "light", "plb"];
 
 /// The method table: name → constructor (Tungsten's integrator factory).
 pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
@@ -109,6 +119,10 @@ pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Metho
         "light" => Ok(Box::new(light::LightTracer::new(
             world,
             light::Settings::from_options(opts)?,
+        ))),
+        "plb" => Ok(Box::new(plb::Plb::new(
+            world,
+            plb::Settings::from_options(opts)?,
         ))),
         other => Err(MethodError(format!(
             "unknown method '{other}'; known methods: {}",
