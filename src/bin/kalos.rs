@@ -94,7 +94,7 @@ struct RenderArgs {
     /// plb: steps per phase (default 400).
     #[arg(long)]
     phase_len: Option<u32>,
-    /// plb: population cap after each purge (default 100).
+    /// plb: population cap after each purge (default 1000).
     #[arg(long)]
     population: Option<usize>,
     /// Reference image, for the convergence log and the final error.
