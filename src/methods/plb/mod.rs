@@ -419,7 +419,7 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
 
     lane.in_phase += 1;
     if lane.in_phase >= s.phase_len {
-        end_phase(world, s, rng, lane);
+        end_phase(s, rng, lane);
     }
     rays
 }
@@ -494,8 +494,7 @@ fn trace(
 
 /// The end of a phase (§5): the image estimate, `ComputeImportance`, and the
 /// random purge.
-fn end_phase(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) {
-    let _ = world;
+fn end_phase(s: &Settings, rng: &mut Pcg32, lane: &mut Lane) {
     lane.in_phase = 0;
     lane.phases += 1;
 
