@@ -85,7 +85,8 @@ struct RenderArgs {
     /// Longest path in segments (Mitsuba's max_depth); default unlimited.
     #[arg(long)]
     max_depth: Option<u32>,
-    /// Iteration variants: steps discarded at the start of each chain.
+    /// Iteration variants: steps discarded at the start of each chain
+    /// (plb: phases discarded at the start of each lane).
     #[arg(long, default_value_t = 0)]
     discard: u64,
     /// plb: λ, the weight of the children's image impact in the importance.
