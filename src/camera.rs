@@ -59,6 +59,13 @@ impl Camera {
         self.origin
     }
 
+    /// Pixels per unit of image-plane area at unit distance (f²/S_p of the
+    /// light-path-building paper, eqs. (2) and (9)).
+    #[inline]
+    pub fn pixels_per_area(&self) -> f32 {
+        self.pixels_per_area
+    }
+
     /// The primary ray through film position (`px`, `py`) in pixels.
     #[inline]
     pub fn ray(&self, px: f32, py: f32) -> Ray {

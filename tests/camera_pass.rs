@@ -52,30 +52,39 @@ fn two_renders(scene: &Scene, method: &str, camera_pass: bool, rays: u64) -> (Im
 
 const RAYS: u64 = 6_000_000;
 
-#[test]
-fn light_with_camera_pass_matches_path_everywhere_and_raw_light_does_not() {
+fn camera_pass_matches_path_and_raw_does_not(method: &str) {
     let scene = glass_mirror();
     let (p1, p2) = two_renders(&scene, "path", true, RAYS);
     let path = block_stats(&p1, &p2, 8, &|_, _| true);
 
-    let (l1, l2) = two_renders(&scene, "light", true, RAYS);
-    let light = block_stats(&l1, &l2, 8, &|_, _| true);
-    let (z, block) = max_block_z(&path, &light, 1e-4);
-    eprintln!("light + camera pass vs path: max |z| = {z:.2} (block {block})");
+    let (l1, l2) = two_renders(&scene, method, true, RAYS);
+    let with = block_stats(&l1, &l2, 8, &|_, _| true);
+    let (z, block) = max_block_z(&path, &with, 1e-4);
+    eprintln!("{method} + camera pass vs path: max |z| = {z:.2} (block {block})");
     assert!(
         z < Z_MAX,
-        "light with the camera pass disagrees with path: |z| = {z:.2} in block {block}"
+        "{method} with the camera pass disagrees with path: |z| = {z:.2} in block {block}"
     );
 
     // The same test must fail without the camera pass (the spheres are black)
-    let (r1, r2) = two_renders(&scene, "light", false, RAYS);
+    let (r1, r2) = two_renders(&scene, method, false, RAYS);
     let raw = block_stats(&r1, &r2, 8, &|_, _| true);
     let (z, block) = max_block_z(&path, &raw, 1e-4);
-    eprintln!("raw light vs path: max |z| = {z:.2} (block {block})");
+    eprintln!("raw {method} vs path: max |z| = {z:.2} (block {block})");
     assert!(
         z >= Z_MAX,
-        "the raw light tracer should miss the delta surfaces (|z| = {z:.2})"
+        "the raw {method} should miss the delta surfaces (|z| = {z:.2})"
     );
+}
+
+#[test]
+fn light_with_camera_pass_matches_path_everywhere_and_raw_light_does_not() {
+    camera_pass_matches_path_and_raw_does_not("light");
+}
+
+#[test]
+fn plb_with_camera_pass_matches_path_everywhere_and_raw_plb_does_not() {
+    camera_pass_matches_path_and_raw_does_not("plb");
 }
 
 /// The caustic under the glass sphere: the light tracer alone (no camera

@@ -101,7 +101,8 @@ struct RenderArgs {
     /// Longest path in segments (Mitsuba's max_depth); default unlimited.
     #[arg(long)]
     max_depth: Option<u32>,
-    /// Iteration variants: steps discarded at the start of each chain.
+    /// Iteration variants: steps discarded at the start of each chain
+    /// (plb: phases discarded at the start of each lane).
     #[arg(long, default_value_t = 0)]
     discard: u64,
     /// Light-based methods: the camera pass for delta surfaces seen by the
@@ -126,6 +127,15 @@ struct RenderArgs {
     /// bundle: visibility algorithm (painter, zbuffer).
     #[arg(long)]
     visibility: Option<String>,
+    /// plb: λ, the weight of the children's image impact in the importance.
+    #[arg(long)]
+    lambda: Option<f32>,
+    /// plb: steps per phase (default 400).
+    #[arg(long)]
+    phase_len: Option<u32>,
+    /// plb: population cap after each purge (default 1000).
+    #[arg(long)]
+    population: Option<usize>,
     /// Reference image, for the convergence log and the final error.
     #[arg(long = "ref")]
     reference: Option<PathBuf>,
@@ -318,6 +328,9 @@ fn render(a: RenderArgs) -> Result<()> {
         map_res: a.map_res,
         bundle_image: a.bundle_image.clone(),
         visibility: a.visibility.clone(),
+        lambda: a.lambda,
+        phase_len: a.phase_len,
+        population: a.population,
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {

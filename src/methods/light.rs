@@ -263,9 +263,10 @@ pub fn connect_to_camera(
 }
 
 /// Connects an emission vertex to the camera (diffuse emitters: the
-/// directional profile is 1 on the front side).
+/// directional profile is 1 on the front side): splats `phi_pos` · cos θ ·
+/// g(x) when the segment is clear; returns the rays traced (0 or 1).
 #[inline]
-fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
+pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
     let Some((pix, g)) = world.camera.project(p) else {
         return 0;
     };
@@ -293,7 +294,7 @@ fn rr_albedo(bsdf: &Bsdf, wo: Vec3) -> f32 {
 /// Scatters at a hit: the shading frame oriented for the material, the
 /// BSDF, and the local outgoing direction.
 #[inline]
-fn shade(world: &World, sp: &SurfacePoint, wo_world: Vec3) -> (Bsdf, Frame, Vec3) {
+pub fn shade(world: &World, sp: &SurfacePoint, wo_world: Vec3) -> (Bsdf, Frame, Vec3) {
     let material = world.scene.material_of(sp);
     let bsdf = material.bsdf(sp.uv);
     let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
@@ -304,7 +305,7 @@ fn shade(world: &World, sp: &SurfacePoint, wo_world: Vec3) -> (Bsdf, Frame, Vec3
 /// the world direction and the throughput factor f·|cos|/pdf with the
 /// shading-normal correction.
 #[inline]
-fn scatter(
+pub fn scatter(
     bsdf: &Bsdf,
     frame: &Frame,
     ng: Vec3,

@@ -6,10 +6,11 @@
 //! `light`...) and reports the rays it traced; [`Method::image`] is the
 //! current estimate. Methods never print and never touch files.
 
-pub mod camera_pass;
 pub mod bundle;
+pub mod camera_pass;
 pub mod light;
 pub mod path;
+pub mod plb;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -100,6 +101,12 @@ pub struct Options {
     pub bundle_image: Option<String>,
     /// `bundle`: visibility algorithm (painter, zbuffer).
     pub visibility: Option<String>,
+    /// `plb`: λ of `ComputeImportance` (None: the method's default).
+    pub lambda: Option<f32>,
+    /// `plb`: steps per phase (None: the method's default).
+    pub phase_len: Option<u32>,
+    /// `plb`: population cap after each purge (None: the method's default).
+    pub population: Option<usize>,
 }
 
 impl Default for Options {
@@ -116,6 +123,9 @@ impl Default for Options {
             map_res: None,
             bundle_image: None,
             visibility: None,
+            lambda: None,
+            phase_len: None,
+            population: None,
         }
     }
 }
@@ -126,7 +136,7 @@ impl Default for Options {
 pub struct MethodError(pub String);
 
 /// The names of the methods, in the order `--help` shows them.
-pub const METHODS: &[&str] = &["path", "light", "bundle"];
+pub const METHODS: &[&str] = &["path", "light", "plb", "bundle"];
 
 /// The method table: name → constructor (Tungsten's integrator factory).
 pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
@@ -142,6 +152,10 @@ pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Metho
         "bundle" => Ok(Box::new(bundle::Bundle::new(
             world,
             bundle::Settings::from_options(opts)?,
+        ))),
+        "plb" => Ok(Box::new(plb::Plb::new(
+            world,
+            plb::Settings::from_options(opts)?,
         ))),
         other => Err(MethodError(format!(
             "unknown method '{other}'; known methods: {}",

@@ -1,0 +1,246 @@
+//! `plb` (progressive light path building) against the Mitsuba reference on
+//! `cbox`, and against `light` on `two-rooms`. All tolerances come from
+//! noise measured in the same test (independent seeds), never from stored
+//! expected values.
+
+mod common;
+
+use std::path::PathBuf;
+
+use kalos::film::Image;
+use kalos::image_io::read_image;
+use kalos::methods::Options;
+use kalos::metrics::{channel_means, rel_mse, rel_mse_pair};
+use kalos::scene::{self, Scene};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn load(file: &str) -> Scene {
+    scene::load(&root().join(file)).expect("scene loads")
+}
+
+fn render(scene: &Scene, method: &str, seed: u64, passes: u64) -> Image {
+    let opts = Options {
+        seed,
+        ..Default::default()
+    };
+    common::render(scene, method, &opts, passes).0
+}
+
+/// Per-channel image means of several renders: their average and the
+/// standard error of that average, from the spread across seeds (the seeds
+/// are independent, whatever the correlation between pixels of one render).
+fn means_and_se(imgs: &[Image]) -> ([f64; 3], [f64; 3]) {
+    let k = imgs.len() as f64;
+    let ms: Vec<[f64; 3]> = imgs
+        .iter()
+        .map(|i| {
+            let m = channel_means(i);
+            [m.x, m.y, m.z]
+        })
+        .collect();
+    let mut mean = [0.0; 3];
+    let mut se = [0.0; 3];
+    for ch in 0..3 {
+        mean[ch] = ms.iter().map(|m| m[ch]).sum::<f64>() / k;
+        let var = ms.iter().map(|m| (m[ch] - mean[ch]).powi(2)).sum::<f64>() / (k - 1.0);
+        se[ch] = (var / k).sqrt();
+    }
+    (mean, se)
+}
+
+/// Pixel-wise average of images.
+fn average(imgs: &[Image]) -> Image {
+    let mut out = imgs[0].clone();
+    for (i, p) in out.data.iter_mut().enumerate() {
+        *p = imgs.iter().map(|im| im.data[i]).sum::<glam::Vec3>() / imgs.len() as f32;
+    }
+    out
+}
+
+/// `cbox`: plb converges to the Mitsuba reference, with a start-up defect
+/// that shrinks with run length.
+///
+/// The defect. The self-correcting iteration starts from L_0 = Le, so the
+/// early estimates lack the higher bounces (the power defect of eq. (18) of
+/// the 1999 stochastic-iteration paper). With the survivors of a purge
+/// weighted as one phase of history (see `src/methods/plb/mod.rs`), the
+/// expected error of the phase images falls geometrically, and the average
+/// of N phase images keeps a deficit of order 1/N. Measured with these runs
+/// (32 seeds at 1 pass, 16 at 8 passes, as here; BENCHMARKS-plb.md): about −0.6 % of
+/// the red channel mean after 1 pass and under −0.1 % after 8 passes, green
+/// and blue smaller.
+///
+/// What is asserted.
+/// 1. The deficit shrinks: for the red channel (the largest albedo, so the
+///    slowest to converge), the 8-pass deficit is smaller than the 1-pass one
+///    by more than 3 standard errors of the difference.
+/// 2. The long run is within noise plus the stated bias: on every channel,
+///    |mean − reference| ≤ 4 σ + 1.5 · |short-run deficit|/8, σ being the
+///    standard error of the 16-seed mean measured from the seed spread, the
+///    second term the 1/N law applied to the deficit measured at 1 pass,
+///    with 50 % slack for its own noise.
+/// 3. relMSE of one 8-pass render against the reference is at most 1.5 × its
+///    expectation from noise, relMSE(k₁, k₂)/2 + the reference's own
+///    half-versus-half figure / 4, as in tests/reference.rs.
+#[test]
+fn plb_cbox_converges_with_shrinking_startup_defect() {
+    let scene = load("scenes/cbox/cbox.xml");
+    let reference = read_image(&root().join("refs/cbox.pfm")).expect("reference");
+    let mr = channel_means(&reference);
+    let mr = [mr.x, mr.y, mr.z];
+    let short: Vec<Image> = (1..=32u64).map(|s| render(&scene, "plb", s, 1)).collect();
+    let long: Vec<Image> = (101..=116u64)
+        .map(|s| render(&scene, "plb", s, 8))
+        .collect();
+    let (ms, ses) = means_and_se(&short);
+    let (ml, sel) = means_and_se(&long);
+    for ch in 0..3 {
+        eprintln!(
+            "channel {ch}: reference {:.6}; 1 pass {:+.4} % ± {:.4} %; 8 passes {:+.4} % ± {:.4} %",
+            mr[ch],
+            100.0 * (ms[ch] / mr[ch] - 1.0),
+            100.0 * ses[ch] / mr[ch],
+            100.0 * (ml[ch] / mr[ch] - 1.0),
+            100.0 * sel[ch] / mr[ch],
+        );
+    }
+
+    // 1. the defect shrinks with run length (red channel)
+    let (ds, dl) = (ms[0] - mr[0], ml[0] - mr[0]);
+    let se_diff = (ses[0].powi(2) + sel[0].powi(2)).sqrt();
+    assert!(
+        dl.abs() < ds.abs() - 3.0 * se_diff,
+        "start-up defect does not shrink: 1 pass {ds:+.3e}, 8 passes {dl:+.3e} (σ of difference {se_diff:.2e})"
+    );
+
+    // 2. the long run: noise plus the stated (measured, 1/N) bias
+    for ch in 0..3 {
+        let bias = 1.5 * (ms[ch] - mr[ch]).abs() / 8.0;
+        let tol = 4.0 * sel[ch] + bias;
+        assert!(
+            (ml[ch] - mr[ch]).abs() <= tol,
+            "channel {ch}: 8-pass mean {} vs reference {} (tolerance {tol:.3e} = 4σ + bias {bias:.3e})",
+            ml[ch],
+            mr[ch]
+        );
+    }
+
+    // 3. relMSE within its noise expectation
+    let own = rel_mse(&long[0], &long[1]).expect("sizes") / 2.0;
+    let expected = own + 1.525e-5 / 4.0; // refs/NOISE: cbox half-vs-half
+    let got = rel_mse(&long[0], &reference).expect("sizes");
+    eprintln!("relMSE {got:.4e}, expected {expected:.4e}");
+    assert!(
+        got <= 1.5 * expected,
+        "relMSE {got:.4e} > 1.5 × expected {expected:.4e}"
+    );
+}
+
+/// `two-rooms`: plb and light agree within noise at a small budget.
+///
+/// Tolerances from the measured noise: each method renders with seeds 1 and
+/// 2, and x̄ is the average of the two. For independent unbiased estimates,
+/// per pixel E[(x₁ − x₂)²/4] = var(x̄), so with the plain (absolute) MSE over
+/// pixels and channels, E[MSE(p̄, l̄)] = v_p + v_l with v_x = MSE(x₁, x₂)/4,
+/// exactly. The test asserts MSE(p̄, l̄) ≤ 1.5 × (v_p + v_l). (A relative MSE
+/// whose denominator is the noisy pair itself is not used: on this
+/// firefly-prone scene its denominator noise made the same check fail for
+/// reasons unrelated to bias: relMSE(p̄, l̄) was 0.30 against a "predicted"
+/// 0.18 while the absolute MSE matched its prediction within 1 %.) The
+/// channel means of p̄ and l̄ must agree within 4 standard errors, each
+/// estimated from the per-pixel differences of its two seeds (var(pixel) ≈
+/// (x₁ − x₂)²/2). plb's start-up defect at this budget (under 0.1 % on cbox,
+/// see above) is far below these tolerances.
+#[test]
+fn plb_agrees_with_light_on_two_rooms() {
+    let scene = load("scenes/two-rooms/scene.xml");
+    let p = [render(&scene, "plb", 1, 40), render(&scene, "plb", 2, 40)];
+    let l = [
+        render(&scene, "light", 1, 30),
+        render(&scene, "light", 2, 30),
+    ];
+    // MSE with fixed (data-independent) weights: an unbiased estimate of
+    // each variance, E[(x₁ − x₂)²/4] = var(x̄), so no denominator noise
+    let mse = |a: &Image, b: &Image| {
+        a.data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| (*x - *y).as_dvec3().length_squared() / 3.0)
+            .sum::<f64>()
+            / a.data.len() as f64
+    };
+    let vp = mse(&p[0], &p[1]) / 4.0;
+    let vl = mse(&l[0], &l[1]) / 4.0;
+    let (pa, la) = (average(&p), average(&l));
+    let got = mse(&pa, &la);
+    let rel = rel_mse_pair(&pa, &la).expect("sizes");
+    eprintln!(
+        "MSE(plb, light) {got:.4e}, expected {:.4e} (plb {vp:.3e}, light {vl:.3e}); relMSE {rel:.3e}",
+        vp + vl
+    );
+    let se = |x: &[Image; 2]| {
+        let n = x[0].data.len() as f64;
+        let mut out = [0.0; 3];
+        for (ch, o) in out.iter_mut().enumerate() {
+            let s: f64 = x[0]
+                .data
+                .iter()
+                .zip(&x[1].data)
+                .map(|(a, b)| ((a[ch] - b[ch]) as f64).powi(2) / 2.0)
+                .sum();
+            // variance of one pixel, over n pixels, for a 2-seed average
+            *o = (s / n / n / 2.0).sqrt();
+        }
+        out
+    };
+    let (sp, sl) = (se(&p), se(&l));
+    let (mp, ml) = (channel_means(&pa), channel_means(&la));
+    for ch in 0..3 {
+        let tol = 4.0 * (sp[ch].powi(2) + sl[ch].powi(2)).sqrt();
+        eprintln!(
+            "channel {ch}: plb {:.6} light {:.6} (diff {:+.2e}, 4σ {tol:.2e})",
+            mp[ch],
+            ml[ch],
+            mp[ch] - ml[ch]
+        );
+        assert!(
+            (mp[ch] - ml[ch]).abs() <= tol,
+            "channel {ch}: plb mean {} vs light {} (4σ = {tol})",
+            mp[ch],
+            ml[ch]
+        );
+    }
+    assert!(
+        got <= 1.5 * (vp + vl),
+        "MSE(plb, light) {got:.4e} > 1.5 × {:.4e}",
+        vp + vl
+    );
+}
+
+/// The same seed gives the same image (the lanes are fixed and merged in
+/// order), and the settings reach the method.
+#[test]
+fn plb_is_deterministic_per_seed() {
+    let scene = load("scenes/cbox/cbox.xml");
+    let a = render(&scene, "plb", 7, 1);
+    let b = render(&scene, "plb", 7, 1);
+    assert_eq!(a.data, b.data);
+    let opts = Options {
+        seed: 7,
+        lambda: Some(0.0),
+        phase_len: Some(100),
+        population: Some(50),
+        ..Default::default()
+    };
+    let c = common::render(&scene, "plb", &opts, 1).0;
+    assert_ne!(a.data, c.data);
+    let bad = Options {
+        phase_len: Some(0),
+        ..Default::default()
+    };
+    let world = kalos::methods::World::new(scene);
+    assert!(kalos::methods::create("plb", &world, &bad).is_err());
+}
