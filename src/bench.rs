@@ -12,15 +12,17 @@ use crate::methods::World;
 use crate::sampling::{uniform_sphere, Pcg32};
 use crate::scene::{CameraDesc, Material, Scene, Texture};
 
-/// A generated scene of about `triangles` triangles: randomly placed,
-/// overlapping tessellated spheres in a unit-ish box, lit by a quad.
+/// A generated scene of about `triangles` triangles: finely tessellated
+/// spheres (16 384 triangles each, like scanned or subdivided models) on a
+/// jittered grid inside a closed room, lit by a quad under the ceiling.
+/// Every ray from inside the room hits something, as in an interior.
 pub fn generated_scene(triangles: u64) -> Scene {
     let mut scene = Scene::empty(format!("generated ({triangles} triangles)"));
     let m = scene.add_material(Material::Diffuse {
         reflectance: Texture::Constant(Vec3::splat(0.5)),
     });
-    // each sphere: 2·rings·segments triangles with rings = 16, segments = 32
-    let (rings, segs) = (16u32, 32u32);
+    // each sphere: 2·rings·segments triangles
+    let (rings, segs) = (64u32, 128u32);
     let per = 2 * rings as u64 * segs as u64;
     let count = (triangles / per).max(1);
     let mut rng = Pcg32::new(7, 0);
@@ -45,13 +47,36 @@ pub fn generated_scene(triangles: u64) -> Scene {
             idx.push([a + 1, b, b + 1]);
         }
     }
-    let side = (count as f32).cbrt();
+    let side = (count as f32).cbrt().ceil().max(1.0);
     for i in 0..count {
-        let c = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
-        let radius = (0.6 / side) * (0.5 + rng.next_f32());
+        let g = Vec3::new(
+            (i as f32 % side).floor(),
+            ((i as f32 / side) % side).floor(),
+            (i as f32 / (side * side)).floor(),
+        );
+        let jitter = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+        let c = ((g + 0.5 + 0.3 * jitter) / side) * 2.0 - Vec3::ONE;
+        let radius = (0.35 / side) * (0.6 + 0.4 * rng.next_f32());
         let p: Vec<Vec3> = pos.iter().map(|v| c + *v * radius).collect();
         scene.add_mesh(format!("sphere{i}"), &p, Some(&pos), None, &idx, m, None);
     }
+    // the room: a closed box around everything, normals inward
+    let r = 1.6f32;
+    let room = [
+        Vec3::new(-r, -r, -r),
+        Vec3::new(r, -r, -r),
+        Vec3::new(r, r, -r),
+        Vec3::new(-r, r, -r),
+        Vec3::new(-r, -r, r),
+        Vec3::new(r, -r, r),
+        Vec3::new(r, r, r),
+        Vec3::new(-r, r, r),
+    ];
+    let faces = [
+        [0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6], [0, 4, 5], [0, 5, 1],
+        [3, 2, 6], [3, 6, 7], [0, 3, 7], [0, 7, 4], [1, 5, 6], [1, 6, 2],
+    ];
+    scene.add_mesh("room", &room, None, None, &faces, m, None);
     let quad = [
         Vec3::new(-0.5, 1.5, -0.5),
         Vec3::new(0.5, 1.5, -0.5),
