@@ -70,7 +70,10 @@ pub fn check(scene_file: &str, ref_name: &str, method: &str, passes: u64) {
     let own = rel_mse(&k1, &k2).expect("sizes") / 2.0;
     let expected = own + ref_noise(ref_name) / 4.0;
     let got = rel_mse(&k1, &reference).expect("sizes");
-    eprintln!("{method} on {ref_name}: relMSE {got:.4e}, expected {expected:.4e} (ratio {:.3})", got / expected);
+    eprintln!(
+        "{method} on {ref_name}: relMSE {got:.4e}, expected {expected:.4e} (ratio {:.3})",
+        got / expected
+    );
     assert!(
         got <= 1.5 * expected,
         "{method} on {ref_name}: relMSE {got:.4e} > 1.5 × expected {expected:.4e}"

@@ -270,6 +270,7 @@ fn render(a: RenderArgs) -> Result<()> {
         max_depth: a.max_depth,
         variant: a.variant.clone(),
         discard: a.discard,
+        ..Default::default()
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {

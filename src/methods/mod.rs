@@ -6,6 +6,7 @@
 //! `light`...) and reports the rays it traced; [`Method::image`] is the
 //! current estimate. Methods never print and never touch files.
 
+pub mod density;
 pub mod light;
 pub mod path;
 
@@ -78,6 +79,14 @@ pub struct Options {
     /// Light tracing / iteration: number of first passes to discard (the
     /// power-defect correction after eq. (18) of the 1999 paper).
     pub discard: u64,
+    /// Density estimation: particles per run (None: the method's default).
+    pub particles: Option<u64>,
+    /// Density estimation: kernel width factor C1.
+    pub c1: Option<f32>,
+    /// Density estimation: grid spacing factor C2.
+    pub c2: Option<f32>,
+    /// Density estimation: decimation error bound ε.
+    pub epsilon: Option<f32>,
 }
 
 impl Default for Options {
@@ -87,6 +96,10 @@ impl Default for Options {
             max_depth: None,
             variant: None,
             discard: 0,
+            particles: None,
+            c1: None,
+            c2: None,
+            epsilon: None,
         }
     }
 }
@@ -97,7 +110,7 @@ impl Default for Options {
 pub struct MethodError(pub String);
 
 /// The names of the methods, in the order `--help` shows them.
-pub const METHODS: &[&str] = &["path", "light"];
+pub const METHODS: &[&str] = &["path", "light", "density"];
 
 /// The method table: name → constructor (Tungsten's integrator factory).
 pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
@@ -109,6 +122,10 @@ pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Metho
         "light" => Ok(Box::new(light::LightTracer::new(
             world,
             light::Settings::from_options(opts)?,
+        ))),
+        "density" => Ok(Box::new(density::Density::new(
+            world,
+            density::Settings::from_options(opts)?,
         ))),
         other => Err(MethodError(format!(
             "unknown method '{other}'; known methods: {}",
