@@ -335,9 +335,9 @@ pub fn decimate_planar(m: PlanarMesh, r: Vec3, w0: f32, eps: f32) -> (PlanarMesh
     let mut map = vec![u32::MAX; nv];
     let mut verts = Vec::new();
     let mut h = Vec::new();
-    for v in 0..nv {
+    for (v, slot) in map.iter_mut().enumerate() {
         if !w.removed_v[v] {
-            map[v] = verts.len() as u32;
+            *slot = verts.len() as u32;
             verts.push(m.verts[v]);
             h.push(m.h[v]);
         }

@@ -95,7 +95,7 @@ impl Default for Settings {
             max_depth: None,
             particles: 4_000_000,
             c1: 20.0,
-            c2: 5.0,
+            c2: 8.0,
             epsilon: 0.01,
             decimate: true,
             per_channel: false,
@@ -302,7 +302,9 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         max_verts: s.max_verts,
     };
     let mut planar: Vec<PlanarMesh> = Vec::new();
-    let mut curved_hits: HashMap<(u32, bool), Vec<(Vec3, Vec3, Vec3)>> = HashMap::new();
+    // (position, normal, power) of the hits of each curved shape and side
+    type CurvedHits = Vec<(Vec3, Vec3, Vec3)>;
+    let mut curved_hits: HashMap<(u32, bool), CurvedHits> = HashMap::new();
     let result = (|| -> Result<(), HitFileError> {
         for b in 0..file.buckets.len() {
             let hits = file.read_bucket(b)?;

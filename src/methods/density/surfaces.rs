@@ -138,7 +138,8 @@ pub fn build(scene: &Scene) -> Surfaces {
 
     // Union-find over shared edges of coplanar triangles of one flat shape
     let mut parent: Vec<u32> = (0..nt as u32).collect();
-    let mut edges: HashMap<((i64, i64, i64), (i64, i64, i64)), u32> = HashMap::new();
+    type Key = (i64, i64, i64);
+    let mut edges: HashMap<(Key, Key), u32> = HashMap::new();
     for (t, tri) in scene.triangles.iter().enumerate() {
         let shape = scene.tri_shape[t] as usize;
         if curved[shape] {
