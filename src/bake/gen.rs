@@ -274,7 +274,7 @@ pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
         tris += obj.f.len();
         let _ = writeln!(
             shapes,
-            "    <shape type=\"obj\" id=\"mesh-{name}\">\n        <string name=\"filename\" value=\"meshes/{name}.obj\"/>\n        <ref id=\"{mat}\"/>\n    </shape>"
+            "    <shape type=\"obj\" id=\"mesh-{name}\">\n        <string name=\"filename\" value=\"meshes/{name}.obj\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <ref id=\"{mat}\"/>\n    </shape>"
         );
     }
     // A 4 × 3 lattice of ceiling panels, facing down
