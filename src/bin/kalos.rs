@@ -131,7 +131,7 @@ struct RenderArgs {
     /// Rendering method.
     #[arg(short, long, default_value = "path", value_parser = clap::builder::PossibleValuesParser::new(methods::METHODS))]
     method: String,
-    /// Method variant (light: walk | iteration).
+    /// Method variant (light: walk | iteration; density: rgb | per-channel).
     #[arg(long)]
     variant: Option<String>,
     /// Samples per pixel (light paths per pixel for the light-based methods).
