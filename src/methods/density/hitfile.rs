@@ -238,11 +238,15 @@ impl HitWriter {
                     bytes.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
                 drop(bytes);
                 hits.sort_by_key(|h| h.surface);
-                let mut out = Vec::with_capacity(hits.len() * HIT_BYTES);
-                for h in &hits {
-                    out.extend_from_slice(&h.to_bytes());
+                // write in small pieces: no second copy of the bucket
+                let mut out = Vec::with_capacity(65536 * HIT_BYTES);
+                for chunk in hits.chunks(65536) {
+                    out.clear();
+                    for h in chunk {
+                        out.extend_from_slice(&h.to_bytes());
+                    }
+                    w.write_all(&out).map_err(io_err(&tmp))?;
                 }
-                w.write_all(&out).map_err(io_err(&tmp))?;
                 std::fs::remove_file(&bp).map_err(io_err(&bp))?;
             }
             w.flush().map_err(io_err(&tmp))?;

@@ -29,6 +29,8 @@ use glam::{Vec2, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
+use super::hitfile::{decode_rgb9e5, from_fixed, Hit};
+
 /// Normal compatibility of the 3D kernel: cos of the largest angle between
 /// the normal at the estimate point and at a hit that may contribute.
 pub const NORMAL_COS: f32 = 0.9;
@@ -308,14 +310,14 @@ pub struct Params {
     pub max_verts: usize,
 }
 
-/// Estimates the irradiance of a planar surface from its hits (chart
-/// position, power in units of φ), eq. (2): H(x) = φ/h² Σ c_j K2((x − x_j)/h).
+/// Estimates the irradiance of a planar surface from its hit records
+/// (chart position in fixed point, power in units of φ), eq. (2): H(x) = φ/h² Σ c_j K2((x − x_j)/h).
 pub fn estimate_planar(
     rectangle: bool,
     size: Vec2,
     area: f32,
     chart_tris: &[[Vec2; 3]],
-    hits: &[(Vec2, Vec3)],
+    hits: &[Hit],
     p: &Params,
 ) -> Estimate {
     let n = hits.len();
@@ -333,12 +335,20 @@ pub fn estimate_planar(
     let bw = p.c1 * unit;
     let (verts, tris) = overmesh(rectangle, size, chart_tris, p.c2 * unit, p.max_verts);
 
-    // Reflection method at the edges of a rectangle
-    let mut pts: Vec<(Vec2, Vec3)> = hits.to_vec();
-    if rectangle {
-        for &(x, c) in hits {
-            let xs: &[f32] = &[x.x, -x.x, 2.0 * size.x - x.x];
-            let ys: &[f32] = &[x.y, -x.y, 2.0 * size.y - x.y];
+    // The points: every hit (chart position, power in units of φ) and, for
+    // a rectangle, its mirror images across the edges within h (the
+    // reflection method). Generated twice (count, then fill) so that only
+    // one decoded copy of the surface's hits is ever held.
+    let for_each_point = |f: &mut dyn FnMut(Vec2, Vec3)| {
+        for h in hits {
+            let x = Vec2::new(from_fixed(h.u), from_fixed(h.v)) * size;
+            let c = decode_rgb9e5(h.rgb);
+            f(x, c);
+            if !rectangle {
+                continue;
+            }
+            let xs: [f32; 3] = [x.x, -x.x, 2.0 * size.x - x.x];
+            let ys: [f32; 3] = [x.y, -x.y, 2.0 * size.y - x.y];
             for (i, &u) in xs.iter().enumerate() {
                 for (j, &v) in ys.iter().enumerate() {
                     if i == 0 && j == 0 {
@@ -346,12 +356,12 @@ pub fn estimate_planar(
                     }
                     let q = Vec2::new(u, v);
                     if q.x > -bw && q.y > -bw && q.x < size.x + bw && q.y < size.y + bw {
-                        pts.push((q, c));
+                        f(q, c);
                     }
                 }
             }
         }
-    }
+    };
 
     // Bin the points in cells of side ≥ h (counting sort keeps their order)
     let lo = Vec2::splat(-bw);
@@ -366,20 +376,18 @@ pub fn estimate_planar(
         cy * nx + cx
     };
     let mut start = vec![0u32; nx * ny + 1];
-    for (q, _) in &pts {
-        start[cell_of(*q) + 1] += 1;
-    }
+    for_each_point(&mut |q, _| start[cell_of(q) + 1] += 1);
     for i in 1..start.len() {
         start[i] += start[i - 1];
     }
     let mut fill = start.clone();
-    let mut sorted = vec![(Vec2::ZERO, Vec3::ZERO); pts.len()];
-    for &(q, c) in &pts {
+    let mut sorted = vec![(Vec2::ZERO, Vec3::ZERO); start[nx * ny] as usize];
+    for_each_point(&mut |q, c| {
         let k = cell_of(q);
         sorted[fill[k] as usize] = (q, c);
         fill[k] += 1;
-    }
-    drop(pts);
+    });
+    drop(fill);
 
     // Renormalisation for general polygons: kernel mass inside the polygon
     let poly = (!rectangle).then(|| {

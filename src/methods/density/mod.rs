@@ -44,7 +44,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use glam::{DVec3, Vec2, Vec3};
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::{Method, MethodError, Options, StepStats, World};
@@ -325,22 +325,13 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
                     if surf.kind != Kind::Planar {
                         return None;
                     }
-                    let pts: Vec<(Vec2, Vec3)> = hits[a..e]
-                        .iter()
-                        .map(|h| {
-                            (
-                                Vec2::new(from_fixed(h.u), from_fixed(h.v)) * surf.size,
-                                decode_rgb9e5(h.rgb),
-                            )
-                        })
-                        .collect();
                     let ct = surf.chart_tris(scene);
                     let est = kernel::estimate_planar(
                         surf.rectangle,
                         surf.size,
                         surf.area,
                         &ct,
-                        &pts,
+                        &hits[a..e],
                         &params,
                     );
                     Some(PlanarMesh::new(
