@@ -6,6 +6,7 @@
 #![warn(missing_docs)]
 
 pub mod accel;
+pub mod bake;
 pub mod bench;
 pub mod bsdf;
 pub mod camera;

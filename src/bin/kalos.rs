@@ -42,22 +42,87 @@ enum Command {
     Plot(PlotArgs),
     /// Measure the ray core's throughput (Mrays/s), one thread and all.
     Bench(BenchArgs),
-    /// Write a generated scene (sphereflake, teapot-room, terrain) as
-    /// Mitsuba XML plus OBJ meshes.
+    /// Bake view-independent lighting by density estimation into a glTF
+    /// binary display mesh (vertex colours), optionally an irradiance PLY.
+    Bake(BakeArgs),
+    /// Write a generated scene (sphereflake, teapot-room, terrain, big-room)
+    /// as Mitsuba XML plus OBJ meshes.
     Gen {
         /// Scene name.
-        #[arg(value_parser = clap::builder::PossibleValuesParser::new(scene::gen::SCENES))]
+        #[arg(value_parser = clap::builder::PossibleValuesParser::new(GEN_SCENES))]
         name: String,
         /// Output directory.
         #[arg(short, long)]
         output: PathBuf,
+        /// big-room: seed of the furniture layout.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
     },
 }
+
+/// The scenes `kalos gen` writes.
+const GEN_SCENES: &[&str] = &["sphereflake", "teapot-room", "terrain", "big-room"];
 
 #[derive(Clone, Copy, ValueEnum)]
 enum OnOff {
     On,
     Off,
+}
+
+#[derive(Args)]
+struct BakeArgs {
+    /// Scene file; omit (or say `builtin`) for the built-in Cornell box.
+    scene: Option<PathBuf>,
+    /// Output display mesh (.glb).
+    #[arg(short, long, default_value = "out.glb")]
+    output: PathBuf,
+    /// Also write the irradiance mesh as PLY.
+    #[arg(long)]
+    ply: Option<PathBuf>,
+    /// Keep the hit file at this path.
+    #[arg(long)]
+    hits: Option<PathBuf>,
+    /// Directory for the hit file's buckets (default: the system temp dir).
+    #[arg(long)]
+    scratch: Option<PathBuf>,
+    #[command(flatten)]
+    density: DensityArgs,
+    /// `rgb` (one pass, default) or `per-channel` (the paper's three runs).
+    #[arg(long)]
+    variant: Option<String>,
+    /// Skip the decimation phase.
+    #[arg(long)]
+    no_decimate: bool,
+    /// Random seed: the same seed gives the same hit file whatever --threads.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Longest particle path in segments; default unlimited.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Print particles, hits, bytes per hit, time per phase, peak memory,
+    /// triangles before and after decimation.
+    #[arg(long)]
+    stats: bool,
+}
+
+/// The density method's parameters, shared by `render` and `bake`.
+#[derive(Args)]
+struct DensityArgs {
+    /// Density: particles traced (per channel run); accepts 4M, 96M.
+    #[arg(long, value_parser = parse_count)]
+    particles: Option<u64>,
+    /// Density: kernel width h = C1·√(A/n) (paper: 10–40).
+    #[arg(long)]
+    c1: Option<f32>,
+    /// Density: grid spacing C2·√(A/n) (paper: C1/10 – C1/2).
+    #[arg(long)]
+    c2: Option<f32>,
+    /// Density: decimation error bound ε (Stevens brightness units).
+    #[arg(long)]
+    epsilon: Option<f32>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -77,7 +142,7 @@ struct RenderArgs {
     /// Rendering method.
     #[arg(short, long, default_value = "path", value_parser = clap::builder::PossibleValuesParser::new(methods::METHODS))]
     method: String,
-    /// Method variant (light: walk | iteration).
+    /// Method variant (light: walk | iteration; density: rgb | per-channel).
     #[arg(long)]
     variant: Option<String>,
     /// Samples per pixel (light paths per pixel for the light-based methods).
@@ -154,6 +219,8 @@ struct RenderArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+    #[command(flatten)]
+    density: DensityArgs,
 }
 
 #[derive(Args)]
@@ -259,9 +326,8 @@ fn main() {
         Command::Info { scene } => info(scene.as_deref()),
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench(a),
-        Command::Gen { name, output } => scene::gen::generate(&name, &output)
-            .map(|p| println!("wrote {}", p.display()))
-            .with_context(|| format!("writing {}", output.display())),
+        Command::Bake(a) => bake_cmd(a),
+        Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
     };
     if let Err(e) = r {
         eprintln!("error: {e:#}");
@@ -331,6 +397,10 @@ fn render(a: RenderArgs) -> Result<()> {
         lambda: a.lambda,
         phase_len: a.phase_len,
         population: a.population,
+        particles: a.density.particles,
+        c1: a.density.c1,
+        c2: a.density.c2,
+        epsilon: a.density.epsilon,
     };
     let mut method = methods::create(&a.method, &world, &opts)?;
     let mut budget = Budget {
@@ -569,4 +639,125 @@ fn bench(a: BenchArgs) -> Result<()> {
         all.mrays_per_s / one.mrays_per_s
     );
     Ok(())
+}
+
+/// Peak resident memory of this process (VmHWM), in bytes, when known.
+fn peak_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = text.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+fn bake_cmd(a: BakeArgs) -> Result<()> {
+    use kalos::methods::density;
+    let ext = a
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    if ext != "glb" {
+        bail!("output '{}' must end in .glb", a.output.display());
+    }
+    if let Some(t) = a.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t.max(1))
+            .build_global()
+            .context("setting the thread count")?;
+    }
+    let t0 = Instant::now();
+    let world = World::new(load_scene(a.scene.as_deref())?);
+    let load_s = t0.elapsed().as_secs_f64();
+    if world.lights.is_empty() {
+        bail!("the scene has no emitters: nothing to bake");
+    }
+    let opts = Options {
+        seed: a.seed,
+        max_depth: a.max_depth,
+        variant: a.variant.clone(),
+        particles: a.density.particles,
+        c1: a.density.c1,
+        c2: a.density.c2,
+        epsilon: a.density.epsilon,
+        ..Default::default()
+    };
+    let mut s = density::Settings::from_options(&opts)?;
+    s.decimate = !a.no_decimate;
+    s.keep_hits = a.hits.clone();
+    s.scratch = a.scratch.clone();
+    let b = density::bake(&world, &s)?;
+    let t1 = Instant::now();
+    let (lit, other) = kalos::bake::collect(&world.scene, &b);
+    kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0)?;
+    if let Some(p) = &a.ply {
+        kalos::bake::ply::write_ply(p, &lit)?;
+    }
+    let write_s = t1.elapsed().as_secs_f64();
+    let st = &b.stats;
+    println!(
+        "{}: {} triangles ({} before decimation), white point {:.4e} W/(m²·sr)",
+        a.output.display(),
+        st.tris_after,
+        st.tris_before,
+        b.w0
+    );
+    if a.stats {
+        let total = st.t_trace + st.t_estimate + st.t_decimate;
+        let pct = |t: f64| if total > 0.0 { 100.0 * t / total } else { 0.0 };
+        println!("particles        {}", st.particles);
+        println!("hits             {}", st.hits);
+        println!("bytes per hit    {}", st.bytes_per_hit);
+        println!("hit file         {:.1} MB", st.hit_file_bytes as f64 / 1e6);
+        println!("surfaces         {}", st.surfaces);
+        println!("load + BVH       {load_s:.2} s");
+        println!(
+            "phase 1 trace    {:.2} s ({:.0}%)",
+            st.t_trace,
+            pct(st.t_trace)
+        );
+        println!(
+            "phase 2 estimate {:.2} s ({:.0}%)",
+            st.t_estimate,
+            pct(st.t_estimate)
+        );
+        println!(
+            "phase 3 decimate {:.2} s ({:.0}%)",
+            st.t_decimate,
+            pct(st.t_decimate)
+        );
+        println!("write            {write_s:.2} s");
+        println!("triangles before {}", st.tris_before);
+        println!(
+            "triangles after  {} ({:.1}% removed)",
+            st.tris_after,
+            if st.tris_before > 0 {
+                100.0 * (1.0 - st.tris_after as f64 / st.tris_before as f64)
+            } else {
+                0.0
+            }
+        );
+        println!(
+            "brightness error max {:.4}, mean {:.4} (epsilon {})",
+            st.max_brightness_error, st.mean_brightness_error, s.epsilon
+        );
+        match peak_memory() {
+            Some(m) => println!("peak memory      {:.1} MB", m as f64 / 1e6),
+            None => println!("peak memory      unknown"),
+        }
+    }
+    Ok(())
+}
+
+fn gen_cmd(what: &str, output: &Path, seed: u64) -> Result<()> {
+    match what {
+        "big-room" => {
+            let n = kalos::bake::gen::big_room(output, seed)?;
+            println!("{}: big-room with {n} triangles", output.display());
+            Ok(())
+        }
+        other => scene::gen::generate(other, output)
+            .map(|p| println!("wrote {}", p.display()))
+            .with_context(|| format!("writing {}", output.display())),
+    }
 }

@@ -8,6 +8,7 @@
 
 pub mod bundle;
 pub mod camera_pass;
+pub mod density;
 pub mod light;
 pub mod path;
 pub mod plb;
@@ -107,6 +108,14 @@ pub struct Options {
     pub phase_len: Option<u32>,
     /// `plb`: population cap after each purge (None: the method's default).
     pub population: Option<usize>,
+    /// Density estimation: particles per run (None: the method's default).
+    pub particles: Option<u64>,
+    /// Density estimation: kernel width factor C1.
+    pub c1: Option<f32>,
+    /// Density estimation: grid spacing factor C2.
+    pub c2: Option<f32>,
+    /// Density estimation: decimation error bound ε.
+    pub epsilon: Option<f32>,
 }
 
 impl Default for Options {
@@ -126,6 +135,10 @@ impl Default for Options {
             lambda: None,
             phase_len: None,
             population: None,
+            particles: None,
+            c1: None,
+            c2: None,
+            epsilon: None,
         }
     }
 }
@@ -136,7 +149,7 @@ impl Default for Options {
 pub struct MethodError(pub String);
 
 /// The names of the methods, in the order `--help` shows them.
-pub const METHODS: &[&str] = &["path", "light", "plb", "bundle"];
+pub const METHODS: &[&str] = &["path", "light", "plb", "bundle", "density"];
 
 /// The method table: name → constructor (Tungsten's integrator factory).
 pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
@@ -156,6 +169,10 @@ pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Metho
         "plb" => Ok(Box::new(plb::Plb::new(
             world,
             plb::Settings::from_options(opts)?,
+        ))),
+        "density" => Ok(Box::new(density::Density::new(
+            world,
+            density::Settings::from_options(opts)?,
         ))),
         other => Err(MethodError(format!(
             "unknown method '{other}'; known methods: {}",

@@ -1,0 +1,627 @@
+//! `density`: global illumination by density estimation (Shirley, Wade,
+//! Hubbard, Zareski, Walter and Greenberg 1995), the view-independent
+//! method, and the baker behind `kalos bake`.
+//!
+//! Three phases, each parallel and deterministic per seed:
+//! 1. [`particles`]: particle tracing to a hit file ([`hitfile`], 12 bytes a
+//!    hit, streamed to disk in buckets and grouped by surface id);
+//! 2. [`kernel`]: per surface ([`surfaces`]), the irradiance H(u, v) by
+//!    kernel density estimation, sampled on an over-mesh;
+//! 3. [`decimate`]: Schroeder-style vertex decimation of the illumination
+//!    mesh in (u, v, brightness) space, with a priority queue and the
+//!    height-field check.
+//!
+//! The image is the paper's view-dependent second pass: a camera ray that
+//! meets a diffuse surface reads L = R·H/π from the display mesh ([`mesh`]);
+//! mirrors, glass and other non-diffuse surfaces are ray-traced onward by
+//! sampling their BSDF. The bake happens in the first pass; every pass adds
+//! one jittered sample per pixel of the view pass.
+//!
+//! Colour: one RGB pass. Every particle carries RGB power (its luminaire's
+//! colour, tinted by every reflection), so the three channels of the estimate
+//! are made from the same hits and their noise is correlated: no "visible
+//! coloured texture" (§4.4), which the paper's per-channel runs show because
+//! each channel's hits are independent. `Channel::Single` keeps the paper's
+//! per-channel runs for the measurement in BENCHMARKS-density.md. The price
+//! is 4 more bytes per hit (RGB9E5 power: 12 bytes instead of 8), against
+//! three runs of 8 bytes (24 bytes for the same particles per channel).
+//!
+//! ```text
+//! kalos render scenes/cbox/cbox.xml --method density --particles 4M --spp 16 -o d.exr
+//! kalos bake scenes/cbox/cbox.xml -o cbox.glb --stats
+//! ```
+
+pub mod decimate;
+pub mod hitfile;
+pub mod kernel;
+pub mod mesh;
+pub mod particles;
+pub mod surfaces;
+
+use std::collections::HashMap;
+use std::f32::consts::PI;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::{Method, MethodError, Options, StepStats, World};
+use crate::bsdf::Mode;
+use crate::film::Image;
+use crate::geometry::{offset_point, Ray};
+use crate::methods::path::orient;
+use crate::sampling::Pcg32;
+use crate::scene::{luminance, Rgb};
+use hitfile::{decode_rgb9e5, from_fixed, HitFile, HitFileError, HitWriter, HIT_BYTES};
+use kernel::Params;
+use mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
+use particles::Channel;
+use surfaces::{Kind, Surfaces};
+
+/// Settings of the density method (defaults inside the paper's ranges).
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// Master seed.
+    pub seed: u64,
+    /// Longest particle path in segments (None: unlimited).
+    pub max_depth: Option<u32>,
+    /// Particles n (per channel run with `per_channel`).
+    pub particles: u64,
+    /// Kernel width factor C1 of h = C1·√(A/n); the paper found 10–40 useful.
+    pub c1: f32,
+    /// Grid spacing factor C2; the paper: C1/10 to C1/2.
+    pub c2: f32,
+    /// Error bound ε of the decimation, in Stevens brightness units.
+    pub epsilon: f32,
+    /// Decimate the over-mesh (phase 3).
+    pub decimate: bool,
+    /// The paper's three per-channel runs instead of one RGB pass.
+    pub per_channel: bool,
+    /// Cap on over-mesh vertices per surface.
+    pub max_verts: usize,
+    /// Where the hit file goes (default: a fresh directory under the
+    /// system's temporary directory, removed after the bake).
+    pub scratch: Option<PathBuf>,
+    /// Keep the hit file at this path instead of deleting it.
+    pub keep_hits: Option<PathBuf>,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            seed: 0,
+            max_depth: None,
+            particles: 4_000_000,
+            c1: 20.0,
+            c2: 8.0,
+            epsilon: 0.01,
+            decimate: true,
+            per_channel: false,
+            max_verts: 1 << 20,
+            scratch: None,
+            keep_hits: None,
+        }
+    }
+}
+
+impl Settings {
+    /// Reads the shared options.
+    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
+        let d = Settings::default();
+        let s = Settings {
+            seed: o.seed,
+            max_depth: o.max_depth,
+            particles: o.particles.unwrap_or(d.particles),
+            c1: o.c1.unwrap_or(d.c1),
+            c2: o.c2.unwrap_or(d.c2),
+            epsilon: o.epsilon.unwrap_or(d.epsilon),
+            per_channel: match o.variant.as_deref() {
+                None | Some("rgb") => false,
+                Some("per-channel") => true,
+                Some(v) => {
+                    return Err(MethodError(format!(
+                        "unknown variant '{v}' for method density; expected 'rgb' or 'per-channel'"
+                    )))
+                }
+            },
+            ..d
+        };
+        s.check()?;
+        Ok(s)
+    }
+
+    /// Rejects settings that cannot work.
+    pub fn check(&self) -> Result<(), MethodError> {
+        if !(self.c1.is_finite() && self.c1 > 0.0) {
+            return Err(MethodError(format!(
+                "--c1 must be positive, got {}",
+                self.c1
+            )));
+        }
+        if !(self.c2.is_finite() && self.c2 > 0.0) {
+            return Err(MethodError(format!(
+                "--c2 must be positive, got {}",
+                self.c2
+            )));
+        }
+        if !(self.epsilon.is_finite() && self.epsilon >= 0.0) {
+            return Err(MethodError(format!(
+                "--epsilon must be ≥ 0, got {}",
+                self.epsilon
+            )));
+        }
+        if self.particles == 0 {
+            return Err(MethodError("--particles must be positive".into()));
+        }
+        Ok(())
+    }
+}
+
+/// Figures of a bake.
+#[derive(Clone, Debug, Default)]
+pub struct BakeStats {
+    /// Particles emitted (all channel runs).
+    pub particles: u64,
+    /// Hits recorded.
+    pub hits: u64,
+    /// Bytes per hit record.
+    pub bytes_per_hit: usize,
+    /// Size of the hit file's records.
+    pub hit_file_bytes: u64,
+    /// Rays traced by the particles.
+    pub rays: u64,
+    /// Seconds in phase 1 (tracing, including the bucket sort).
+    pub t_trace: f64,
+    /// Seconds in phase 2 (density estimation and over-meshing).
+    pub t_estimate: f64,
+    /// Seconds in phase 3 (decimation).
+    pub t_decimate: f64,
+    /// Display triangles before decimation.
+    pub tris_before: u64,
+    /// Display triangles after decimation.
+    pub tris_after: u64,
+    /// Largest brightness error the decimation caused, measured at every
+    /// removed vertex (Stevens units, ≤ ε).
+    pub max_brightness_error: f32,
+    /// Mean brightness error over removed vertices.
+    pub mean_brightness_error: f32,
+    /// Number of receiving surfaces (planar groups and curved triangles).
+    pub surfaces: usize,
+}
+
+/// The result of a bake: surfaces, display mesh, figures.
+#[derive(Clone, Debug)]
+pub struct Bake {
+    /// The receiving surfaces.
+    pub surfaces: Surfaces,
+    /// The display mesh (decimated unless disabled).
+    pub mesh: DisplayMesh,
+    /// White point w0 of the brightness axis (radiance, luminance).
+    pub w0: f32,
+    /// Figures.
+    pub stats: BakeStats,
+}
+
+/// An error while baking (the hit file's I/O).
+#[derive(Debug, thiserror::Error)]
+pub enum DensityError {
+    /// Hit-file I/O.
+    #[error(transparent)]
+    HitFile(#[from] HitFileError),
+    /// Bad settings.
+    #[error(transparent)]
+    Settings(#[from] MethodError),
+}
+
+fn scratch_dir(s: &Settings) -> PathBuf {
+    static N: AtomicU64 = AtomicU64::new(0);
+    let base = s.scratch.clone().unwrap_or_else(std::env::temp_dir);
+    base.join(format!(
+        "kalos-density-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    ))
+}
+
+/// Phase 1: traces the particles into a hit file at `path` (bucket files in
+/// `dir`). Returns the file, the trace figures and φ = Φ/n.
+pub fn trace_to_file(
+    world: &World,
+    surfaces: &Surfaces,
+    s: &Settings,
+    dir: &std::path::Path,
+    path: &std::path::Path,
+) -> Result<(HitFile, particles::TraceStats, f64), HitFileError> {
+    let lums = particles::luminaires(world);
+    let n_expected_hits = s.particles.saturating_mul(4) * if s.per_channel { 3 } else { 1 };
+    // buckets of about 32 MB of records
+    let buckets = (n_expected_hits * HIT_BYTES as u64 / (32 << 20)).clamp(1, 1024) as u32;
+    let mut w = HitWriter::new(dir, surfaces.list.len() as u32, buckets)?;
+    let mut total = particles::TraceStats::default();
+    let channels: Vec<Channel> = if s.per_channel {
+        (0..3).map(Channel::Single).collect()
+    } else {
+        vec![Channel::Rgb]
+    };
+    for ch in channels {
+        let t = particles::trace(
+            world,
+            surfaces,
+            &lums,
+            s.particles,
+            ch,
+            s.seed,
+            s.max_depth,
+            &mut w,
+        )?;
+        total.particles += t.particles;
+        total.hits += t.hits;
+        total.rays += t.rays;
+    }
+    let file = w.finish(path)?;
+    Ok((file, total, particles::phi_unit(&lums, s.particles)))
+}
+
+/// Runs the three phases.
+pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
+    s.check()?;
+    let scene = &world.scene;
+    let surfaces = surfaces::build(scene);
+    let mut stats = BakeStats {
+        bytes_per_hit: HIT_BYTES,
+        surfaces: surfaces.list.len(),
+        ..Default::default()
+    };
+
+    // Phase 1: particle tracing
+    let t0 = Instant::now();
+    let dir = scratch_dir(s);
+    let path = s.keep_hits.clone().unwrap_or_else(|| dir.join("hits.bin"));
+    let traced = trace_to_file(world, &surfaces, s, &dir, &path);
+    let (file, ts, phi) = match traced {
+        Ok(v) => v,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            return Err(e.into());
+        }
+    };
+    stats.particles = ts.particles;
+    stats.hits = ts.hits;
+    stats.rays = ts.rays;
+    stats.hit_file_bytes = file.record_bytes();
+    stats.t_trace = t0.elapsed().as_secs_f64();
+
+    // Phase 2: density estimation, one bucket at a time
+    let t1 = Instant::now();
+    let params = Params {
+        c1: s.c1,
+        c2: s.c2,
+        phi: phi as f32,
+        max_verts: s.max_verts,
+    };
+    let mut planar: Vec<PlanarMesh> = Vec::new();
+    // (position, normal, power) of the hits of each curved shape and side
+    type CurvedHits = Vec<(Vec3, Vec3, Vec3)>;
+    let mut curved_hits: HashMap<(u32, bool), CurvedHits> = HashMap::new();
+    let result = (|| -> Result<(), HitFileError> {
+        for b in 0..file.buckets.len() {
+            let hits = file.read_bucket(b)?;
+            // runs of one surface id (side included)
+            let mut runs = Vec::new();
+            let mut i = 0;
+            while i < hits.len() {
+                let id = hits[i].surface;
+                let j = i + hits[i..].partition_point(|h| h.surface == id);
+                runs.push((id, i, j));
+                i = j;
+            }
+            let meshes: Vec<Option<PlanarMesh>> = runs
+                .par_iter()
+                .map(|&(id, a, e)| {
+                    let sid = id & 0x7fff_ffff;
+                    let surf = surfaces.list.get(sid as usize)?;
+                    if surf.kind != Kind::Planar {
+                        return None;
+                    }
+                    let ct = surf.chart_tris(scene);
+                    let est = kernel::estimate_planar(
+                        surf.rectangle,
+                        surf.size,
+                        surf.area,
+                        &ct,
+                        &hits[a..e],
+                        &params,
+                    );
+                    Some(PlanarMesh::new(
+                        id,
+                        est.verts,
+                        est.tris,
+                        est.h,
+                        est.bandwidth,
+                        (e - a) as u64,
+                    ))
+                })
+                .collect();
+            planar.extend(meshes.into_iter().flatten());
+            for &(id, a, e) in &runs {
+                let sid = id & 0x7fff_ffff;
+                let Some(surf) = surfaces.list.get(sid as usize) else {
+                    continue;
+                };
+                if surf.kind != Kind::Curved {
+                    continue;
+                }
+                let back = id >> 31 == 1;
+                let list = curved_hits.entry((surf.shape, back)).or_default();
+                for h in &hits[a..e] {
+                    let sp = scene.surface_point(surf.tris[0], from_fixed(h.u), from_fixed(h.v));
+                    let n = if back { -sp.frame.n } else { sp.frame.n };
+                    list.push((sp.p, n, decode_rgb9e5(h.rgb)));
+                }
+            }
+        }
+        Ok(())
+    })();
+    if s.keep_hits.is_none() {
+        let _ = std::fs::remove_file(&path);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    result?;
+
+    // Front sides without hits still get a (black) mesh, so that the
+    // display mesh covers every diffuse surface.
+    let have: std::collections::HashSet<u32> = planar.iter().map(|m| m.surface).collect();
+    for (sid, surf) in surfaces.list.iter().enumerate() {
+        if surf.kind == Kind::Planar && surf.diffuse && !have.contains(&(sid as u32)) {
+            let ct = surf.chart_tris(scene);
+            let est =
+                kernel::estimate_planar(surf.rectangle, surf.size, surf.area, &ct, &[], &params);
+            planar.push(PlanarMesh::new(
+                sid as u32, est.verts, est.tris, est.h, 0.0, 0,
+            ));
+        }
+    }
+    planar.sort_by_key(|m| m.surface);
+
+    // Curved shapes: the 3D kernel at their vertices
+    let mut keys: Vec<(u32, bool)> = curved_hits.keys().copied().collect();
+    keys.sort();
+    let mut curved = Vec::new();
+    for key in keys {
+        let hits = &curved_hits[&key];
+        let sh = &scene.shapes[key.0 as usize];
+        let tris: Vec<u32> = (sh.first_tri..sh.first_tri + sh.tri_count).collect();
+        let area: f32 = tris.iter().map(|&t| scene.tri_area(t)).sum();
+        let h = s.c1 * (area / hits.len().max(1) as f32).sqrt();
+        let at: Vec<(Vec3, Vec3)> = tris
+            .iter()
+            .flat_map(|&t| {
+                [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)].map(|(b1, b2)| {
+                    let sp = scene.surface_point(t, b1, b2);
+                    (sp.p, if key.1 { -sp.frame.n } else { sp.frame.n })
+                })
+            })
+            .collect();
+        let est = kernel::estimate_3d(&at, hits, h, phi as f32);
+        curved.push(CurvedMesh {
+            shape: key.0,
+            back: key.1,
+            h: est.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            tris,
+        });
+    }
+    drop(curved_hits);
+    stats.t_estimate = t1.elapsed().as_secs_f64();
+    stats.tris_before = planar.iter().map(|m| m.tris.len() as u64).sum::<u64>()
+        + curved.iter().map(|m| m.tris.len() as u64).sum::<u64>();
+
+    // The white point: the 99th percentile of the vertex radiance
+    let mut lum: Vec<f32> = planar
+        .iter()
+        .flat_map(|m| {
+            let r = surfaces.list[(m.surface & 0x7fff_ffff) as usize].reflectance;
+            m.h.iter().map(move |h| luminance(r * *h / PI))
+        })
+        .filter(|v| *v > 0.0)
+        .collect();
+    lum.sort_by(f32::total_cmp);
+    let w0 = lum
+        .get(((lum.len() as f64 * 0.99) as usize).min(lum.len().saturating_sub(1)))
+        .copied()
+        .unwrap_or(1.0)
+        .max(1e-12);
+    drop(lum);
+
+    // Phase 3: decimation
+    let t2 = Instant::now();
+    let mut max_err = 0.0f32;
+    let mut sum_err = 0.0f64;
+    let mut removed = 0u64;
+    if s.decimate {
+        let out: Vec<(PlanarMesh, decimate::Report)> = planar
+            .into_par_iter()
+            .map(|m| {
+                let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
+                decimate::decimate_planar(m, surf.reflectance, w0, s.epsilon)
+            })
+            .collect();
+        planar = Vec::with_capacity(out.len());
+        for (m, r) in out {
+            max_err = max_err.max(r.max_error);
+            sum_err += r.sum_error;
+            removed += r.removed;
+            planar.push(m);
+        }
+    }
+    stats.t_decimate = t2.elapsed().as_secs_f64();
+    stats.max_brightness_error = max_err;
+    stats.mean_brightness_error = if removed > 0 {
+        (sum_err / removed as f64) as f32
+    } else {
+        0.0
+    };
+    let mesh = DisplayMesh::new(planar, curved);
+    stats.tris_after = mesh.triangle_count();
+    Ok(Bake {
+        surfaces,
+        mesh,
+        w0,
+        stats,
+    })
+}
+
+/// The density method's progressive state: the bake, then the view pass.
+pub struct Density {
+    settings: Settings,
+    bake: Option<Bake>,
+    /// The error of a failed bake (the image stays black).
+    pub error: Option<String>,
+    sum: Vec<DVec3>,
+    passes: u64,
+}
+
+impl Density {
+    /// A density method for `world`.
+    pub fn new(world: &World, settings: Settings) -> Self {
+        let n = world.camera.width as usize * world.camera.height as usize;
+        Density {
+            settings,
+            bake: None,
+            error: None,
+            sum: vec![DVec3::ZERO; n],
+            passes: 0,
+        }
+    }
+
+    /// The bake, once the first pass has run.
+    pub fn bake(&self) -> Option<&Bake> {
+        self.bake.as_ref()
+    }
+}
+
+impl Method for Density {
+    fn name(&self) -> &'static str {
+        "density"
+    }
+
+    fn step(&mut self, world: &World, pass: u64) -> StepStats {
+        let mut rays = 0;
+        if self.bake.is_none() && self.error.is_none() {
+            match bake(world, &self.settings) {
+                Ok(b) => {
+                    rays += b.stats.rays;
+                    self.bake = Some(b);
+                }
+                Err(e) => self.error = Some(e.to_string()),
+            }
+        }
+        let Some(bk) = &self.bake else {
+            self.passes += 1;
+            return StepStats { rays };
+        };
+        let w = world.camera.width as usize;
+        let seed = self.settings.seed;
+        rays += self
+            .sum
+            .par_chunks_mut(w)
+            .enumerate()
+            .map(|(y, row)| {
+                let mut r = 0;
+                for (x, acc) in row.iter_mut().enumerate() {
+                    let pixel = (y * w + x) as u64;
+                    let mut rng = Pcg32::keyed(&[seed, pass, pixel, 0xDE]);
+                    let j = rng.next_2d();
+                    let ray = world.camera.ray(x as f32 + j.x, y as f32 + j.y);
+                    let (l, n) = view_radiance(world, bk, ray, &mut rng);
+                    r += n;
+                    if l.is_finite() {
+                        *acc += l.as_dvec3();
+                    }
+                }
+                r
+            })
+            .sum::<u64>();
+        self.passes += 1;
+        StepStats { rays }
+    }
+
+    fn image(&self, world: &World) -> Image {
+        let scale = if self.passes == 0 {
+            0.0
+        } else {
+            1.0 / self.passes as f64
+        };
+        Image {
+            width: world.camera.width,
+            height: world.camera.height,
+            data: self.sum.iter().map(|v| (*v * scale).as_vec3()).collect(),
+        }
+    }
+
+    fn spp(&self) -> f64 {
+        self.passes as f64
+    }
+}
+
+/// The view-dependent second pass along one camera ray: emitted radiance
+/// plus, at the first diffuse surface, R·H/π read from the display mesh;
+/// non-diffuse surfaces are followed by sampling their BSDF.
+pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
+    let scene = &world.scene;
+    let mut l = Rgb::ZERO;
+    let mut beta = Rgb::ONE;
+    let mut rays = 0;
+    for depth in 0..64 {
+        rays += 1;
+        let Some(hit) = world.accel.intersect(&ray) else {
+            l += beta * world.lights.le_env(ray.d);
+            break;
+        };
+        let sp = scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let wo_world = -ray.d;
+        if world.lights.is_emitter(hit.tri) {
+            l += beta * world.lights.le_tri(hit.tri, sp.frame.n, wo_world);
+        }
+        let sid = bk.surfaces.tri_surface[hit.tri as usize];
+        let surf = &bk.surfaces.list[sid as usize];
+        let material = scene.material_of(&sp);
+        if surf.diffuse {
+            let back = wo_world.dot(sp.ng) < 0.0;
+            if back && !material.is_two_sided() {
+                break;
+            }
+            let r = surfaces::diffuse_reflectance(material, sp.uv).unwrap_or(Rgb::ZERO);
+            let h = bk
+                .mesh
+                .irradiance(&bk.surfaces, hit.tri, hit.b1, hit.b2, sp.p, back);
+            l += beta * r * h / PI;
+            break;
+        }
+        // A non-diffuse surface: follow its BSDF
+        let bsdf = material.bsdf(sp.uv);
+        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+        let wo = frame.to_local(wo_world);
+        let Some(s) = bsdf.sample(wo, rng.next_f32(), rng.next_2d(), Mode::Radiance) else {
+            break;
+        };
+        let wi = frame.to_world(s.wi);
+        if wi.dot(ng) * s.wi.z <= 0.0 || s.pdf <= 0.0 {
+            break;
+        }
+        beta *= s.f * (s.wi.z.abs() / s.pdf);
+        if depth > 3 {
+            let q = beta.max_element().min(0.95);
+            if rng.next_f32() >= q {
+                break;
+            }
+            beta /= q;
+        }
+        if !beta.is_finite() || beta == Rgb::ZERO {
+            break;
+        }
+        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
+    }
+    (l, rays)
+}

@@ -1,0 +1,311 @@
+//! Phase 1, particle tracing (§3.1, §4.1).
+//!
+//! The total power Φ of the luminaires is summed; luminaire i sends an
+//! expected N_i = nΦ_i/Φ particles, ⌊N_i⌋ plus one with probability
+//! N_i − ⌊N_i⌋, from uniform points with cosine-distributed directions (the
+//! pdf ∝ L_e cos θ of a diffuse luminaire). Every particle starts with the
+//! power φ = Φ/n (its colour that of the luminaire). At each surface it is
+//! reflected, transmitted or absorbed by the BSDF (sampled in importance
+//! mode, Russian roulette on the largest channel of the albedo, so that a
+//! particle keeps its power while it lives); glass and metal are traced
+//! through. Every hit on a diffuse surface is recorded before scattering.
+//!
+//! Parallelism and determinism: particles are numbered globally and cut in
+//! chunks of [`CHUNK`]; chunk c draws from the stream keyed (seed, c), chunks
+//! of a batch run in parallel and are appended to the hit file in chunk
+//! order. The file depends on the seed only, not on the thread count.
+
+use std::f32::consts::PI;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::hitfile::{encode_rgb9e5, to_fixed, Hit, HitFileError, HitWriter};
+use super::surfaces::{Kind, Surfaces};
+use crate::bsdf::{Bsdf, Mode};
+use crate::geometry::{offset_point, Frame, Ray};
+use crate::methods::path::orient;
+use crate::methods::World;
+use crate::sampling::{cosine_hemisphere, uniform_triangle, Distribution1D, Pcg32};
+use crate::scene::{luminance, EmitterDesc, Rgb};
+
+/// Particles per chunk (one random stream each).
+pub const CHUNK: u64 = 1 << 14;
+/// Chunks traced in parallel before their hits are appended.
+pub const BATCH: u64 = 64;
+
+/// One luminaire: an area light's triangles with their area distribution.
+#[derive(Clone, Debug)]
+pub struct Luminaire {
+    /// Triangles.
+    pub tris: Vec<u32>,
+    /// Area distribution over `tris`.
+    pub dist: Distribution1D,
+    /// Emitted radiance.
+    pub le: Rgb,
+    /// Power per channel, π A L_e.
+    pub phi: Rgb,
+}
+
+/// The luminaires of a scene (area lights; environment lights are not
+/// traced by this method).
+pub fn luminaires(world: &World) -> Vec<Luminaire> {
+    let scene = &world.scene;
+    let mut out = Vec::new();
+    for e in &scene.emitters {
+        if let EmitterDesc::Area { shape, radiance } = e {
+            let sh = &scene.shapes[*shape as usize];
+            let tris: Vec<u32> = (sh.first_tri..sh.first_tri + sh.tri_count).collect();
+            let areas: Vec<f64> = tris.iter().map(|&t| scene.tri_area(t) as f64).collect();
+            let dist = Distribution1D::new(&areas);
+            let a = dist.total() as f32;
+            let phi = *radiance * (PI * a);
+            if luminance(phi) > 0.0 {
+                out.push(Luminaire {
+                    tris,
+                    dist,
+                    le: *radiance,
+                    phi,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Which power a run of particles carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channel {
+    /// One pass, RGB power on every particle (luminance picks the counts).
+    Rgb,
+    /// The paper's per-channel run: only channel 0, 1 or 2.
+    Single(usize),
+}
+
+/// What the tracing phase produced.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TraceStats {
+    /// Particles emitted.
+    pub particles: u64,
+    /// Hits recorded.
+    pub hits: u64,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+/// The power unit of the hit records: φ = Φ/n with Φ the luminance power.
+pub fn phi_unit(lums: &[Luminaire], n: u64) -> f64 {
+    lums.iter().map(|l| luminance(l.phi) as f64).sum::<f64>() / n.max(1) as f64
+}
+
+/// Traces `n` particles (per channel run) and streams their hits to `out`.
+#[allow(clippy::too_many_arguments)]
+pub fn trace(
+    world: &World,
+    surfaces: &Surfaces,
+    lums: &[Luminaire],
+    n: u64,
+    channel: Channel,
+    seed: u64,
+    max_depth: Option<u32>,
+    out: &mut HitWriter,
+) -> Result<TraceStats, HitFileError> {
+    let weight = |c: Rgb| match channel {
+        Channel::Rgb => luminance(c) as f64,
+        Channel::Single(k) => c[k] as f64,
+    };
+    let phi_total: f64 = lums.iter().map(|l| weight(l.phi)).sum();
+    let phi_ref = phi_unit(lums, n);
+    if phi_total <= 0.0 || n == 0 {
+        return Ok(TraceStats::default());
+    }
+    let salt = match channel {
+        Channel::Rgb => 0xD0,
+        Channel::Single(k) => 0xD1 + k as u64,
+    };
+
+    // N_i = nΦ_i/Φ: ⌊N_i⌋ and one more with probability N_i − ⌊N_i⌋
+    let mut counts = Vec::with_capacity(lums.len());
+    for (i, l) in lums.iter().enumerate() {
+        let ni = n as f64 * weight(l.phi) / phi_total;
+        let mut rng = Pcg32::keyed(&[seed, i as u64, salt, 0x4e]);
+        let extra = u64::from(rng.next_f64() < ni - ni.floor());
+        counts.push(ni.floor() as u64 + extra);
+    }
+    let total: u64 = counts.iter().sum();
+    let starts: Vec<u64> = counts
+        .iter()
+        .scan(0u64, |s, &c| {
+            let v = *s;
+            *s += c;
+            Some(v)
+        })
+        .collect();
+
+    // Every particle starts with φ = Φ/n, coloured as its luminaire
+    let power: Vec<Rgb> = lums
+        .iter()
+        .map(|l| {
+            let w = weight(l.le) as f32;
+            let c = match channel {
+                Channel::Rgb => l.le / w.max(1e-30),
+                Channel::Single(k) => {
+                    let mut v = Rgb::ZERO;
+                    v[k] = 1.0;
+                    v
+                }
+            };
+            c * (phi_total / n as f64 / phi_ref) as f32
+        })
+        .collect();
+
+    let chunks = total.div_ceil(CHUNK);
+    let mut stats = TraceStats {
+        particles: total,
+        ..Default::default()
+    };
+    let mut c0 = 0;
+    while c0 < chunks {
+        let c1 = (c0 + BATCH).min(chunks);
+        let results: Vec<(Vec<Hit>, u64)> = (c0..c1)
+            .into_par_iter()
+            .map(|c| {
+                let mut rng = Pcg32::keyed(&[seed, c, salt]);
+                let mut hits = Vec::new();
+                let mut rays = 0;
+                let (a, b) = (c * CHUNK, ((c + 1) * CHUNK).min(total));
+                let mut li = starts.partition_point(|&s| s <= a).saturating_sub(1);
+                for k in a..b {
+                    while li + 1 < lums.len() && k >= starts[li + 1] {
+                        li += 1;
+                    }
+                    if counts[li] == 0 {
+                        continue;
+                    }
+                    rays += trace_one(
+                        world, surfaces, &lums[li], power[li], channel, max_depth, &mut rng,
+                        &mut hits,
+                    );
+                }
+                (hits, rays)
+            })
+            .collect();
+        for (hits, rays) in results {
+            stats.hits += hits.len() as u64;
+            stats.rays += rays;
+            out.push(&hits)?;
+        }
+        c0 = c1;
+    }
+    Ok(stats)
+}
+
+/// Samples the next direction in importance mode with the shading-normal
+/// correction; returns the direction and f·|cos|/pdf.
+fn scatter(
+    bsdf: &Bsdf,
+    frame: &Frame,
+    ng: Vec3,
+    wo_world: Vec3,
+    rng: &mut Pcg32,
+) -> Option<(Vec3, Rgb)> {
+    let wo = frame.to_local(wo_world);
+    let uc = rng.next_f32();
+    let u = rng.next_2d();
+    let s = bsdf.sample(wo, uc, u, Mode::Importance)?;
+    let wi_world = frame.to_world(s.wi);
+    let wi_ng = wi_world.dot(ng);
+    let wo_ng = wo_world.dot(ng);
+    if wi_ng * s.wi.z <= 0.0 || wo_ng * wo.z <= 0.0 || s.pdf <= 0.0 || wo_ng == 0.0 {
+        return None;
+    }
+    let w = s.f * (wo.z.abs() * wi_ng.abs() / (wo_ng.abs() * s.pdf));
+    w.is_finite().then_some((wi_world, w))
+}
+
+/// One particle's walk; returns the rays traced.
+#[allow(clippy::too_many_arguments)]
+fn trace_one(
+    world: &World,
+    surfaces: &Surfaces,
+    lum: &Luminaire,
+    power: Rgb,
+    channel: Channel,
+    max_depth: Option<u32>,
+    rng: &mut Pcg32,
+    hits: &mut Vec<Hit>,
+) -> u64 {
+    let scene = &world.scene;
+    let max_depth = max_depth.unwrap_or(u32::MAX);
+    // Emission: a triangle by area, a uniform point, a cosine direction
+    let (i, _, _) = lum.dist.sample(rng.next_f64());
+    let tri = lum.tris[i];
+    let b = uniform_triangle(rng.next_2d());
+    let sp = scene.surface_point(tri, b.x, b.y);
+    let d = Frame::from_normal(sp.ng).to_world(cosine_hemisphere(rng.next_2d()));
+    let mut ray = Ray::new(offset_point(sp.p, sp.ng, d), d);
+    let mut beta = power;
+    let mut rays = 0;
+    let mut depth = 1u32;
+    loop {
+        rays += 1;
+        let Some(hit) = world.accel.intersect(&ray) else {
+            break;
+        };
+        let sp = scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let wo_world = -ray.d;
+        let material = scene.material_of(&sp);
+        let bsdf = material.bsdf(sp.uv);
+        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+        let wo = frame.to_local(wo_world);
+
+        // Record the hit on a diffuse surface (the side the particle came from)
+        let sid = surfaces.tri_surface[hit.tri as usize];
+        let s = &surfaces.list[sid as usize];
+        if s.diffuse && wo.z > 0.0 {
+            let back = wo_world.dot(sp.ng) < 0.0;
+            let (u, v) = match s.kind {
+                Kind::Planar => {
+                    let c = s.to_chart(sp.p) / s.size;
+                    (c.x, c.y)
+                }
+                Kind::Curved => (hit.b1, hit.b2),
+            };
+            hits.push(Hit {
+                surface: sid | (u32::from(back) << 31),
+                u: to_fixed(u),
+                v: to_fixed(v),
+                rgb: encode_rgb9e5(beta),
+            });
+        }
+        if depth + 1 > max_depth {
+            break;
+        }
+
+        // Absorb with Russian roulette on the albedo, else reflect/transmit
+        let alb = bsdf.albedo(wo);
+        let a = match channel {
+            Channel::Rgb => alb.max_element(),
+            Channel::Single(k) => alb[k],
+        }
+        .clamp(0.0, 0.99);
+        if rng.next_f32() >= a {
+            break;
+        }
+        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
+            break;
+        };
+        beta *= w / a;
+        if let Channel::Single(k) = channel {
+            let keep = beta[k];
+            beta = Rgb::ZERO;
+            beta[k] = keep;
+        }
+        if beta.max_element() <= 0.0 || !beta.is_finite() {
+            break;
+        }
+        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
+        depth += 1;
+    }
+    rays
+}

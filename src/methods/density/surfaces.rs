@@ -1,0 +1,253 @@
+//! Surfaces of the density estimate: coplanar, connected triangles of one
+//! shape grouped into planar surfaces with a 2D chart (§3.2: "a locally
+//! planar surface with orthogonal length parameters (u, v)"), and curved or
+//! finely tessellated shapes whose triangles are estimated with a 3D kernel.
+//!
+//! Only diffuse materials receive hits (the paper's Lambertian surfaces with
+//! L = R·H/π); every other material is ray-traced in the view pass.
+
+use std::collections::HashMap;
+
+use glam::{Vec2, Vec3};
+
+use crate::scene::{Material, Scene};
+
+/// How a surface is parameterised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// A planar group with a 2D chart; hits store chart coordinates.
+    Planar,
+    /// One triangle of a curved shape; hits store barycentrics, and the
+    /// estimate is made over the whole shape with a 3D kernel.
+    Curved,
+}
+
+/// One receiving surface.
+#[derive(Clone, Debug)]
+pub struct Surface {
+    /// Planar group or curved triangle.
+    pub kind: Kind,
+    /// The shape it belongs to.
+    pub shape: u32,
+    /// Its triangles (one for a curved surface).
+    pub tris: Vec<u32>,
+    /// Chart origin (world).
+    pub origin: Vec3,
+    /// Chart u axis (unit, world).
+    pub su: Vec3,
+    /// Chart v axis (unit, world).
+    pub sv: Vec3,
+    /// Plane normal (the triangles' front side).
+    pub normal: Vec3,
+    /// Chart extent: u ∈ [0, size.x], v ∈ [0, size.y].
+    pub size: Vec2,
+    /// Area.
+    pub area: f32,
+    /// True when the group is exactly its chart rectangle.
+    pub rectangle: bool,
+    /// True when the material is diffuse, so the surface records hits.
+    pub diffuse: bool,
+    /// The diffuse reflectance at the surface's first vertex (constant
+    /// materials: exact).
+    pub reflectance: Vec3,
+}
+
+impl Surface {
+    /// Chart coordinates of a world point.
+    #[inline]
+    pub fn to_chart(&self, p: Vec3) -> Vec2 {
+        let d = p - self.origin;
+        Vec2::new(d.dot(self.su), d.dot(self.sv))
+    }
+
+    /// World point of chart coordinates.
+    #[inline]
+    pub fn to_world(&self, c: Vec2) -> Vec3 {
+        self.origin + self.su * c.x + self.sv * c.y
+    }
+
+    /// The triangles in chart coordinates.
+    pub fn chart_tris(&self, scene: &Scene) -> Vec<[Vec2; 3]> {
+        self.tris
+            .iter()
+            .map(|&t| scene.tri_vertices(t).map(|p| self.to_chart(p)))
+            .collect()
+    }
+}
+
+/// All receiving surfaces of a scene, and the surface of every triangle.
+#[derive(Clone, Debug)]
+pub struct Surfaces {
+    /// The surfaces; the index is the surface id of the hit file.
+    pub list: Vec<Surface>,
+    /// Surface id of each scene triangle.
+    pub tri_surface: Vec<u32>,
+}
+
+/// The diffuse reflectance of a material, if it is Lambertian.
+pub fn diffuse_reflectance(m: &Material, uv: Vec2) -> Option<Vec3> {
+    match m {
+        Material::Diffuse { reflectance } => Some(reflectance.eval(uv)),
+        Material::TwoSided(inner) => diffuse_reflectance(inner, uv),
+        _ => None,
+    }
+}
+
+fn find(parent: &mut [u32], mut x: u32) -> u32 {
+    while parent[x as usize] != x {
+        let p = parent[x as usize];
+        parent[x as usize] = parent[p as usize];
+        x = p;
+    }
+    x
+}
+
+/// Groups the triangles of `scene`. A shape whose shading normals vary is curved
+/// (one surface per triangle); otherwise triangles of one shape that share an
+/// edge and lie in one plane (normals within 1e-4, offsets within 1e-5 of the
+/// scene size) join one planar surface.
+pub fn build(scene: &Scene) -> Surfaces {
+    let nt = scene.triangles.len();
+    let (lo, hi) = scene.bounds();
+    let scale = (hi - lo).max_element().max(1e-6);
+    let q = |p: Vec3| {
+        let s = (p - lo) / scale * 1e6;
+        (s.x.round() as i64, s.y.round() as i64, s.z.round() as i64)
+    };
+    let normal = |t: u32| {
+        let [a, b, c] = scene.tri_vertices(t);
+        (b - a).cross(c - a).normalize_or(Vec3::Z)
+    };
+
+    // A shape is curved when its shading normals leave its face normals
+    // (vertex normals that equal the face normals, as OBJ files often carry,
+    // do not make a shape curved).
+    let curved: Vec<bool> = scene
+        .shapes
+        .iter()
+        .map(|sh| {
+            sh.smooth
+                && (sh.first_tri..sh.first_tri + sh.tri_count).any(|t| {
+                    let n = normal(t);
+                    scene.triangles[t as usize]
+                        .iter()
+                        .any(|&i| scene.normals[i as usize].dot(n).abs() < 0.9998)
+                })
+        })
+        .collect();
+
+    // Union-find over shared edges of coplanar triangles of one flat shape
+    let mut parent: Vec<u32> = (0..nt as u32).collect();
+    type Key = (i64, i64, i64);
+    let mut edges: HashMap<(Key, Key), u32> = HashMap::new();
+    for (t, tri) in scene.triangles.iter().enumerate() {
+        let shape = scene.tri_shape[t] as usize;
+        if curved[shape] {
+            continue;
+        }
+        let keys = tri.map(|i| q(scene.positions[i as usize]));
+        for e in 0..3 {
+            let (a, b) = (keys[e], keys[(e + 1) % 3]);
+            let key = if a < b { (a, b) } else { (b, a) };
+            match edges.get(&key) {
+                Some(&o) => {
+                    let same_shape = scene.tri_shape[o as usize] as usize == shape;
+                    let (n0, n1) = (normal(o), normal(t as u32));
+                    let p0 = scene.tri_vertices(o)[0];
+                    let p1 = scene.tri_vertices(t as u32)[0];
+                    let coplanar =
+                        n0.dot(n1) > 1.0 - 1e-4 && (p1 - p0).dot(n0).abs() < 1e-5 * scale;
+                    if same_shape && coplanar {
+                        let (ra, rb) = (find(&mut parent, o), find(&mut parent, t as u32));
+                        if ra != rb {
+                            parent[ra.max(rb) as usize] = ra.min(rb);
+                        }
+                    }
+                }
+                None => {
+                    edges.insert(key, t as u32);
+                }
+            }
+        }
+    }
+    drop(edges);
+
+    // Collect the groups in triangle order (deterministic ids)
+    let mut group_of_root: HashMap<u32, u32> = HashMap::new();
+    let mut groups: Vec<Vec<u32>> = Vec::new();
+    let mut tri_surface = vec![0u32; nt];
+    for t in 0..nt as u32 {
+        let r = if curved[scene.tri_shape[t as usize] as usize] {
+            u32::MAX - t // every curved triangle is its own group
+        } else {
+            find(&mut parent, t)
+        };
+        let g = *group_of_root.entry(r).or_insert_with(|| {
+            groups.push(Vec::new());
+            (groups.len() - 1) as u32
+        });
+        groups[g as usize].push(t);
+        tri_surface[t as usize] = g;
+    }
+
+    let list = groups
+        .into_iter()
+        .map(|tris| {
+            let c = curved[scene.tri_shape[tris[0] as usize] as usize];
+            make_surface(scene, tris, c)
+        })
+        .collect();
+    Surfaces { list, tri_surface }
+}
+
+fn make_surface(scene: &Scene, tris: Vec<u32>, curved: bool) -> Surface {
+    let shape = scene.tri_shape[tris[0] as usize];
+    let sh = &scene.shapes[shape as usize];
+    let material = &scene.materials[sh.material as usize];
+    let uv0 = scene.uvs[scene.triangles[tris[0] as usize][0] as usize];
+    let refl = diffuse_reflectance(material, uv0);
+    let area: f32 = tris.iter().map(|&t| scene.tri_area(t)).sum();
+    // The largest triangle fixes the plane; its edges are chart-axis candidates
+    let big = *tris
+        .iter()
+        .max_by(|&&a, &&b| scene.tri_area(a).total_cmp(&scene.tri_area(b)))
+        .unwrap_or(&tris[0]);
+    let [a, b, c] = scene.tri_vertices(big);
+    let normal = (b - a).cross(c - a).normalize_or(Vec3::Z);
+    let kind = if curved { Kind::Curved } else { Kind::Planar };
+    let mut best: Option<(f32, Vec3, Vec3, Vec2, Vec2)> = None;
+    for (p, q) in [(a, b), (b, c), (c, a)] {
+        let su = (q - p).normalize_or(Vec3::X);
+        let sv = normal.cross(su);
+        let mut lo = Vec2::splat(f32::INFINITY);
+        let mut hi = Vec2::splat(f32::NEG_INFINITY);
+        for &t in &tris {
+            for v in scene.tri_vertices(t) {
+                let d = v - a;
+                let cc = Vec2::new(d.dot(su), d.dot(sv));
+                lo = lo.min(cc);
+                hi = hi.max(cc);
+            }
+        }
+        let box_area = (hi - lo).x * (hi - lo).y;
+        if best.as_ref().is_none_or(|b| box_area < b.0) {
+            best = Some((box_area, su, sv, lo, hi));
+        }
+    }
+    let (box_area, su, sv, lo, hi) = best.unwrap_or((0.0, Vec3::X, Vec3::Y, Vec2::ZERO, Vec2::ONE));
+    let origin = a + su * lo.x + sv * lo.y;
+    Surface {
+        kind,
+        shape,
+        tris,
+        origin,
+        su,
+        sv,
+        normal,
+        size: (hi - lo).max(Vec2::splat(1e-9)),
+        area,
+        rectangle: kind == Kind::Planar && (box_area - area).abs() <= 1e-4 * area,
+        diffuse: refl.is_some(),
+        reflectance: refl.unwrap_or(Vec3::ZERO),
+    }
+}
