@@ -30,7 +30,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Render a scene (Mitsuba XML, OBJ, PLY) to EXR, PFM or PNG.
-    Render(RenderArgs),
+    Render(Box<RenderArgs>),
     /// Compare an image with a reference: relMSE, RMSE, channel means.
     Compare(CompareArgs),
     /// Print what a scene holds: triangles, emitters, materials, bounds.
@@ -321,7 +321,7 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
 fn main() {
     let cli = Cli::parse();
     let r = match cli.command {
-        Command::Render(a) => render(a),
+        Command::Render(a) => render(*a),
         Command::Compare(a) => compare(a),
         Command::Info { scene } => info(scene.as_deref()),
         Command::Plot(a) => plot_cmd(a),
