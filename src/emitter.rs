@@ -238,6 +238,22 @@ pub struct EmissionSample {
     pub tri: u32,
 }
 
+impl EmissionSample {
+    /// The particle's first ray: from the light's surface, offset so that it
+    /// cannot hit the triangle it starts on (the environment's disk lies
+    /// outside the scene and needs no offset).
+    pub fn ray(&self) -> crate::geometry::Ray {
+        if self.is_env {
+            crate::geometry::Ray::new(self.p, self.d)
+        } else {
+            crate::geometry::Ray::new(
+                crate::geometry::offset_point(self.p, self.n, self.d),
+                self.d,
+            )
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug)]
 enum Entry {
     Tri { tri: u32, le: Rgb, area: f32 },

@@ -346,11 +346,7 @@ fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> 
         rays += connect_emission(world, es.p, es.n, es.phi_pos, film);
     }
     let mut beta = es.phi;
-    let mut ray = if es.is_env {
-        Ray::new(es.p, es.d)
-    } else {
-        Ray::new(offset_point(es.p, es.n, es.d), es.d)
-    };
+    let mut ray = es.ray();
     let mut depth = 1u32;
     loop {
         rays += 1;
@@ -477,11 +473,7 @@ fn emit_and_transfer(
     else {
         return 0;
     };
-    let ray = if es.is_env {
-        Ray::new(es.p, es.d)
-    } else {
-        Ray::new(offset_point(es.p, es.n, es.d), es.d)
-    };
+    let ray = es.ray();
     transfer(world, ray, es.phi / prob, 1, rng, film, chain)
 }
 

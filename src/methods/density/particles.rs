@@ -17,13 +17,13 @@
 
 use std::f32::consts::PI;
 
-use glam::Vec3;
 use rayon::prelude::*;
 
 use super::hitfile::{encode_rgb9e5, to_fixed, Hit, HitFileError, HitWriter};
 use super::surfaces::{Kind, Surfaces};
-use crate::bsdf::{Bsdf, Mode};
+
 use crate::geometry::{offset_point, Frame, Ray};
+use crate::methods::light::scatter;
 use crate::methods::path::orient;
 use crate::methods::World;
 use crate::sampling::{cosine_hemisphere, uniform_triangle, Distribution1D, Pcg32};
@@ -198,29 +198,6 @@ pub fn trace(
         c0 = c1;
     }
     Ok(stats)
-}
-
-/// Samples the next direction in importance mode with the shading-normal
-/// correction; returns the direction and f·|cos|/pdf.
-fn scatter(
-    bsdf: &Bsdf,
-    frame: &Frame,
-    ng: Vec3,
-    wo_world: Vec3,
-    rng: &mut Pcg32,
-) -> Option<(Vec3, Rgb)> {
-    let wo = frame.to_local(wo_world);
-    let uc = rng.next_f32();
-    let u = rng.next_2d();
-    let s = bsdf.sample(wo, uc, u, Mode::Importance)?;
-    let wi_world = frame.to_world(s.wi);
-    let wi_ng = wi_world.dot(ng);
-    let wo_ng = wo_world.dot(ng);
-    if wi_ng * s.wi.z <= 0.0 || wo_ng * wo.z <= 0.0 || s.pdf <= 0.0 || wo_ng == 0.0 {
-        return None;
-    }
-    let w = s.f * (wo.z.abs() * wi_ng.abs() / (wo_ng.abs() * s.pdf));
-    w.is_finite().then_some((wi_world, w))
 }
 
 /// One particle's walk; returns the rays traced.

@@ -391,11 +391,7 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
             if !es.is_env {
                 rays += connect_emission(world, es.p, es.n, es.phi_pos * inv_p, &mut lane.le_film);
             }
-            let ray = if es.is_env {
-                Ray::new(es.p, es.d)
-            } else {
-                Ray::new(offset_point(es.p, es.n, es.d), es.d)
-            };
+            let ray = es.ray();
             shot = Some((ray, es.phi * inv_p, NO_PARENT, 1));
         }
     } else {
