@@ -16,6 +16,18 @@ use kalos::metrics;
 use kalos::plot::{self, PlotOptions, XAxis};
 use kalos::scene::{self, Scene};
 
+/// `println!` that ends the process quietly when stdout is closed (as in
+/// `kalos compare a b | head -1`) instead of panicking. Output files are
+/// always written before anything is printed.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if writeln!(std::io::stdout(), $($t)*).is_err() {
+            std::process::exit(0);
+        }
+    }};
+}
+
 #[derive(Parser)]
 #[command(
     name = "kalos",
@@ -483,9 +495,9 @@ fn render(a: RenderArgs) -> Result<()> {
     if result.interrupted {
         line += " (interrupted: saved what was rendered)";
     }
-    println!("{line}");
+    say!("{line}");
     if let Some(r) = method.report() {
-        println!("{r}");
+        say!("{r}");
     }
     Ok(())
 }
@@ -516,17 +528,22 @@ fn compare(a: CompareArgs) -> Result<()> {
     let rmse = metrics::rmse(&img, &r)?;
     let mi = metrics::channel_means(&img);
     let mr = metrics::channel_means(&r);
-    println!("relMSE  {rel:.6e}");
-    println!("RMSE    {rmse:.6e}");
-    println!("relL1   {:.6e}", metrics::rel_l1(&img, &r)?);
-    println!(
+    say!("relMSE  {rel:.6e}");
+    say!("RMSE    {rmse:.6e}");
+    say!("relL1   {:.6e}", metrics::rel_l1(&img, &r)?);
+    say!(
         "means   image ({:.6}, {:.6}, {:.6})  reference ({:.6}, {:.6}, {:.6})",
-        mi.x, mi.y, mi.z, mr.x, mr.y, mr.z
+        mi.x,
+        mi.y,
+        mi.z,
+        mr.x,
+        mr.y,
+        mr.z
     );
     if let Some(out) = &a.error_image {
         let e = metrics::false_color_error(&img, &r)?;
         image_io::write_image(out, &e, &PngOptions::default())?;
-        println!("error image written to {}", out.display());
+        say!("error image written to {}", out.display());
     }
     Ok(())
 }
@@ -534,39 +551,51 @@ fn compare(a: CompareArgs) -> Result<()> {
 fn info(path: Option<&Path>) -> Result<()> {
     let s = load_scene(path)?;
     let (lo, hi) = s.bounds();
-    println!("scene      {}", s.source);
-    println!("triangles  {}", s.triangles.len());
-    println!("vertices   {}", s.positions.len());
-    println!("shapes     {}", s.shapes.len());
-    println!("materials  {}", s.materials.len());
+    say!("scene      {}", s.source);
+    say!("triangles  {}", s.triangles.len());
+    say!("vertices   {}", s.positions.len());
+    say!("shapes     {}", s.shapes.len());
+    say!("materials  {}", s.materials.len());
     for (i, m) in s.materials.iter().enumerate() {
-        println!("  [{i}] {}", material_name(m));
+        say!("  [{i}] {}", material_name(m));
     }
-    println!("emitters   {}", s.emitters.len());
+    say!("emitters   {}", s.emitters.len());
     for e in &s.emitters {
         match e {
-            scene::EmitterDesc::Area { shape, radiance } => println!(
+            scene::EmitterDesc::Area { shape, radiance } => say!(
                 "  area on '{}', radiance ({}, {}, {})",
-                s.shapes[*shape as usize].name, radiance.x, radiance.y, radiance.z
+                s.shapes[*shape as usize].name,
+                radiance.x,
+                radiance.y,
+                radiance.z
             ),
             scene::EmitterDesc::Constant { radiance } => {
-                println!(
+                say!(
                     "  constant, radiance ({}, {}, {})",
-                    radiance.x, radiance.y, radiance.z
+                    radiance.x,
+                    radiance.y,
+                    radiance.z
                 )
             }
             scene::EmitterDesc::EnvMap { image, scale, .. } => {
-                println!("  envmap {}x{}, scale {scale}", image.width, image.height)
+                say!("  envmap {}x{}, scale {scale}", image.width, image.height)
             }
         }
     }
-    println!(
+    say!(
         "bounds     ({}, {}, {}) .. ({}, {}, {})",
-        lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+        lo.x,
+        lo.y,
+        lo.z,
+        hi.x,
+        hi.y,
+        hi.z
     );
-    println!(
+    say!(
         "camera     {}x{}, fov_x {:.3} deg",
-        s.camera.width, s.camera.height, s.camera.fov_x_deg
+        s.camera.width,
+        s.camera.height,
+        s.camera.fov_x_deg
     );
     Ok(())
 }
@@ -609,7 +638,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
     let mut opts = PlotOptions::for_axis(x);
     opts.title = a.title;
     plot::plot_convergence(&series, &a.output, &opts)?;
-    println!("plot written to {}", a.output.display());
+    say!("plot written to {}", a.output.display());
     Ok(())
 }
 
@@ -618,22 +647,24 @@ fn bench(a: BenchArgs) -> Result<()> {
         Some(p) => load_scene(Some(p))?,
         None => kalos::bench::generated_scene(a.triangles),
     };
-    println!(
+    say!(
         "scene: {} ({} triangles)",
         scene.source,
         scene.triangles.len()
     );
     let t = Instant::now();
     let world = World::new(scene);
-    println!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
+    say!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
     let one = kalos::bench::incoherent_closest_hits(&world, a.rays, 1);
     let all_threads = rayon::current_num_threads();
     let all = kalos::bench::incoherent_closest_hits(&world, a.rays, all_threads);
-    println!(
+    say!(
         "incoherent closest hits, 1 thread:  {:.2} Mrays/s ({} hits of {} rays)",
-        one.mrays_per_s, one.hits, one.rays
+        one.mrays_per_s,
+        one.hits,
+        one.rays
     );
-    println!(
+    say!(
         "incoherent closest hits, {all_threads} threads: {:.2} Mrays/s (ratio {:.2}x)",
         all.mrays_per_s,
         all.mrays_per_s / one.mrays_per_s
@@ -695,7 +726,7 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
     }
     let write_s = t1.elapsed().as_secs_f64();
     let st = &b.stats;
-    println!(
+    say!(
         "{}: {} triangles ({} before decimation), white point {:.4e} W/(m²·sr)",
         a.output.display(),
         st.tris_after,
@@ -705,30 +736,30 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
     if a.stats {
         let total = st.t_trace + st.t_estimate + st.t_decimate;
         let pct = |t: f64| if total > 0.0 { 100.0 * t / total } else { 0.0 };
-        println!("particles        {}", st.particles);
-        println!("hits             {}", st.hits);
-        println!("bytes per hit    {}", st.bytes_per_hit);
-        println!("hit file         {:.1} MB", st.hit_file_bytes as f64 / 1e6);
-        println!("surfaces         {}", st.surfaces);
-        println!("load + BVH       {load_s:.2} s");
-        println!(
+        say!("particles        {}", st.particles);
+        say!("hits             {}", st.hits);
+        say!("bytes per hit    {}", st.bytes_per_hit);
+        say!("hit file         {:.1} MB", st.hit_file_bytes as f64 / 1e6);
+        say!("surfaces         {}", st.surfaces);
+        say!("load + BVH       {load_s:.2} s");
+        say!(
             "phase 1 trace    {:.2} s ({:.0}%)",
             st.t_trace,
             pct(st.t_trace)
         );
-        println!(
+        say!(
             "phase 2 estimate {:.2} s ({:.0}%)",
             st.t_estimate,
             pct(st.t_estimate)
         );
-        println!(
+        say!(
             "phase 3 decimate {:.2} s ({:.0}%)",
             st.t_decimate,
             pct(st.t_decimate)
         );
-        println!("write            {write_s:.2} s");
-        println!("triangles before {}", st.tris_before);
-        println!(
+        say!("write            {write_s:.2} s");
+        say!("triangles before {}", st.tris_before);
+        say!(
             "triangles after  {} ({:.1}% removed)",
             st.tris_after,
             if st.tris_before > 0 {
@@ -737,13 +768,15 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
                 0.0
             }
         );
-        println!(
+        say!(
             "brightness error max {:.4}, mean {:.4} (epsilon {})",
-            st.max_brightness_error, st.mean_brightness_error, s.epsilon
+            st.max_brightness_error,
+            st.mean_brightness_error,
+            s.epsilon
         );
         match peak_memory() {
-            Some(m) => println!("peak memory      {:.1} MB", m as f64 / 1e6),
-            None => println!("peak memory      unknown"),
+            Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),
+            None => say!("peak memory      unknown"),
         }
     }
     Ok(())
@@ -753,11 +786,11 @@ fn gen_cmd(what: &str, output: &Path, seed: u64) -> Result<()> {
     match what {
         "big-room" => {
             let n = kalos::bake::gen::big_room(output, seed)?;
-            println!("{}: big-room with {n} triangles", output.display());
+            say!("{}: big-room with {n} triangles", output.display());
             Ok(())
         }
         other => scene::gen::generate(other, output)
-            .map(|p| println!("wrote {}", p.display()))
+            .map(|p| say!("wrote {}", p.display()))
             .with_context(|| format!("writing {}", output.display())),
     }
 }
