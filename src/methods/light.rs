@@ -221,8 +221,10 @@ impl Method for LightTracer {
 /// Connects a non-delta surface vertex to the camera, in importance mode:
 /// returns the film position and Φ · f(ω_in → ω_eye) · cos θ · g(x), with
 /// the shading-normal correction |wo·ns||wi·ng| / (|wo·ng||wi·ns|) (Veach's
-/// adjoint BSDF for shading normals), and counts one ray.
+/// adjoint BSDF for shading normals). Adds to `rays` the visibility ray it
+/// traces (none when the point is off the film or the BSDF gives nothing).
 #[inline]
+#[allow(clippy::too_many_arguments)]
 pub fn connect_to_camera(
     world: &World,
     sp: &SurfacePoint,
@@ -231,6 +233,7 @@ pub fn connect_to_camera(
     wo_world: Vec3,
     bsdf: &Bsdf,
     phi: Rgb,
+    rays: &mut u64,
 ) -> Option<(Vec2, Rgb)> {
     let cam = world.camera.position();
     let (pix, g) = world.camera.project(sp.p)?;
@@ -256,6 +259,7 @@ pub fn connect_to_camera(
     if !c.is_finite() || c == Rgb::ZERO {
         return None;
     }
+    *rays += 1;
     if world.accel.occluded(offset_point(sp.p, ng, wc), cam) {
         return None;
     }
@@ -359,8 +363,8 @@ fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> 
 
         // Connect to the camera at every non-delta vertex
         if bsdf.has_smooth() && depth < max_depth {
-            rays += u64::from(world.camera.project(sp.p).is_some());
-            if let Some((pix, c)) = connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, beta)
+            if let Some((pix, c)) =
+                connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, beta, &mut rays)
             {
                 film.splat(pix.x, pix.y, c);
             }
@@ -500,8 +504,8 @@ fn transfer(
         let wo_world = -ray.d;
         let (bsdf, frame, ng) = shade(world, &sp, wo_world);
         if bsdf.has_smooth() || depth > 1000 {
-            rays += u64::from(world.camera.project(sp.p).is_some());
-            if let Some((pix, c)) = connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, phi)
+            if let Some((pix, c)) =
+                connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, phi, &mut rays)
             {
                 film.splat(pix.x, pix.y, c);
             }

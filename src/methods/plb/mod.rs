@@ -465,8 +465,9 @@ fn trace(
             let mut contrib = Rgb::ZERO;
             let mut pix = Vec2::ZERO;
             if depth < max_depth && bsdf.has_smooth() {
-                rays += u64::from(world.camera.project(sp.p).is_some());
-                if let Some((p, c)) = connect_to_camera(world, &sp, &frame, ng, wo, &bsdf, phi) {
+                if let Some((p, c)) =
+                    connect_to_camera(world, &sp, &frame, ng, wo, &bsdf, phi, &mut rays)
+                {
                     contrib = c;
                     pix = p;
                 }
