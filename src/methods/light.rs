@@ -208,7 +208,7 @@ impl Method for LightTracer {
             Variant::Walk => self.walks,
             Variant::Iteration => self.chains.iter().map(|c| c.counted).sum(),
         };
-        let mut img = total.to_image(if n == 0 { 0.0 } else { 1.0 / n as f64 });
+        let mut img = total.mean(n);
         self.camera_pass.add_to(&mut img);
         img
     }

@@ -8,12 +8,12 @@
 //! kalos render scenes/cbox/cbox.xml --method path --spp 256 -o out.exr
 //! ```
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{Method, MethodError, Options, StepStats, World};
 use crate::bsdf::Mode;
-use crate::film::Image;
+use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Frame, Ray};
 use crate::sampling::{power_heuristic, Pcg32};
 use crate::scene::Rgb;
@@ -44,17 +44,16 @@ impl Settings {
 /// The path tracer's progressive state: a sum per pixel and the pass count.
 pub struct PathTracer {
     settings: Settings,
-    sum: Vec<DVec3>,
+    film: Film,
     passes: u64,
 }
 
 impl PathTracer {
     /// A path tracer for `world`.
     pub fn new(world: &World, settings: Settings) -> Self {
-        let n = world.camera.width as usize * world.camera.height as usize;
         PathTracer {
             settings,
-            sum: vec![DVec3::ZERO; n],
+            film: Film::new(world.camera.width, world.camera.height),
             passes: 0,
         }
     }
@@ -73,6 +72,7 @@ impl Method for PathTracer {
         // stream keyed by (seed, pass, pixel), so the image does not depend on
         // the thread count.
         let rays: u64 = self
+            .film
             .sum
             .par_chunks_mut(w)
             .enumerate()
@@ -96,17 +96,8 @@ impl Method for PathTracer {
         StepStats { rays }
     }
 
-    fn image(&self, world: &World) -> Image {
-        let scale = if self.passes == 0 {
-            0.0
-        } else {
-            1.0 / self.passes as f64
-        };
-        Image {
-            width: world.camera.width,
-            height: world.camera.height,
-            data: self.sum.iter().map(|v| (*v * scale).as_vec3()).collect(),
-        }
+    fn image(&self, _world: &World) -> Image {
+        self.film.mean(self.passes)
     }
 
     fn spp(&self) -> f64 {

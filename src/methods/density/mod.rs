@@ -44,12 +44,12 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{Method, MethodError, Options, StepStats, World};
 use crate::bsdf::Mode;
-use crate::film::Image;
+use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::methods::path::orient;
 use crate::sampling::Pcg32;
@@ -478,19 +478,18 @@ pub struct Density {
     bake: Option<Bake>,
     /// The error of a failed bake (the image stays black).
     pub error: Option<String>,
-    sum: Vec<DVec3>,
+    film: Film,
     passes: u64,
 }
 
 impl Density {
     /// A density method for `world`.
     pub fn new(world: &World, settings: Settings) -> Self {
-        let n = world.camera.width as usize * world.camera.height as usize;
         Density {
             settings,
             bake: None,
             error: None,
-            sum: vec![DVec3::ZERO; n],
+            film: Film::new(world.camera.width, world.camera.height),
             passes: 0,
         }
     }
@@ -524,6 +523,7 @@ impl Method for Density {
         let w = world.camera.width as usize;
         let seed = self.settings.seed;
         rays += self
+            .film
             .sum
             .par_chunks_mut(w)
             .enumerate()
@@ -547,17 +547,8 @@ impl Method for Density {
         StepStats { rays }
     }
 
-    fn image(&self, world: &World) -> Image {
-        let scale = if self.passes == 0 {
-            0.0
-        } else {
-            1.0 / self.passes as f64
-        };
-        Image {
-            width: world.camera.width,
-            height: world.camera.height,
-            data: self.sum.iter().map(|v| (*v * scale).as_vec3()).collect(),
-        }
+    fn image(&self, _world: &World) -> Image {
+        self.film.mean(self.passes)
     }
 
     fn spp(&self) -> f64 {
