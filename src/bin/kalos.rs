@@ -347,26 +347,35 @@ fn main() {
     }
 }
 
-fn render(a: RenderArgs) -> Result<()> {
-    // Check the output path before spending any time.
-    let ext = a
-        .output
-        .extension()
+/// The lower-case extension of `path` ("" when it has none).
+fn extension(path: &Path) -> String {
+    path.extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+        .unwrap_or_default()
+}
+
+/// Sizes the global thread pool when `--threads` is given.
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(t) = threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t.max(1))
+            .build_global()
+            .context("setting the thread count")?;
+    }
+    Ok(())
+}
+
+fn render(a: RenderArgs) -> Result<()> {
+    // Check the output path before spending any time.
+    let ext = extension(&a.output);
     if !matches!(ext.as_str(), "exr" | "pfm" | "png") {
         bail!(
             "output '{}' must end in .exr, .pfm or .png",
             a.output.display()
         );
     }
-    if let Some(t) = a.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t.max(1))
-            .build_global()
-            .context("setting the thread count")?;
-    }
+    set_threads(a.threads)?;
     let t0 = Instant::now();
     let mut scene = load_scene(a.scene.as_deref())?;
     if let Some((w, h)) = a.res {
@@ -682,21 +691,11 @@ fn peak_memory() -> Option<u64> {
 
 fn bake_cmd(a: BakeArgs) -> Result<()> {
     use kalos::methods::density;
-    let ext = a
-        .output
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let ext = extension(&a.output);
     if ext != "glb" {
         bail!("output '{}' must end in .glb", a.output.display());
     }
-    if let Some(t) = a.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t.max(1))
-            .build_global()
-            .context("setting the thread count")?;
-    }
+    set_threads(a.threads)?;
     let t0 = Instant::now();
     let world = World::new(load_scene(a.scene.as_deref())?);
     let load_s = t0.elapsed().as_secs_f64();
