@@ -427,7 +427,7 @@ fn iterate(
     let last = chain.last.take();
     let mut start = None;
     if let Some(t) = &last {
-        let (bsdf, frame, _) = shade(world, &t.sp, t.wo);
+        let (bsdf, frame, ng) = shade(world, &t.sp, t.wo);
         let a = bsdf
             .albedo(frame.to_local(t.wo))
             .max_element()
@@ -435,18 +435,17 @@ fn iterate(
         let reflected = a * luminance(t.phi);
         let p_point = reflected / (phi_e + reflected);
         if t.depth < max_depth.saturating_sub(1) && p_point > 0.0 && rng.next_f32() < p_point {
-            start = Some((t, p_point));
+            start = Some((t, p_point, bsdf, frame, ng));
         } else if p_point > 0.0 {
             // selected the lights with probability 1 − p_point
             return rays + emit_and_transfer(world, rng, target, chain, 1.0 - p_point);
         }
     }
-    let Some((t, p_point)) = start else {
+    let Some((t, p_point, bsdf, frame, ng)) = start else {
         return rays + emit_and_transfer(world, rng, target, chain, 1.0);
     };
 
     // Reflect the point's power into a direction sampled from f cos
-    let (bsdf, frame, ng) = shade(world, &t.sp, t.wo);
     let Some((wi, w)) = scatter(&bsdf, &frame, ng, t.wo, rng) else {
         return rays;
     };
