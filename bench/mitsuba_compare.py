@@ -86,7 +86,12 @@ def main():
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--pairs", default="path,light")
+    ap.add_argument("--ensure-only", action="store_true",
+                    help="only install Mitsuba into bench/.venv (if missing) and exit")
     args = ap.parse_args()
+    if args.ensure_only:
+        ensure_mitsuba()
+        return
     if not os.path.exists(KALOS):
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)
     py = ensure_mitsuba()

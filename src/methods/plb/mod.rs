@@ -631,6 +631,36 @@ fn survival_scale(s: impl Iterator<Item = f64> + Clone, cap: usize) -> Option<f6
 mod tests {
     use super::*;
 
+    /// c against Σ min(1, c s_i) = cap on populations with many saturated
+    /// hits, over a range of caps.
+    #[test]
+    fn survival_scale_solves_the_cap_equation() {
+        let mut rng = Pcg32::keyed(&[7]);
+        for n in [5usize, 50, 1400] {
+            for cap in [1usize, 3, n / 2, n - 1] {
+                let s: Vec<f64> = (0..n)
+                    .map(|_| {
+                        let u = rng.next_f64();
+                        if u < 0.1 {
+                            0.0
+                        } else {
+                            u.powi(8) * 1e3
+                        }
+                    })
+                    .collect();
+                let Some(c) = survival_scale(s.iter().copied(), cap) else {
+                    assert!(s.iter().filter(|x| **x > 0.0).count() <= cap);
+                    continue;
+                };
+                let sum: f64 = s.iter().map(|x| (c * x).min(1.0)).sum();
+                assert!(
+                    (sum - cap as f64).abs() < 1e-6 * cap as f64,
+                    "n {n} cap {cap}: Σk = {sum}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn survival_scale_sums_to_cap() {
         let s = [10.0, 1.0, 1.0, 1.0, 0.5, 0.0, 0.25];
