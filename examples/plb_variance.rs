@@ -6,7 +6,7 @@
 //! per render, and the image mean.
 //!
 //! ```text
-//! cargo run --release --example plb_variance -- SCENE METHOD K (rays=N|time=S|passes=N) [lambda=L] [phase=P] [pop=C] [discard=D]
+//! cargo run --release --example plb_variance -- SCENE METHOD K (rays=N|time=S|passes=N) [lambda=L] [phase=P] [pop=C] [discard=D] [variant=V]
 //! ```
 
 use std::time::Instant;
@@ -17,7 +17,7 @@ use kalos::metrics::{channel_means, PixelStats};
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 5 {
-        return Err("usage: SCENE METHOD K (rays=N|time=S|passes=N) [lambda=L] [phase=P] [pop=C] [discard=D]".into());
+        return Err("usage: SCENE METHOD K (rays=N|time=S|passes=N) [lambda=L] [phase=P] [pop=C] [discard=D] [variant=V]".into());
     }
     let scene = kalos::scene::load(std::path::Path::new(&args[1]))?;
     let method = args[2].as_str();
@@ -34,6 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "phase" => opts.phase_len = Some(v.parse()?),
             "pop" => opts.population = Some(v.parse()?),
             "discard" => opts.discard = v.parse()?,
+            "variant" => opts.variant = Some(v.to_string()),
             _ => return Err(format!("unknown key '{key}'").into()),
         }
     }

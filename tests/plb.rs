@@ -156,8 +156,30 @@ fn plb_cbox_converges_with_shrinking_startup_defect() {
 /// see above) is far below these tolerances.
 #[test]
 fn plb_agrees_with_light_on_two_rooms() {
-    let scene = load("scenes/two-rooms/scene.xml");
-    let p = [render(&scene, "plb", 1, 40), render(&scene, "plb", 2, 40)];
+    agrees_with_light("scenes/two-rooms/scene.xml", None);
+}
+
+/// `--variant pooled` (the grid-pooled importance, not in the paper) is
+/// unbiased too: the same check as above, on the hidden-gap variant where
+/// every pixel is lit through the gap (its intended use).
+#[test]
+fn plb_pooled_agrees_with_light_on_hidden_gap() {
+    agrees_with_light("scenes/two-rooms/hidden-gap.xml", Some("pooled"));
+}
+
+/// The check of `plb_agrees_with_light_on_two_rooms`, for a scene and a plb
+/// variant.
+fn agrees_with_light(file: &str, variant: Option<&str>) {
+    let scene = load(file);
+    let plb = |seed: u64| {
+        let opts = Options {
+            seed,
+            variant: variant.map(str::to_string),
+            ..Default::default()
+        };
+        common::render(&scene, "plb", &opts, 40).0
+    };
+    let p = [plb(1), plb(2)];
     let l = [
         render(&scene, "light", 1, 30),
         render(&scene, "light", 2, 30),
@@ -241,6 +263,19 @@ fn plb_is_deterministic_per_seed() {
         phase_len: Some(0),
         ..Default::default()
     };
+    let pooled = Options {
+        seed: 7,
+        variant: Some("pooled".into()),
+        ..Default::default()
+    };
+    let d = common::render(&scene, "plb", &pooled, 1).0;
+    assert_ne!(a.data, d.data);
+    assert_eq!(d.data, common::render(&scene, "plb", &pooled, 1).0.data);
     let world = kalos::methods::World::new(scene);
     assert!(kalos::methods::create("plb", &world, &bad).is_err());
+    let unknown = Options {
+        variant: Some("nope".into()),
+        ..Default::default()
+    };
+    assert!(kalos::methods::create("plb", &world, &unknown).is_err());
 }

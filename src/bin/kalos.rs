@@ -154,7 +154,7 @@ struct RenderArgs {
     /// Rendering method.
     #[arg(short, long, default_value = "path", value_parser = clap::builder::PossibleValuesParser::new(methods::METHODS))]
     method: String,
-    /// Method variant (light: walk | iteration; density: rgb | per-channel).
+    /// Method variant (light: walk | iteration; density: rgb | per-channel; plb: paper | pooled).
     #[arg(long)]
     variant: Option<String>,
     /// Samples per pixel (light paths per pixel for the light-based methods).

@@ -53,6 +53,18 @@
 //!   useful hit: a ray passes through delta chains to the first non-delta
 //!   point, as in `light --variant iteration`.
 //!
+//! `--variant pooled` (our extension, not in the paper; the default is the
+//! paper's `ComputeImportance`): eq. (9) has no visibility in it, and
+//! eq. (8) judges a hit by its own one or two children, so on a scene lit
+//! through a gap the paper's importance barely prefers the hits that matter
+//! (BENCHMARKS.md, plb diagnosis). The pooled rule keeps, per cell of a 16³
+//! grid over the scene, the mean image impact per unit power of every ray
+//! ever spawned from that cell ([`ImportanceGrid`]), and sets a hit's
+//! importance to its output luminance times that mean (shrunk toward the
+//! global mean, with a floor so that every hit can still spawn). The
+//! iteration, power weights, phases and purge are unchanged, so it is
+//! unbiased for the same reason; only where the next ray starts changes.
+//!
 //! Parallelism: a fixed number of lanes (8), each with its own population,
 //! films and random streams keyed by (seed, pass, lane); lanes are merged in
 //! order, so a seed gives the same image whatever the thread count.
@@ -98,6 +110,21 @@ pub struct Settings {
     /// Estimate what light paths cannot reach (delta surfaces seen by the
     /// camera, the environment) from the camera ([`super::camera_pass`]).
     pub camera_pass: bool,
+    /// How a hit's importance is found.
+    pub importance: Importance,
+}
+
+/// The hit-selection rule.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Importance {
+    /// §3.1 as the paper gives it: potential impact (eq. (9)) plus λ times
+    /// the children's measured impact (eq. (8)).
+    Paper,
+    /// Not in the paper (`--variant pooled`): the output luminance times the
+    /// measured image impact per unit power of the rays spawned from the
+    /// same grid cell, pooled over all hits ever spawned there, with a
+    /// defensive floor. See [`ImportanceGrid`].
+    Pooled,
 }
 
 impl Default for Settings {
@@ -112,6 +139,7 @@ impl Default for Settings {
             steps_per_pass: 0,
             discard: 0,
             camera_pass: true,
+            importance: Importance::Paper,
         }
     }
 }
@@ -120,11 +148,15 @@ impl Settings {
     /// Reads the shared options; unset fields keep their defaults.
     pub fn from_options(o: &Options) -> Result<Self, MethodError> {
         let d = Settings::default();
-        if let Some(v) = o.variant.as_deref() {
-            return Err(MethodError(format!(
-                "method plb has no variants (got '{v}')"
-            )));
-        }
+        let importance = match o.variant.as_deref() {
+            None | Some("paper") => Importance::Paper,
+            Some("pooled") => Importance::Pooled,
+            Some(v) => {
+                return Err(MethodError(format!(
+                    "unknown variant '{v}' for method plb; expected 'paper' or 'pooled'"
+                )))
+            }
+        };
         let lambda = o.lambda.unwrap_or(d.lambda);
         if !(lambda.is_finite() && lambda >= 0.0) {
             return Err(MethodError(format!(
@@ -147,6 +179,7 @@ impl Settings {
             population,
             discard: o.discard,
             camera_pass: o.camera_pass,
+            importance,
             ..d
         })
     }
@@ -183,6 +216,83 @@ struct Hit {
     depth: u32,
     /// May spawn a ray (non-zero output, below the depth limit).
     spawn: bool,
+    /// Cell of the pooled-importance grid (0 without one).
+    cell: u32,
+}
+
+/// Cells per axis of the pooled-importance grid.
+const GRID_RES: usize = 16;
+/// Pseudo-count of the grid's prior: a cell's weight is shrunk toward the
+/// mean over all cells as if it had this many samples at the mean.
+const GRID_PRIOR: f64 = 4.0;
+/// Defensive floor of a cell's weight, as a fraction of the mean, so that
+/// every hit keeps a positive selection probability (E[T*L] = TL).
+const GRID_FLOOR: f64 = 0.05;
+
+/// Pooled importance (`--variant pooled`, not in the paper): a uniform grid
+/// over the scene's bounds. Each cell keeps Σr and the count of the rays
+/// spawned from hits inside it, where r = Lum(child's image contribution) /
+/// Lum(child's power) is the image impact per unit power of where the ray
+/// landed (0 when it escaped or landed hidden from the camera). Then
+/// W(cell) = (Σr + n₀ r̄) / (n + n₀), shrunk toward the mean r̄ over all
+/// cells, estimates how much of the light reflected in that cell reaches
+/// the image, pooled over every hit ever spawned there instead of over one
+/// hit's children (eq. (8)). A hit's importance is Lum(Φ a) · (W + f r̄).
+#[derive(Clone, Debug)]
+struct ImportanceGrid {
+    lo: glam::Vec3,
+    scale: glam::Vec3,
+    sum: Vec<f64>,
+    n: Vec<u32>,
+    total: f64,
+    count: u64,
+}
+
+impl ImportanceGrid {
+    fn new(lo: glam::Vec3, hi: glam::Vec3) -> Self {
+        let extent = (hi - lo).max(glam::Vec3::splat(1e-6));
+        let cells = GRID_RES * GRID_RES * GRID_RES;
+        ImportanceGrid {
+            lo,
+            scale: glam::Vec3::splat(GRID_RES as f32) / extent,
+            sum: vec![0.0; cells],
+            n: vec![0; cells],
+            total: 0.0,
+            count: 0,
+        }
+    }
+
+    fn cell(&self, p: glam::Vec3) -> u32 {
+        let q = ((p - self.lo) * self.scale).max(glam::Vec3::ZERO);
+        let r = GRID_RES as u32 - 1;
+        let (x, y, z) = (
+            (q.x as u32).min(r),
+            (q.y as u32).min(r),
+            (q.z as u32).min(r),
+        );
+        (z * GRID_RES as u32 + y) * GRID_RES as u32 + x
+    }
+
+    fn record(&mut self, cell: u32, r: f64) {
+        if !r.is_finite() {
+            return;
+        }
+        self.sum[cell as usize] += r;
+        self.n[cell as usize] += 1;
+        self.total += r;
+        self.count += 1;
+    }
+
+    /// W(cell) + f r̄, always positive.
+    fn weight(&self, cell: u32) -> f64 {
+        let mean = if self.total > 0.0 {
+            self.total / self.count as f64
+        } else {
+            1.0
+        };
+        let (sum, n) = (self.sum[cell as usize], self.n[cell as usize] as f64);
+        (sum + GRID_PRIOR * mean) / (n + GRID_PRIOR) + GRID_FLOOR * mean
+    }
 }
 
 /// One independent population with its films.
@@ -209,11 +319,14 @@ struct Lane {
     le_film: Film,
     /// Σ over the counted phases of the hits' image.
     hit_film: Film,
+    /// The pooled-importance grid (`--variant pooled` only).
+    grid: Option<ImportanceGrid>,
 }
 
 impl Lane {
-    fn new(w: u32, h: u32) -> Self {
+    fn new(w: u32, h: u32, grid: Option<ImportanceGrid>) -> Self {
         Lane {
+            grid,
             hits: Vec::new(),
             cum: Vec::new(),
             reflected: 0.0,
@@ -272,7 +385,15 @@ impl Plb {
                 settings.seed,
                 settings.max_depth,
             ),
-            lanes: (0..n).map(|_| Lane::new(w, h)).collect(),
+            lanes: (0..n)
+                .map(|_| {
+                    let grid = (settings.importance == Importance::Pooled).then(|| {
+                        let (lo, hi) = world.scene.bounds();
+                        ImportanceGrid::new(lo, hi)
+                    });
+                    Lane::new(w, h, grid)
+                })
+                .collect(),
             settings,
             pixels: w as u64 * h as u64,
         }
@@ -428,7 +549,24 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
     // Trace, and append the new hit with power Φ/m
     if let Some((ray, phi, parent, depth)) = shot {
         let stored = phi * (1.0 / (m as f64 * lane.sigma)) as f32;
+        let before = lane.hits.len();
         rays += trace(world, ray, stored, parent, depth, max_depth, rng, lane);
+        // Pooled importance: the image impact per unit power of where the
+        // ray from the parent's cell landed (0 if it added no visible hit)
+        if parent != NO_PARENT {
+            let r = lane.hits.get(before).map_or(0.0, |c| {
+                let l = luminance(c.phi) as f64;
+                if l > 0.0 {
+                    luminance(c.contrib).max(0.0) as f64 / l
+                } else {
+                    0.0
+                }
+            });
+            let cell = lane.hits[parent as usize].cell;
+            if let Some(g) = lane.grid.as_mut() {
+                g.record(cell, r);
+            }
+        }
     }
 
     lane.in_phase += 1;
@@ -481,6 +619,13 @@ fn trace(
             if !(phi.is_finite() && out_lum.is_finite()) {
                 return rays;
             }
+            let (cell, s) = match &lane.grid {
+                Some(g) => {
+                    let cell = g.cell(sp.p);
+                    (cell, out_lum as f64 * g.weight(cell))
+                }
+                None => (0, (out_lum * g_star) as f64),
+            };
             lane.push(Hit {
                 sp,
                 wo,
@@ -490,10 +635,11 @@ fn trace(
                 contrib,
                 pix,
                 nchild: 0,
-                s: (out_lum * g_star) as f64,
+                s,
                 parent,
                 depth,
                 spawn,
+                cell,
             });
             return rays;
         }
@@ -524,7 +670,14 @@ fn end_phase(s: &Settings, rng: &mut Pcg32, lane: &mut Lane) {
         }
     }
 
-    compute_importance(&mut lane.hits, s.lambda as f64);
+    match &lane.grid {
+        Some(g) => {
+            for h in lane.hits.iter_mut() {
+                h.s = h.out_lum as f64 * g.weight(h.cell);
+            }
+        }
+        None => compute_importance(&mut lane.hits, s.lambda as f64),
+    }
     purge(&mut lane.hits, lane.sigma, s.population, rng);
     lane.sigma = 1.0;
     lane.rebuild();
