@@ -773,6 +773,12 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
             st.mean_brightness_error,
             s.epsilon
         );
+        say!(
+            "hits in memory   {} at most in phase 2, {} in the bucket sort (chunk {})",
+            st.max_hits_in_memory,
+            st.max_sort_records,
+            s.chunk_hits
+        );
         match peak_memory() {
             Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),
             None => say!("peak memory      unknown"),
