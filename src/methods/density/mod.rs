@@ -13,8 +13,20 @@
 //!
 //! The image is the paper's view-dependent second pass: a camera ray that
 //! meets a diffuse surface reads L = R·H/π from the display mesh ([`mesh`]);
-//! mirrors, glass and other non-diffuse surfaces are ray-traced onward by
-//! sampling their BSDF. The bake happens in the first pass; every pass adds
+//! mirrors, glass and the non-diffuse part of other surfaces (a glossy lobe,
+//! a plastic's coat) are ray-traced onward by sampling their BSDF (see
+//! [`view_radiance`]).
+//!
+//! Non-Lambertian surfaces. §1 of the paper: "all diffuse surfaces will be
+//! portrayed accurately regardless of display method ... Non-diffuse
+//! surfaces ... accurately if displayed in a view-dependent second pass".
+//! A material with a diffuse part (`phong`'s kd, the base of `plastic` and
+//! `roughplastic`: [`crate::bsdf::DiffusePart`]) records hits and gets a
+//! display mesh of Ĥ; its vertex colours carry R_d·Ĥ/π. What remains an
+//! approximation: for the coated models the baked colour uses the coat's
+//! mean transmittance T̄ in place of T(cos θo) (the view pass uses the exact
+//! one), and a purely glossy material (`roughconductor`, `phong` with
+//! kd = 0) has no view-independent part at all: it is ray-traced only. The bake happens in the first pass; every pass adds
 //! one jittered sample per pixel of the view pass.
 //!
 //! Colour: one RGB pass. Every particle carries RGB power (its luminaire's
@@ -48,7 +60,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{Method, MethodError, Options, StepStats, World};
-use crate::bsdf::Mode;
+use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::methods::path::orient;
@@ -497,12 +509,27 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     stats.tris_before = planar.iter().map(|m| m.tris.len() as u64).sum::<u64>()
         + curved.iter().map(|m| m.tris.len() as u64).sum::<u64>();
 
+    // R at the vertices: one value for an untextured surface, else the
+    // texture at each vertex (§3.2: L = R(u, v)·H(u, v)/π)
+    let reflectance = |m: &PlanarMesh| -> Vec<Vec3> {
+        let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
+        if surf.textured {
+            surf.reflectance_at(scene, &m.verts)
+        } else {
+            vec![surf.reflectance]
+        }
+    };
+
     // The white point: the 99th percentile of the vertex radiance
     let mut lum: Vec<f32> = planar
-        .iter()
-        .flat_map(|m| {
-            let r = surfaces.list[(m.surface & 0x7fff_ffff) as usize].reflectance;
-            m.h.iter().map(move |h| luminance(r * *h / PI))
+        .par_iter()
+        .flat_map_iter(|m| {
+            let r = reflectance(m);
+            let r_at = move |i: usize| if r.len() == 1 { r[0] } else { r[i] };
+            m.h.iter()
+                .enumerate()
+                .map(move |(i, h)| luminance(r_at(i) * *h / PI))
+                .collect::<Vec<_>>()
         })
         .filter(|v| *v > 0.0)
         .collect();
@@ -523,8 +550,8 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         let out: Vec<(PlanarMesh, decimate::Report)> = planar
             .into_par_iter()
             .map(|m| {
-                let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
-                decimate::decimate_planar(m, surf.reflectance, w0, s.epsilon)
+                let r = reflectance(&m);
+                decimate::decimate_planar(m, &r, w0, s.epsilon)
             })
             .collect();
         planar = Vec::with_capacity(out.len());
@@ -636,9 +663,14 @@ impl Method for Density {
     }
 }
 
-/// The view-dependent second pass along one camera ray: emitted radiance
-/// plus, at the first diffuse surface, R·H/π read from the display mesh;
-/// non-diffuse surfaces are followed by sampling their BSDF.
+/// The view-dependent second pass along one camera ray: emitted radiance,
+/// plus at every surface with a diffuse part its diffuse radiance read from
+/// the display mesh (R·H/π for a Lambertian surface, k T(cos θo) Ĥ for the
+/// others: [`crate::bsdf::DiffusePart`]); the rest of the BSDF (mirrors,
+/// glass, glossy lobes, coats) is followed by sampling the BSDF and
+/// weighting by (f − f_d) cos θ / pdf, which is unbiased for the
+/// non-diffuse integral ∫ (f − f_d) L cos dω (the mixture pdf covers every
+/// lobe). A Lambertian surface ends the path.
 pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
     let scene = &world.scene;
     let mut l = Rgb::ZERO;
@@ -658,22 +690,30 @@ pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) ->
         let sid = bk.surfaces.tri_surface[hit.tri as usize];
         let surf = &bk.surfaces.list[sid as usize];
         let material = scene.material_of(&sp);
+        let bsdf = material.bsdf(sp.uv);
+        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+        let wo = frame.to_local(wo_world);
+        let mut diffuse = None;
         if surf.diffuse {
             let back = wo_world.dot(sp.ng) < 0.0;
             if back && !material.is_two_sided() {
                 break;
             }
-            let r = surfaces::diffuse_reflectance(material, sp.uv).unwrap_or(Rgb::ZERO);
             let h = bk
                 .mesh
                 .irradiance(&bk.surfaces, hit.tri, hit.b1, hit.b2, sp.p, back);
-            l += beta * r * h / PI;
-            break;
+            if let Bsdf::Diffuse { r } = bsdf {
+                l += beta * r * h / PI;
+                break;
+            }
+            if let Some(d) = bsdf.diffuse_part() {
+                if wo.z > 0.0 {
+                    l += beta * d.k * d.t(wo.z) * h;
+                }
+                diffuse = Some(d);
+            }
         }
-        // A non-diffuse surface: follow its BSDF
-        let bsdf = material.bsdf(sp.uv);
-        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
-        let wo = frame.to_local(wo_world);
+        // The non-diffuse rest of the BSDF: follow it
         let Some(s) = bsdf.sample(wo, rng.next_f32(), rng.next_2d(), Mode::Radiance) else {
             break;
         };
@@ -681,7 +721,21 @@ pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) ->
         if wi.dot(ng) * s.wi.z <= 0.0 || s.pdf <= 0.0 {
             break;
         }
-        beta *= s.f * (s.wi.z.abs() / s.pdf);
+        let f = match diffuse {
+            Some(d) if !s.delta => {
+                // f − f_d, with the rounding of the two forms of f_d (about
+                // 1e-7 of it) taken as zero
+                let fd = d.f(wo, s.wi);
+                let rest = s.f - fd;
+                if rest.max_element() <= 1e-6 * fd.max_element() {
+                    Rgb::ZERO
+                } else {
+                    rest.max(Rgb::ZERO)
+                }
+            }
+            _ => s.f,
+        };
+        beta *= f * (s.wi.z.abs() / s.pdf);
         if depth > 3 {
             let q = beta.max_element().min(0.95);
             if rng.next_f32() >= q {

@@ -11,7 +11,8 @@
 //! reflected, transmitted or absorbed by the BSDF (sampled in importance
 //! mode, Russian roulette on the largest channel of the albedo, so that a
 //! particle keeps its power while it lives); glass and metal are traced
-//! through. Every hit on a diffuse surface is recorded before scattering.
+//! through. Every hit on a surface with a diffuse part is recorded before
+//! scattering.
 //!
 //! Parallelism and determinism: particles are numbered globally and cut in
 //! chunks of [`CHUNK`]; chunk c draws from the stream keyed (seed, c), chunks
@@ -290,10 +291,14 @@ fn trace_one(
         let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
         let wo = frame.to_local(wo_world);
 
-        // Record the hit on a diffuse surface (the side the particle came from)
+        // Record the hit on a surface with a diffuse part (the side the
+        // particle came from), its power times the coat's transmittance
+        // T(cos θ) for a coated model (1 otherwise), so that the estimate is
+        // the Ĥ of [`crate::bsdf::DiffusePart`]
         let sid = surfaces.tri_surface[hit.tri as usize];
         let s = &surfaces.list[sid as usize];
         if s.diffuse && wo.z > 0.0 {
+            let t = bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z));
             let back = wo_world.dot(sp.ng) < 0.0;
             let (u, v) = match s.kind {
                 Kind::Planar => {
@@ -306,7 +311,7 @@ fn trace_one(
                 surface: sid | (u32::from(back) << 31),
                 u: to_fixed(u),
                 v: to_fixed(v),
-                rgb: encode_rgb9e5(beta),
+                rgb: encode_rgb9e5(beta * t),
             });
         }
         if depth + 1 > max_depth {
