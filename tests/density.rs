@@ -825,3 +825,73 @@ fn glossy_view_pass_agrees_with_path() {
         }
     }
 }
+
+/// Baked colours use the reflectance at each vertex: a plate (2 × 2, uvs
+/// (0,0)–(1,1)) with a checkerboard albedo of 0.2 and 0.8 in a uniform sky
+/// (H = π on its upper face). Every lit vertex of the glTF mesh must carry
+/// radiance R(uv)·H/π with R the texture at that vertex's own uv (to f32
+/// rounding, 1e-5), and both albedos must occur; the single-value
+/// reflectance of before would give one of them everywhere.
+#[test]
+fn baked_colours_use_the_texture_at_each_vertex() {
+    let mut sc = Scene::empty("checker-plate");
+    let checker = Texture::Checkerboard {
+        color0: Vec3::splat(0.2),
+        color1: Vec3::splat(0.8),
+        to_uv: glam::Affine2::IDENTITY,
+    };
+    let mat = sc.add_material(Material::Diffuse {
+        reflectance: checker.clone(),
+    });
+    let p = [
+        Vec3::new(-1.0, 0.0, -1.0),
+        Vec3::new(-1.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, -1.0),
+    ];
+    let uv = p.map(|q| Vec2::new((q.x + 1.0) / 2.0, (q.z + 1.0) / 2.0));
+    sc.add_mesh(
+        "plate",
+        &p,
+        None,
+        Some(&uv),
+        &[[0, 1, 2], [0, 2, 3]],
+        mat,
+        None,
+    );
+    sc.emitters.push(scene::EmitterDesc::Constant {
+        radiance: Vec3::ONE,
+    });
+    sc.camera = CameraDesc {
+        to_world: look_at(Vec3::new(0.0, 3.0, 3.0), Vec3::ZERO, Vec3::Y),
+        fov_x_deg: 50.0,
+        width: 8,
+        height: 8,
+        near_clip: 1e-3,
+    };
+    let world = World::new(sc);
+    let b = density::bake(&world, &settings(200_000, 17)).expect("bake");
+    let (lit, _) = kalos::bake::collect(&world.scene, &b);
+    let (mut dark, mut bright) = (0, 0);
+    for ((q, h), l) in lit.positions.iter().zip(&lit.irradiance).zip(&lit.radiance) {
+        let uv = Vec2::new((q.x + 1.0) / 2.0, (q.z + 1.0) / 2.0);
+        // skip the checker's own edges, where either colour is right
+        let f = |x: f32| (x * 2.0 - (x * 2.0).round()).abs() < 1e-3;
+        if f(uv.x) || f(uv.y) || h.x <= 0.0 {
+            continue;
+        }
+        let r = checker.eval(uv).x;
+        let got = l.x * PI / h.x;
+        assert!(
+            (got - r).abs() <= 1e-5,
+            "vertex at uv {uv}: R {got} vs the texture's {r}"
+        );
+        if r < 0.5 {
+            dark += 1;
+        } else {
+            bright += 1;
+        }
+    }
+    eprintln!("checker plate: {dark} dark and {bright} bright vertices checked");
+    assert!(dark > 10 && bright > 10);
+}
