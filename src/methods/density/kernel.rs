@@ -172,6 +172,11 @@ impl TriGrid {
         })
     }
 
+    /// True when the grid holds nothing (never built, or no triangles).
+    pub fn is_empty(&self) -> bool {
+        self.nx == 0
+    }
+
     /// True when `p` lies in one of the triangles.
     pub fn inside(&self, verts: &[Vec2], tris: &[[u32; 3]], p: Vec2) -> bool {
         if self.nx == 0 {

@@ -352,7 +352,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         };
         let finish = |run: &hitfile::Run, est: kernel::PlanarEstimator| {
             let e = est.finish();
-            PlanarMesh::new(run.surface, e.verts, e.tris, e.h, e.bandwidth, run.count)
+            PlanarMesh::unindexed(run.surface, e.verts, e.tris, e.h, e.bandwidth, run.count)
         };
         let runs = &file.runs;
         let mut i = 0;
@@ -499,7 +499,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
             let ct = surf.chart_tris(scene);
             let est =
                 kernel::estimate_planar(surf.rectangle, surf.size, surf.area, &ct, &[], &params);
-            planar.push(PlanarMesh::new(
+            planar.push(PlanarMesh::unindexed(
                 sid as u32, est.verts, est.tris, est.h, 0.0, 0,
             ));
         }
