@@ -739,6 +739,23 @@ fn environment_light_emits_particles() {
         );
         assert!((mean / std::f64::consts::PI - 1.0).abs() <= tol);
     }
+    // the same seed gives the same bake with 1 and 2 threads (environment
+    // particles, streamed phase 2 with a small chunk)
+    let threads = |n: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .expect("pool");
+        let st = Settings {
+            chunk_hits: 5_000,
+            ..st.clone()
+        };
+        pool.install(|| density::bake(&world, &st).expect("bake"))
+    };
+    let (b1, b2) = (threads(1), threads(2));
+    for (m1, m2) in b1.mesh.planar.iter().zip(&b2.mesh.planar) {
+        assert_eq!(m1.h, m2.h, "the bake depends on the thread count");
+    }
     let (img, _) = render(&world, st, 8);
     let cube: Vec<f64> = img
         .data
