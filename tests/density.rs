@@ -395,6 +395,30 @@ fn hit_file_round_trip_and_determinism() {
     expected.sort_by_key(|h| ((h.surface & 0x7fff_ffff) / 143, h.surface));
     assert_eq!(back, expected);
 
+    // the bucket sort in chunks of 1 000 records (a bucket has ~14 000)
+    // writes the same bytes, and the runs index every surface side
+    let mut w = HitWriter::new(&dir.join("chunked"), 1000, 7).expect("writer");
+    w.sort_chunk = 1000;
+    for c in hits.chunks(3000) {
+        w.push(c).expect("push");
+    }
+    let g = w.finish(&dir.join("hits-chunked.bin")).expect("finish");
+    assert_eq!(g.max_sort_records, 1000);
+    assert_eq!(
+        std::fs::read(&f.path).expect("read"),
+        std::fs::read(&g.path).expect("read")
+    );
+    let reopened = HitFile::open(&g.path).expect("open");
+    assert_eq!(reopened.runs, g.runs);
+    for r in &g.runs {
+        let rec = g.read_range(r.start, r.count).expect("range");
+        assert!(rec.iter().all(|h| h.surface == r.surface));
+    }
+    assert_eq!(
+        g.runs.iter().map(|r| r.count).sum::<u64>(),
+        hits.len() as u64
+    );
+
     // same seed, 1 thread and 2 threads: identical bytes
     let sc = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("cbox");
     let world = World::new(sc);
