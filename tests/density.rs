@@ -936,3 +936,49 @@ fn baked_colours_use_the_texture_at_each_vertex() {
     eprintln!("checker plate: {dark} dark and {bright} bright vertices checked");
     assert!(dark > 10 && bright > 10);
 }
+
+/// The same with an `envmap` of uniform radiance 1 (64 × 32 pixels): the
+/// particles come through the map's importance sampling instead of the
+/// constant environment's, and every face must still receive H = π.
+/// Tolerance as in `environment_light_emits_particles` (4/√N_face), plus
+/// the map's sampling, which puts directions at the rows' central θ: a
+/// midpoint rule in θ whose error on ∫ L cos dω is about (π/32)²/24 ≈ 4e-4
+/// of it, negligible here.
+#[test]
+fn environment_map_emits_particles() {
+    let mut sc = cube_in_sky(
+        Material::Diffuse {
+            reflectance: Texture::Constant(Vec3::splat(0.5)),
+        },
+        8,
+    );
+    sc.emitters.clear();
+    sc.emitters.push(scene::EmitterDesc::EnvMap {
+        image: std::sync::Arc::new(scene::TexImage {
+            width: 64,
+            height: 32,
+            data: vec![Vec3::ONE; 64 * 32],
+        }),
+        scale: 1.0,
+        to_world: glam::Mat4::IDENTITY,
+    });
+    let world = World::new(sc);
+    let st = Settings {
+        decimate: false,
+        ..settings(300_000, 19)
+    };
+    let bake = density::bake(&world, &st).expect("bake");
+    let faces: Vec<_> = bake.mesh.planar.iter().filter(|m| m.hits > 0).collect();
+    assert_eq!(faces.len(), 6, "six lit faces");
+    for m in faces {
+        let mean = m.h.iter().map(|h| h.x as f64).sum::<f64>() / m.h.len() as f64;
+        let tol = 4.0 / (m.hits as f64).sqrt() + 4e-4;
+        eprintln!(
+            "envmap, face {}: {} hits, mean H {mean:.4} vs π (rel {:+.4}, tol {tol:.4})",
+            m.surface,
+            m.hits,
+            mean / std::f64::consts::PI - 1.0
+        );
+        assert!((mean / std::f64::consts::PI - 1.0).abs() <= tol);
+    }
+}
