@@ -488,28 +488,50 @@ impl Lights {
                     tri,
                 })
             }
-            Entry::Env => {
-                let env = self.env.as_ref()?;
-                let (w_env, le, pdf_dir) = env.sample(u_dir)?;
-                if pdf_dir <= 0.0 {
-                    return None;
-                }
-                let d = -w_env;
-                let frame = Frame::from_normal(d);
-                let disk = concentric_disk(u_pos) * self.radius;
-                let p = self.center - d * self.radius + frame.s * disk.x + frame.t * disk.y;
-                let pdf_pos = 1.0 / (PI * self.radius * self.radius);
-                Some(EmissionSample {
-                    p,
-                    n: d,
-                    d,
-                    phi: le / (pdf_pos * pdf_dir * pmf as f32),
-                    phi_pos: Rgb::ZERO,
-                    le,
-                    is_env: true,
-                    tri: u32::MAX,
-                })
-            }
+            Entry::Env => self.env_emission(u_pos, u_dir, pmf as f32),
         }
+    }
+
+    /// Emits a particle from the environment alone (as if it were the only
+    /// light): a direction by the environment's sampling, and a start point
+    /// on the disk of the scene's bounding radius perpendicular to it, so
+    /// that the parallel rays cover the scene. `phi` is then the
+    /// environment's whole power [`Lights::env_power`] for a uniform
+    /// environment. None without an environment.
+    pub fn sample_env_emission(&self, u_pos: Vec2, u_dir: Vec2) -> Option<EmissionSample> {
+        self.env_emission(u_pos, u_dir, 1.0)
+    }
+
+    /// Power of the environment through the disk it emits from, per
+    /// channel: π R² ∫ L dω (zero without one).
+    pub fn env_power(&self) -> Rgb {
+        self.env.as_ref().map_or(Rgb::ZERO, |e| {
+            e.integral() * (PI * self.radius * self.radius)
+        })
+    }
+
+    /// The environment branch of emission, the choice of the environment
+    /// having had probability `pmf`.
+    fn env_emission(&self, u_pos: Vec2, u_dir: Vec2, pmf: f32) -> Option<EmissionSample> {
+        let env = self.env.as_ref()?;
+        let (w_env, le, pdf_dir) = env.sample(u_dir)?;
+        if pdf_dir <= 0.0 {
+            return None;
+        }
+        let d = -w_env;
+        let frame = Frame::from_normal(d);
+        let disk = concentric_disk(u_pos) * self.radius;
+        let p = self.center - d * self.radius + frame.s * disk.x + frame.t * disk.y;
+        let pdf_pos = 1.0 / (PI * self.radius * self.radius);
+        Some(EmissionSample {
+            p,
+            n: d,
+            d,
+            phi: le / (pdf_pos * pdf_dir * pmf),
+            phi_pos: Rgb::ZERO,
+            le,
+            is_env: true,
+            tri: u32::MAX,
+        })
     }
 }

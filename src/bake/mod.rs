@@ -3,9 +3,12 @@
 //!
 //! The display mesh is world-space triangles with, at each vertex, the
 //! outgoing radiance L = R·H/π of the diffuse surface (plus L_e on the front
-//! of an emitter). Non-diffuse surfaces (glass, metal...) carry no baked
-//! lighting: they go to a second glTF primitive with a plain PBR material, so
-//! that a viewer still shows the geometry.
+//! of an emitter), R being the reflectance at that vertex (textures looked
+//! up through the mesh uvs) and, for a material with a diffuse part that is
+//! not Lambertian, R_d·Ĥ/π ([`crate::bsdf::DiffusePart::rd`]). Surfaces
+//! without a diffuse part (glass, metal...) carry no baked lighting: they go
+//! to a second glTF primitive with a plain PBR material, so that a viewer
+//! still shows the geometry.
 
 pub mod gen;
 pub mod gltf;
@@ -13,7 +16,7 @@ pub mod ply;
 
 use std::f32::consts::PI;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use crate::methods::density::{surfaces::Kind, Bake};
 use crate::scene::{EmitterDesc, Scene};
@@ -60,8 +63,9 @@ pub fn collect(scene: &Scene, bake: &Bake) -> (BakedMesh, BakedMesh) {
         let n = if back { -s.normal } else { s.normal };
         let le = if back { Vec3::ZERO } else { emitted(s.shape) };
         let base = lit.positions.len() as u32;
-        for (v, h) in m.verts.iter().zip(&m.h) {
-            lit.push(s.to_world(*v), n, *h, s.reflectance * *h / PI + le);
+        let r = s.reflectance_at(scene, &m.verts);
+        for ((v, h), r) in m.verts.iter().zip(&m.h).zip(r) {
+            lit.push(s.to_world(*v), n, *h, r * *h / PI + le);
         }
         for t in &m.tris {
             let t = t.map(|i| i + base);
@@ -72,11 +76,13 @@ pub fn collect(scene: &Scene, bake: &Bake) -> (BakedMesh, BakedMesh) {
         let le = if m.back { Vec3::ZERO } else { emitted(m.shape) };
         for (&t, h) in m.tris.iter().zip(&m.h) {
             let s = &bake.surfaces.list[bake.surfaces.tri_surface[t as usize] as usize];
+            let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)];
+            let r = s.reflectance_at(scene, &corners.map(|(b1, b2)| Vec2::new(b1, b2)));
             let mut idx = [0u32; 3];
-            for (k, (b1, b2)) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)].into_iter().enumerate() {
+            for (k, (b1, b2)) in corners.into_iter().enumerate() {
                 let sp = scene.surface_point(t, b1, b2);
                 let n = if m.back { -sp.frame.n } else { sp.frame.n };
-                idx[k] = lit.push(sp.p, n, h[k], s.reflectance * h[k] / PI + le);
+                idx[k] = lit.push(sp.p, n, h[k], r[k] * h[k] / PI + le);
             }
             lit.indices.push(if m.back {
                 [idx[0], idx[2], idx[1]]

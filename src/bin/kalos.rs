@@ -97,6 +97,11 @@ struct BakeArgs {
     /// Directory for the hit file's buckets (default: the system temp dir).
     #[arg(long)]
     scratch: Option<PathBuf>,
+    /// Most hit records held in memory at once (phase 2 and the bucket
+    /// sort); a surface with more hits is streamed in chunks of this size.
+    /// Accepts 2M. Default 2M.
+    #[arg(long, value_parser = parse_count)]
+    chunk_hits: Option<u64>,
     #[command(flatten)]
     density: DensityArgs,
     /// `rgb` (one pass, default) or `per-channel` (the paper's three runs).
@@ -716,6 +721,9 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
     s.decimate = !a.no_decimate;
     s.keep_hits = a.hits.clone();
     s.scratch = a.scratch.clone();
+    if let Some(c) = a.chunk_hits {
+        s.chunk_hits = usize::try_from(c).unwrap_or(usize::MAX);
+    }
     let b = density::bake(&world, &s)?;
     let t1 = Instant::now();
     let (lit, other) = kalos::bake::collect(&world.scene, &b);
@@ -772,6 +780,12 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
             st.max_brightness_error,
             st.mean_brightness_error,
             s.epsilon
+        );
+        say!(
+            "hits in memory   {} at most in phase 2, {} in the bucket sort (chunk {})",
+            st.max_hits_in_memory,
+            st.max_sort_records,
+            s.chunk_hits
         );
         match peak_memory() {
             Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),

@@ -602,6 +602,106 @@ impl Bsdf {
     }
 }
 
+/// The diffuse part of a BSDF: the term f_d(wo, wi) = k · T(cos θo) ·
+/// T(cos θi) that is Lambertian up to a coat's transmittance T on each side
+/// (T = 1 for `diffuse` and `phong`; 1 − F(θ) through the smooth coat of
+/// `plastic`; the tabulated t(μ) through the rough coat of `roughplastic`).
+///
+/// It is what the density method stores view-independently (§3.2 of the
+/// density-estimation paper, for the Lambertian part): the separable form
+/// gives L_d(wo) = k T(cos θo) Ĥ with Ĥ = ∫ T(cos θi) L_i cos θi dωi, the
+/// irradiance weighted by the coat's transmittance (Ĥ = H when T = 1).
+#[derive(Clone, Copy, Debug)]
+pub struct DiffusePart {
+    /// k = R/π (`diffuse`), kd/π (`phong`), ρ_int/(π η²) (the plastics, ρ_int
+    /// the base albedo after the coat's internal reflections).
+    pub k: Rgb,
+    coat: CoatLaw,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum CoatLaw {
+    None,
+    Smooth { eta: f32 },
+    Rough { table: &'static CoatTable },
+}
+
+impl DiffusePart {
+    /// The coat's transmittance T for a direction at cos θ = `cos` (1 for
+    /// uncoated models).
+    #[inline]
+    pub fn t(&self, cos: f32) -> f32 {
+        match self.coat {
+            CoatLaw::None => 1.0,
+            CoatLaw::Smooth { eta } => 1.0 - fresnel_dielectric(cos, eta).0,
+            CoatLaw::Rough { table } => table.t(cos),
+        }
+    }
+
+    /// f_d(wo, wi), local directions (zero below the surface).
+    #[inline]
+    pub fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return Rgb::ZERO;
+        }
+        self.k * (self.t(wo.z) * self.t(wi.z))
+    }
+
+    /// The cosine-weighted mean of T over the outgoing hemisphere,
+    /// 2∫ T(μ) μ dμ: 1 uncoated, 1 − F_dr(η) for the smooth coat, the
+    /// table's external diffuse transmittance for the rough one.
+    pub fn t_mean(&self) -> f32 {
+        match self.coat {
+            CoatLaw::None => 1.0,
+            CoatLaw::Smooth { eta } => 1.0 - fresnel_diffuse_reflectance(eta),
+            CoatLaw::Rough { table } => table.external_diffuse_transmittance,
+        }
+    }
+
+    /// The view-independent reflectance R_d = π k T̄ of the display mesh,
+    /// whose vertices carry R_d Ĥ/π: exact for `diffuse` and `phong` (R and
+    /// kd); for the plastics the outgoing T(cos θo) is replaced by its
+    /// cosine-weighted mean T̄ (a view-dependent factor no vertex colour can
+    /// hold; the view pass uses the exact one).
+    pub fn rd(&self) -> Rgb {
+        self.k * (PI * self.t_mean())
+    }
+}
+
+impl Bsdf {
+    /// The diffuse part of this BSDF (`diffuse`, `phong`, `plastic`,
+    /// `roughplastic`; k may be zero), None for the models without one.
+    pub fn diffuse_part(&self) -> Option<DiffusePart> {
+        let (k, coat) = match *self {
+            Bsdf::Diffuse { r } => (r * FRAC_1_PI, CoatLaw::None),
+            Bsdf::Phong { kd, .. } => (kd * FRAC_1_PI, CoatLaw::None),
+            Bsdf::Plastic {
+                rho,
+                eta,
+                fdr_int,
+                nonlinear,
+                ..
+            } => (
+                internal_scattering(rho, fdr_int, nonlinear) * (FRAC_1_PI / (eta * eta)),
+                CoatLaw::Smooth { eta },
+            ),
+            Bsdf::RoughPlastic {
+                rho,
+                eta,
+                nonlinear,
+                table,
+                ..
+            } => (
+                internal_scattering(rho, table.internal_reflectance, nonlinear)
+                    * (FRAC_1_PI / (eta * eta)),
+                CoatLaw::Rough { table },
+            ),
+            _ => return None,
+        };
+        Some(DiffusePart { k, coat })
+    }
+}
+
 /// The reflection half vector, `None` when wo = −wi.
 #[inline]
 fn half_vector(wo: Vec3, wi: Vec3) -> Option<Vec3> {

@@ -215,9 +215,10 @@ fn place(pos: &[Vec3], new: &[[u32; 3]], q: Vec3) -> Option<(usize, f32)> {
     Some((i, (a.z * bc.x + b.z * bc.y + c.z * bc.z - q.z).abs()))
 }
 
-/// Decimates one surface's mesh. `r` is the surface reflectance, `w0` the
-/// white point, `eps` the error bound. Keeps the vertices' irradiance.
-pub fn decimate_planar(m: PlanarMesh, r: Vec3, w0: f32, eps: f32) -> (PlanarMesh, Report) {
+/// Decimates one surface's mesh. `r` is the reflectance R(x, y) at each
+/// vertex (one value: the same everywhere), `w0` the white point, `eps` the
+/// error bound. Keeps the vertices' irradiance.
+pub fn decimate_planar(m: PlanarMesh, r: &[Vec3], w0: f32, eps: f32) -> (PlanarMesh, Report) {
     let mut report = Report {
         tris_before: m.tris.len() as u64,
         ..Default::default()
@@ -232,7 +233,12 @@ pub fn decimate_planar(m: PlanarMesh, r: Vec3, w0: f32, eps: f32) -> (PlanarMesh
         (hi - lo).max_element().max(1e-9)
     };
     let s = eps.max(1e-9) / feature;
-    let z: Vec<f32> = m.h.iter().map(|h| brightness(*h, r, w0)).collect();
+    let r_at = |i: usize| if r.len() == 1 { r[0] } else { r[i] };
+    let z: Vec<f32> =
+        m.h.iter()
+            .enumerate()
+            .map(|(i, h)| brightness(*h, r_at(i), w0))
+            .collect();
     let p: Vec<Vec3> = m
         .verts
         .iter()

@@ -8,12 +8,18 @@
 //! (see `mod.rs` for why one pass rather than the paper's per-channel runs).
 //!
 //! Grouping: hits go to `buckets` temporary files by surface-id range, as
-//! they are produced (bounded buffers). [`HitWriter::finish`] reads one bucket
-//! at a time, sorts it stably by surface id and appends it to the single hit
-//! file, after a header holding the bucket offsets. Memory is bounded by the
-//! largest bucket, not by the particle count. The order of the records
-//! depends only on the seed (lanes are merged in order), so a seed
+//! they are produced (bounded buffers), and the writer counts the hits of
+//! every surface side. [`HitWriter::finish`] then knows where each surface's
+//! records go in the single hit file (after a header holding the bucket
+//! offsets) and moves every bucket there by a stable counting sort, reading
+//! it in chunks of at most [`HitWriter::sort_chunk`] records: memory stays
+//! bounded however many hits a bucket or a surface receives. The order of the
+//! records depends only on the seed (lanes are merged in order), so a seed
 //! reproduces the file byte for byte.
+//!
+//! Reading: [`HitFile::runs`] lists the (surface, first record, count) of
+//! every surface side in file order, and [`HitFile::read_range`] reads any
+//! span of records, so that phase 2 can stream a surface's hits in chunks.
 
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
@@ -135,7 +141,12 @@ pub struct HitWriter {
     buffers: Vec<Vec<u8>>,
     files: Vec<Option<BufWriter<File>>>,
     counts: Vec<u64>,
+    /// Hits per surface side: index 2·id + side.
+    side_counts: Vec<u64>,
     buffer_bytes: usize,
+    /// Largest number of records the bucket sort of [`HitWriter::finish`]
+    /// holds in memory at once.
+    pub sort_chunk: usize,
 }
 
 impl HitWriter {
@@ -152,7 +163,10 @@ impl HitWriter {
             buffers: vec![Vec::new(); n],
             files: (0..n).map(|_| None).collect(),
             counts: vec![0; n],
-            buffer_bytes: 1 << 20,
+            side_counts: vec![0; 2 * surfaces.max(1) as usize],
+            // at most 64 MB of buffers in all, 1 MB each at most
+            buffer_bytes: ((64usize << 20) / n).clamp(64 << 10, 1 << 20),
+            sort_chunk: 1 << 21,
         })
     }
 
@@ -170,6 +184,11 @@ impl HitWriter {
             let b = self.bucket_of(h.surface);
             self.buffers[b].extend_from_slice(&h.to_bytes());
             self.counts[b] += 1;
+            let k = side_index(h.surface);
+            if k >= self.side_counts.len() {
+                self.side_counts.resize(k + 1, 0);
+            }
+            self.side_counts[k] += 1;
             if self.buffers[b].len() >= self.buffer_bytes {
                 self.flush_bucket(b)?;
             }
@@ -201,6 +220,12 @@ impl HitWriter {
     /// Sorts every bucket by surface id (stable) and writes the hit file
     /// `path`: header `KALOSHIT`, bucket count, then (offset, count) per
     /// bucket, then the records. Written to a temporary name and renamed.
+    ///
+    /// The sort is a counting sort: the writer has counted every surface
+    /// side's hits, so each side's first record is known, and a bucket is
+    /// read in chunks of at most [`HitWriter::sort_chunk`] records, each
+    /// chunk sorted stably and its runs written at their sides' next
+    /// positions. The bytes are those of a stable sort of the whole bucket.
     pub fn finish(mut self, path: &Path) -> Result<HitFile, HitFileError> {
         for b in 0..self.buffers.len() {
             self.flush_bucket(b)?;
@@ -208,8 +233,9 @@ impl HitWriter {
                 f.flush().map_err(io_err(&self.bucket_path(b)))?;
             }
         }
+        self.buffers = Vec::new();
         let tmp = path.with_extension("tmp");
-        let nb = self.buffers.len();
+        let nb = self.counts.len();
         let header = 8 + 8 + 16 * nb as u64;
         let mut offsets = Vec::with_capacity(nb);
         let mut off = header;
@@ -217,9 +243,40 @@ impl HitWriter {
             offsets.push((off, c));
             off += c * HIT_BYTES as u64;
         }
+
+        // Where each surface side starts: buckets in order, inside a bucket
+        // the ids in the order of `surface` as a u32 (front sides, then back)
+        let ns = (self.side_counts.len() / 2) as u32;
+        let mut runs: Vec<Run> = Vec::new();
+        let mut next = vec![0u64; self.side_counts.len()];
+        let mut rec = 0u64;
+        for b in 0..nb {
+            let lo = b as u32 * self.ids_per_bucket;
+            let hi = if b + 1 == nb {
+                ns
+            } else {
+                ((b as u32 + 1) * self.ids_per_bucket).min(ns)
+            };
+            for side in 0..2u32 {
+                for id in lo..hi {
+                    let full = id | (side << 31);
+                    let k = side_index(full);
+                    let c = self.side_counts[k];
+                    next[k] = rec;
+                    if c > 0 {
+                        runs.push(Run {
+                            surface: full,
+                            start: rec,
+                            count: c,
+                        });
+                    }
+                    rec += c;
+                }
+            }
+        }
+        let mut max_sort = 0u64;
         {
-            let f = File::create(&tmp).map_err(io_err(&tmp))?;
-            let mut w = BufWriter::new(f);
+            let mut f = File::create(&tmp).map_err(io_err(&tmp))?;
             let mut head = Vec::with_capacity(header as usize);
             head.extend_from_slice(MAGIC);
             head.extend_from_slice(&(nb as u64).to_le_bytes());
@@ -227,36 +284,73 @@ impl HitWriter {
                 head.extend_from_slice(&o.to_le_bytes());
                 head.extend_from_slice(&c.to_le_bytes());
             }
-            w.write_all(&head).map_err(io_err(&tmp))?;
+            f.write_all(&head).map_err(io_err(&tmp))?;
+            let chunk = self.sort_chunk.max(1);
+            let mut out = Vec::new();
             for b in 0..nb {
                 if self.counts[b] == 0 {
                     continue;
                 }
                 let bp = self.bucket_path(b);
-                let bytes = std::fs::read(&bp).map_err(io_err(&bp))?;
-                let mut hits: Vec<Hit> =
-                    bytes.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
-                drop(bytes);
-                hits.sort_by_key(|h| h.surface);
-                // write in small pieces: no second copy of the bucket
-                let mut out = Vec::with_capacity(65536 * HIT_BYTES);
-                for chunk in hits.chunks(65536) {
-                    out.clear();
-                    for h in chunk {
-                        out.extend_from_slice(&h.to_bytes());
+                let mut r = BufReader::new(File::open(&bp).map_err(io_err(&bp))?);
+                let mut left = self.counts[b];
+                let mut bytes = Vec::new();
+                while left > 0 {
+                    let m = left.min(chunk as u64);
+                    bytes.resize(m as usize * HIT_BYTES, 0);
+                    r.read_exact(&mut bytes).map_err(io_err(&bp))?;
+                    let mut hits: Vec<Hit> =
+                        bytes.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
+                    max_sort = max_sort.max(m);
+                    hits.sort_by_key(|h| h.surface);
+                    // each run of one side goes to that side's next records
+                    let mut i = 0;
+                    while i < hits.len() {
+                        let id = hits[i].surface;
+                        let j = i + hits[i..].partition_point(|h| h.surface == id);
+                        let k = side_index(id);
+                        out.clear();
+                        for h in &hits[i..j] {
+                            out.extend_from_slice(&h.to_bytes());
+                        }
+                        f.seek(SeekFrom::Start(header + next[k] * HIT_BYTES as u64))
+                            .map_err(io_err(&tmp))?;
+                        f.write_all(&out).map_err(io_err(&tmp))?;
+                        next[k] += (j - i) as u64;
+                        i = j;
                     }
-                    w.write_all(&out).map_err(io_err(&tmp))?;
+                    left -= m;
                 }
+                drop(r);
                 std::fs::remove_file(&bp).map_err(io_err(&bp))?;
             }
-            w.flush().map_err(io_err(&tmp))?;
+            f.flush().map_err(io_err(&tmp))?;
         }
         std::fs::rename(&tmp, path).map_err(io_err(path))?;
         Ok(HitFile {
             path: path.to_path_buf(),
             buckets: offsets,
+            runs,
+            max_sort_records: max_sort,
         })
     }
+}
+
+/// Index of a surface side in per-side tables: 2·id + side.
+#[inline]
+fn side_index(surface: u32) -> usize {
+    2 * (surface & 0x7fff_ffff) as usize + (surface >> 31) as usize
+}
+
+/// The records of one surface side: a contiguous span of the hit file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Run {
+    /// Surface id, bit 31 set for the back side.
+    pub surface: u32,
+    /// Index of its first record.
+    pub start: u64,
+    /// Number of records.
+    pub count: u64,
 }
 
 /// A finished hit file: records grouped and sorted by surface id, in buckets.
@@ -266,6 +360,11 @@ pub struct HitFile {
     pub path: PathBuf,
     /// (byte offset, record count) of each bucket.
     pub buckets: Vec<(u64, u64)>,
+    /// Every surface side's span of records, in file order.
+    pub runs: Vec<Run>,
+    /// Largest number of records the bucket sort held in memory at once (0
+    /// for a file opened from disk).
+    pub max_sort_records: u64,
 }
 
 impl HitFile {
@@ -294,10 +393,49 @@ impl HitFile {
                 u64::from_le_bytes(e[8..16].try_into().unwrap_or_default()),
             ));
         }
+        // The runs: one streaming pass over the records
+        let total: u64 = buckets.iter().map(|b| b.1).sum();
+        let first = 16 + 16 * nb;
+        if buckets.first().is_some_and(|b| b.0 != first) {
+            return Err(bad("bad bucket offsets"));
+        }
+        let mut runs: Vec<Run> = Vec::new();
+        let mut bytes = vec![0u8; 65536 * HIT_BYTES];
+        let mut rec = 0u64;
+        while rec < total {
+            let m = (total - rec).min(65536) as usize;
+            f.read_exact(&mut bytes[..m * HIT_BYTES])
+                .map_err(io_err(path))?;
+            for b in bytes[..m * HIT_BYTES].chunks_exact(HIT_BYTES) {
+                let id = Hit::from_bytes(b).surface;
+                match runs.last_mut() {
+                    Some(r) if r.surface == id => r.count += 1,
+                    _ => runs.push(Run {
+                        surface: id,
+                        start: rec,
+                        count: 1,
+                    }),
+                }
+                rec += 1;
+            }
+        }
         Ok(HitFile {
             path: path.to_path_buf(),
             buckets,
+            runs,
+            max_sort_records: 0,
         })
+    }
+
+    /// Reads `count` records from record index `start` (file order).
+    pub fn read_range(&self, start: u64, count: u64) -> Result<Vec<Hit>, HitFileError> {
+        let header = 16 + 16 * self.buckets.len() as u64;
+        let mut f = File::open(&self.path).map_err(io_err(&self.path))?;
+        f.seek(SeekFrom::Start(header + start * HIT_BYTES as u64))
+            .map_err(io_err(&self.path))?;
+        let mut bytes = vec![0u8; count as usize * HIT_BYTES];
+        f.read_exact(&mut bytes).map_err(io_err(&self.path))?;
+        Ok(bytes.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect())
     }
 
     /// Total number of hits.

@@ -172,6 +172,11 @@ impl TriGrid {
         })
     }
 
+    /// True when the grid holds nothing (never built, or no triangles).
+    pub fn is_empty(&self) -> bool {
+        self.nx == 0
+    }
+
     /// True when `p` lies in one of the triangles.
     pub fn inside(&self, verts: &[Vec2], tris: &[[u32; 3]], p: Vec2) -> bool {
         if self.nx == 0 {
@@ -320,123 +325,210 @@ pub fn estimate_planar(
     hits: &[Hit],
     p: &Params,
 ) -> Estimate {
-    let n = hits.len();
-    if n == 0 {
-        let (verts, tris) = overmesh(rectangle, size, chart_tris, f32::INFINITY, 4);
-        let h = vec![Vec3::ZERO; verts.len()];
-        return Estimate {
+    let mut e = PlanarEstimator::new(rectangle, size, area, chart_tris, hits.len() as u64, p);
+    e.add(hits);
+    e.finish()
+}
+
+/// The kernel estimate of one planar surface, fed its hits chunk by chunk.
+///
+/// Eq. (2) is a sum over hits, so it is additive over any split of the
+/// hits: the bandwidth and the over-mesh depend only on the total count
+/// n_i, known before the first chunk; each chunk (and, for a rectangle, its
+/// mirror images, made per hit on the fly) is binned and gathered at every
+/// over-mesh vertex, and the partial sums are added. With one chunk the
+/// result is bit for bit that of summing all hits at once; with several,
+/// only the order of the f32 additions differs (relative changes of order
+/// 1e-7).
+pub struct PlanarEstimator {
+    rectangle: bool,
+    size: Vec2,
+    bw: f32,
+    verts: Vec<Vec2>,
+    tris: Vec<[u32; 3]>,
+    sum: Vec<Vec3>,
+    chart_tris: Vec<[Vec2; 3]>,
+    phi: f32,
+    empty: bool,
+}
+
+impl PlanarEstimator {
+    /// An estimator for a surface that will receive `n` hits in all.
+    pub fn new(
+        rectangle: bool,
+        size: Vec2,
+        area: f32,
+        chart_tris: &[[Vec2; 3]],
+        n: u64,
+        p: &Params,
+    ) -> Self {
+        if n == 0 {
+            let (verts, tris) = overmesh(rectangle, size, chart_tris, f32::INFINITY, 4);
+            let sum = vec![Vec3::ZERO; verts.len()];
+            return PlanarEstimator {
+                rectangle,
+                size,
+                bw: 0.0,
+                verts,
+                tris,
+                sum,
+                chart_tris: Vec::new(),
+                phi: p.phi,
+                empty: true,
+            };
+        }
+        let unit = (area / n as f32).sqrt();
+        let bw = p.c1 * unit;
+        let (verts, tris) = overmesh(rectangle, size, chart_tris, p.c2 * unit, p.max_verts);
+        let sum = vec![Vec3::ZERO; verts.len()];
+        PlanarEstimator {
+            rectangle,
+            size,
+            bw,
             verts,
             tris,
-            h,
-            bandwidth: 0.0,
-        };
+            sum,
+            chart_tris: chart_tris.to_vec(),
+            phi: p.phi,
+            empty: false,
+        }
     }
-    let unit = (area / n as f32).sqrt();
-    let bw = p.c1 * unit;
-    let (verts, tris) = overmesh(rectangle, size, chart_tris, p.c2 * unit, p.max_verts);
 
-    // The points: every hit (chart position, power in units of φ) and, for
-    // a rectangle, its mirror images across the edges within h (the
-    // reflection method). Generated twice (count, then fill) so that only
-    // one decoded copy of the surface's hits is ever held.
-    let for_each_point = |f: &mut dyn FnMut(Vec2, Vec3)| {
-        for h in hits {
-            let x = Vec2::new(from_fixed(h.u), from_fixed(h.v)) * size;
-            let c = decode_rgb9e5(h.rgb);
-            f(x, c);
-            if !rectangle {
-                continue;
-            }
-            let xs: [f32; 3] = [x.x, -x.x, 2.0 * size.x - x.x];
-            let ys: [f32; 3] = [x.y, -x.y, 2.0 * size.y - x.y];
-            for (i, &u) in xs.iter().enumerate() {
-                for (j, &v) in ys.iter().enumerate() {
-                    if i == 0 && j == 0 {
-                        continue;
-                    }
-                    let q = Vec2::new(u, v);
-                    if q.x > -bw && q.y > -bw && q.x < size.x + bw && q.y < size.y + bw {
-                        f(q, c);
-                    }
+    /// Adds the kernels of a chunk of hits.
+    pub fn add(&mut self, hits: &[Hit]) {
+        if self.empty || hits.is_empty() {
+            return;
+        }
+        let (rectangle, size, bw) = (self.rectangle, self.size, self.bw);
+        // The points: every hit (chart position, power in units of φ) and,
+        // for a rectangle, its mirror images across the edges within h (the
+        // reflection method). Generated twice (count, then fill) so that
+        // only one decoded copy of the chunk is ever held.
+        let for_each_point = |f: &mut dyn FnMut(Vec2, Vec3)| {
+            for h in hits {
+                let x = Vec2::new(from_fixed(h.u), from_fixed(h.v)) * size;
+                let c = decode_rgb9e5(h.rgb);
+                f(x, c);
+                if !rectangle {
+                    continue;
                 }
-            }
-        }
-    };
-
-    // Bin the points in cells of side ≥ h (counting sort keeps their order)
-    let lo = Vec2::splat(-bw);
-    let ext = size + Vec2::splat(2.0 * bw);
-    let ncell = |e: f32| ((e / bw).floor() as usize).clamp(1, 4096);
-    let (nx, ny) = (ncell(ext.x), ncell(ext.y));
-    let cell = ext / Vec2::new(nx as f32, ny as f32);
-    let cell_of = |q: Vec2| {
-        let c = ((q - lo) / cell).floor();
-        let cx = (c.x.max(0.0) as usize).min(nx - 1);
-        let cy = (c.y.max(0.0) as usize).min(ny - 1);
-        cy * nx + cx
-    };
-    let mut start = vec![0u32; nx * ny + 1];
-    for_each_point(&mut |q, _| start[cell_of(q) + 1] += 1);
-    for i in 1..start.len() {
-        start[i] += start[i - 1];
-    }
-    let mut fill = start.clone();
-    let mut sorted = vec![(Vec2::ZERO, Vec3::ZERO); start[nx * ny] as usize];
-    for_each_point(&mut |q, c| {
-        let k = cell_of(q);
-        sorted[fill[k] as usize] = (q, c);
-        fill[k] += 1;
-    });
-    drop(fill);
-
-    // Renormalisation for general polygons: kernel mass inside the polygon
-    let poly = (!rectangle).then(|| {
-        let mut pv = Vec::with_capacity(chart_tris.len() * 3);
-        let mut pt = Vec::with_capacity(chart_tris.len());
-        for t in chart_tris {
-            let b = pv.len() as u32;
-            pv.extend_from_slice(t);
-            pt.push([b, b + 1, b + 2]);
-        }
-        let g = TriGrid::new(&pv, &pt);
-        (pv, pt, g)
-    });
-
-    let scale = p.phi / (bw * bw);
-    let inv_h2 = 1.0 / (bw * bw);
-    let h: Vec<Vec3> = verts
-        .par_iter()
-        .map(|&x| {
-            let c = ((x - lo) / cell).floor();
-            let cx = c.x.max(0.0) as usize;
-            let cy = c.y.max(0.0) as usize;
-            let mut sum = Vec3::ZERO;
-            for yy in cy.saturating_sub(1)..=(cy + 1).min(ny - 1) {
-                for xx in cx.saturating_sub(1)..=(cx + 1).min(nx - 1) {
-                    let k = yy * nx + xx;
-                    for &(q, col) in &sorted[start[k] as usize..start[k + 1] as usize] {
-                        let w = k2((x - q).length_squared() * inv_h2);
-                        if w > 0.0 {
-                            sum += col * w;
+                let xs: [f32; 3] = [x.x, -x.x, 2.0 * size.x - x.x];
+                let ys: [f32; 3] = [x.y, -x.y, 2.0 * size.y - x.y];
+                for (i, &u) in xs.iter().enumerate() {
+                    for (j, &v) in ys.iter().enumerate() {
+                        if i == 0 && j == 0 {
+                            continue;
+                        }
+                        let q = Vec2::new(u, v);
+                        if q.x > -bw && q.y > -bw && q.x < size.x + bw && q.y < size.y + bw {
+                            f(q, c);
                         }
                     }
                 }
             }
-            let mut est = sum * scale;
-            if let Some((pv, pt, g)) = &poly {
-                let m = kernel_mass(x, bw, |y| g.inside(pv, pt, y));
-                if m > 0.05 {
-                    est /= m;
+        };
+
+        // Bin the points in cells of side ≥ h (counting sort keeps their order)
+        let lo = Vec2::splat(-bw);
+        let ext = size + Vec2::splat(2.0 * bw);
+        let ncell = |e: f32| ((e / bw).floor() as usize).clamp(1, 4096);
+        let (nx, ny) = (ncell(ext.x), ncell(ext.y));
+        let cell = ext / Vec2::new(nx as f32, ny as f32);
+        let cell_of = |q: Vec2| {
+            let c = ((q - lo) / cell).floor();
+            let cx = (c.x.max(0.0) as usize).min(nx - 1);
+            let cy = (c.y.max(0.0) as usize).min(ny - 1);
+            cy * nx + cx
+        };
+        let mut start = vec![0u32; nx * ny + 1];
+        for_each_point(&mut |q, _| start[cell_of(q) + 1] += 1);
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        let mut fill = start.clone();
+        let mut sorted = vec![(Vec2::ZERO, Vec3::ZERO); start[nx * ny] as usize];
+        for_each_point(&mut |q, c| {
+            let k = cell_of(q);
+            sorted[fill[k] as usize] = (q, c);
+            fill[k] += 1;
+        });
+        drop(fill);
+
+        let inv_h2 = 1.0 / (bw * bw);
+        self.sum
+            .par_iter_mut()
+            .zip(self.verts.par_iter())
+            .for_each(|(acc, &x)| {
+                let c = ((x - lo) / cell).floor();
+                let cx = c.x.max(0.0) as usize;
+                let cy = c.y.max(0.0) as usize;
+                let mut sum = Vec3::ZERO;
+                for yy in cy.saturating_sub(1)..=(cy + 1).min(ny - 1) {
+                    for xx in cx.saturating_sub(1)..=(cx + 1).min(nx - 1) {
+                        let k = yy * nx + xx;
+                        for &(q, col) in &sorted[start[k] as usize..start[k + 1] as usize] {
+                            let w = k2((x - q).length_squared() * inv_h2);
+                            if w > 0.0 {
+                                sum += col * w;
+                            }
+                        }
+                    }
                 }
+                *acc += sum;
+            });
+    }
+
+    /// Over-mesh vertices so far (the memory the estimate holds).
+    pub fn vertex_count(&self) -> usize {
+        self.verts.len()
+    }
+
+    /// The estimate: φ/h² times the sums, renormalised at the boundary of a
+    /// general polygon.
+    pub fn finish(self) -> Estimate {
+        let bw = self.bw;
+        if self.empty {
+            return Estimate {
+                verts: self.verts,
+                tris: self.tris,
+                h: self.sum,
+                bandwidth: 0.0,
+            };
+        }
+        // Renormalisation for general polygons: kernel mass inside the polygon
+        let poly = (!self.rectangle).then(|| {
+            let mut pv = Vec::with_capacity(self.chart_tris.len() * 3);
+            let mut pt = Vec::with_capacity(self.chart_tris.len());
+            for t in &self.chart_tris {
+                let b = pv.len() as u32;
+                pv.extend_from_slice(t);
+                pt.push([b, b + 1, b + 2]);
             }
-            est
-        })
-        .collect();
-    Estimate {
-        verts,
-        tris,
-        h,
-        bandwidth: bw,
+            let g = TriGrid::new(&pv, &pt);
+            (pv, pt, g)
+        });
+        let scale = self.phi / (bw * bw);
+        let h: Vec<Vec3> = self
+            .sum
+            .par_iter()
+            .zip(self.verts.par_iter())
+            .map(|(&sum, &x)| {
+                let mut est = sum * scale;
+                if let Some((pv, pt, g)) = &poly {
+                    let m = kernel_mass(x, bw, |y| g.inside(pv, pt, y));
+                    if m > 0.05 {
+                        est /= m;
+                    }
+                }
+                est
+            })
+            .collect();
+        Estimate {
+            verts: self.verts,
+            tris: self.tris,
+            h,
+            bandwidth: bw,
+        }
     }
 }
 

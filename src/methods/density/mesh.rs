@@ -6,6 +6,7 @@
 use std::collections::HashMap;
 
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 
 use super::kernel::TriGrid;
 use super::surfaces::Surfaces;
@@ -50,6 +51,28 @@ impl PlanarMesh {
         }
     }
 
+    /// A mesh without its point-location grid (the over-mesh of phase 2,
+    /// which only the decimation reads): the grid is built by
+    /// [`DisplayMesh::new`] if the mesh reaches the display mesh as it is.
+    pub fn unindexed(
+        surface: u32,
+        verts: Vec<Vec2>,
+        tris: Vec<[u32; 3]>,
+        h: Vec<Vec3>,
+        bandwidth: f32,
+        hits: u64,
+    ) -> Self {
+        PlanarMesh {
+            surface,
+            verts,
+            tris,
+            h,
+            bandwidth,
+            hits,
+            grid: TriGrid::default(),
+        }
+    }
+
     /// Irradiance at chart point `c`, linearly interpolated.
     pub fn irradiance(&self, c: Vec2) -> Vec3 {
         match self.grid.locate(&self.verts, &self.tris, c) {
@@ -89,8 +112,14 @@ pub struct DisplayMesh {
 }
 
 impl DisplayMesh {
-    /// Builds the lookup tables.
-    pub fn new(planar: Vec<PlanarMesh>, curved: Vec<CurvedMesh>) -> Self {
+    /// Builds the lookup tables (and the point-location grid of any planar
+    /// mesh made [`PlanarMesh::unindexed`]).
+    pub fn new(mut planar: Vec<PlanarMesh>, curved: Vec<CurvedMesh>) -> Self {
+        planar.par_iter_mut().for_each(|m| {
+            if m.grid.is_empty() && !m.tris.is_empty() {
+                m.grid = TriGrid::new(&m.verts, &m.tris);
+            }
+        });
         let planar_index = planar
             .iter()
             .enumerate()

@@ -13,8 +13,20 @@
 //!
 //! The image is the paper's view-dependent second pass: a camera ray that
 //! meets a diffuse surface reads L = R·H/π from the display mesh ([`mesh`]);
-//! mirrors, glass and other non-diffuse surfaces are ray-traced onward by
-//! sampling their BSDF. The bake happens in the first pass; every pass adds
+//! mirrors, glass and the non-diffuse part of other surfaces (a glossy lobe,
+//! a plastic's coat) are ray-traced onward by sampling their BSDF (see
+//! [`view_radiance`]).
+//!
+//! Non-Lambertian surfaces. §1 of the paper: "all diffuse surfaces will be
+//! portrayed accurately regardless of display method ... Non-diffuse
+//! surfaces ... accurately if displayed in a view-dependent second pass".
+//! A material with a diffuse part (`phong`'s kd, the base of `plastic` and
+//! `roughplastic`: [`crate::bsdf::DiffusePart`]) records hits and gets a
+//! display mesh of Ĥ; its vertex colours carry R_d·Ĥ/π. What remains an
+//! approximation: for the coated models the baked colour uses the coat's
+//! mean transmittance T̄ in place of T(cos θo) (the view pass uses the exact
+//! one), and a purely glossy material (`roughconductor`, `phong` with
+//! kd = 0) has no view-independent part at all: it is ray-traced only. The bake happens in the first pass; every pass adds
 //! one jittered sample per pixel of the view pass.
 //!
 //! Colour: one RGB pass. Every particle carries RGB power (its luminaire's
@@ -48,7 +60,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{Method, MethodError, Options, StepStats, World};
-use crate::bsdf::Mode;
+use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::methods::path::orient;
@@ -86,6 +98,10 @@ pub struct Settings {
     pub scratch: Option<PathBuf>,
     /// Keep the hit file at this path instead of deleting it.
     pub keep_hits: Option<PathBuf>,
+    /// Most hit records held in memory at once, in phase 2 (a surface with
+    /// more hits is streamed in chunks of this size) and in the bucket sort
+    /// of phase 1.
+    pub chunk_hits: usize,
 }
 
 impl Default for Settings {
@@ -102,6 +118,7 @@ impl Default for Settings {
             max_verts: 1 << 20,
             scratch: None,
             keep_hits: None,
+            chunk_hits: 1 << 21,
         }
     }
 }
@@ -155,6 +172,9 @@ impl Settings {
         if self.particles == 0 {
             return Err(MethodError("--particles must be positive".into()));
         }
+        if self.chunk_hits == 0 {
+            return Err(MethodError("the hit chunk size must be positive".into()));
+        }
         Ok(())
     }
 }
@@ -189,6 +209,11 @@ pub struct BakeStats {
     pub mean_brightness_error: f32,
     /// Number of receiving surfaces (planar groups and curved triangles).
     pub surfaces: usize,
+    /// Largest number of hit records held in memory at once in phase 2
+    /// (bounded by `Settings::chunk_hits`, whatever the particle count).
+    pub max_hits_in_memory: u64,
+    /// Largest number of hit records the bucket sort of phase 1 held at once.
+    pub max_sort_records: u64,
 }
 
 /// The result of a bake: surfaces, display mesh, figures.
@@ -239,6 +264,7 @@ pub fn trace_to_file(
     // buckets of about 32 MB of records
     let buckets = (n_expected_hits * HIT_BYTES as u64 / (32 << 20)).clamp(1, 1024) as u32;
     let mut w = HitWriter::new(dir, surfaces.list.len() as u32, buckets)?;
+    w.sort_chunk = s.chunk_hits.max(1);
     let mut total = particles::TraceStats::default();
     let channels: Vec<Channel> = if s.per_channel {
         (0..3).map(Channel::Single).collect()
@@ -293,7 +319,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     stats.hit_file_bytes = file.record_bytes();
     stats.t_trace = t0.elapsed().as_secs_f64();
 
-    // Phase 2: density estimation, one bucket at a time
+    // Phase 2: density estimation, streamed from the hit file
     let t1 = Instant::now();
     let params = Params {
         c1: s.c1,
@@ -301,66 +327,159 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         phi: phi as f32,
         max_verts: s.max_verts,
     };
+    let cap = s.chunk_hits.max(1) as u64;
     let mut planar: Vec<PlanarMesh> = Vec::new();
-    // (position, normal, power) of the hits of each curved shape and side
-    type CurvedHits = Vec<(Vec3, Vec3, Vec3)>;
-    let mut curved_hits: HashMap<(u32, bool), CurvedHits> = HashMap::new();
+    let mut curved = Vec::new();
+    let mut max_in_memory = 0u64;
     let result = (|| -> Result<(), HitFileError> {
-        for b in 0..file.buckets.len() {
-            let hits = file.read_bucket(b)?;
-            // runs of one surface id (side included)
-            let mut runs = Vec::new();
-            let mut i = 0;
-            while i < hits.len() {
-                let id = hits[i].surface;
-                let j = i + hits[i..].partition_point(|h| h.surface == id);
-                runs.push((id, i, j));
-                i = j;
+        let is_planar = |id: u32| {
+            surfaces
+                .list
+                .get((id & 0x7fff_ffff) as usize)
+                .is_some_and(|s| s.kind == Kind::Planar)
+        };
+        let new_estimator = |run: &hitfile::Run| {
+            let surf = &surfaces.list[(run.surface & 0x7fff_ffff) as usize];
+            let ct = surf.chart_tris(scene);
+            kernel::PlanarEstimator::new(
+                surf.rectangle,
+                surf.size,
+                surf.area,
+                &ct,
+                run.count,
+                &params,
+            )
+        };
+        let finish = |run: &hitfile::Run, est: kernel::PlanarEstimator| {
+            let e = est.finish();
+            PlanarMesh::unindexed(run.surface, e.verts, e.tris, e.h, e.bandwidth, run.count)
+        };
+        let runs = &file.runs;
+        let mut i = 0;
+        while i < runs.len() {
+            if !is_planar(runs[i].surface) {
+                i += 1;
+                continue;
             }
-            let meshes: Vec<Option<PlanarMesh>> = runs
+            if runs[i].count > cap {
+                // A large surface: its hits chunk by chunk into one estimate
+                let run = runs[i];
+                let mut est = new_estimator(&run);
+                let mut done = 0;
+                while done < run.count {
+                    let m = (run.count - done).min(cap);
+                    let hits = file.read_range(run.start + done, m)?;
+                    max_in_memory = max_in_memory.max(m);
+                    est.add(&hits);
+                    done += m;
+                }
+                planar.push(finish(&run, est));
+                i += 1;
+                continue;
+            }
+            // Consecutive small planar surfaces: one read, estimated in parallel
+            let mut j = i;
+            let mut total = 0;
+            while j < runs.len()
+                && is_planar(runs[j].surface)
+                && runs[j].count <= cap
+                && total + runs[j].count <= cap
+            {
+                total += runs[j].count;
+                j += 1;
+            }
+            let hits = file.read_range(runs[i].start, total)?;
+            max_in_memory = max_in_memory.max(total);
+            let base = runs[i].start;
+            let meshes: Vec<PlanarMesh> = runs[i..j]
                 .par_iter()
-                .map(|&(id, a, e)| {
-                    let sid = id & 0x7fff_ffff;
-                    let surf = surfaces.list.get(sid as usize)?;
-                    if surf.kind != Kind::Planar {
-                        return None;
-                    }
-                    let ct = surf.chart_tris(scene);
-                    let est = kernel::estimate_planar(
-                        surf.rectangle,
-                        surf.size,
-                        surf.area,
-                        &ct,
-                        &hits[a..e],
-                        &params,
-                    );
-                    Some(PlanarMesh::new(
-                        id,
-                        est.verts,
-                        est.tris,
-                        est.h,
-                        est.bandwidth,
-                        (e - a) as u64,
-                    ))
+                .map(|run| {
+                    let a = (run.start - base) as usize;
+                    let mut est = new_estimator(run);
+                    est.add(&hits[a..a + run.count as usize]);
+                    finish(run, est)
                 })
                 .collect();
-            planar.extend(meshes.into_iter().flatten());
-            for &(id, a, e) in &runs {
-                let sid = id & 0x7fff_ffff;
+            planar.extend(meshes);
+            i = j;
+        }
+
+        // Curved shapes: the 3D kernel at their vertices, the hits of a
+        // shape and side (many runs: one per triangle) streamed in chunks.
+        // eq. (2) is additive over chunks, so each chunk's kd-tree gives a
+        // partial sum at every vertex.
+        let mut keys: Vec<((u32, bool), Vec<hitfile::Run>)> = Vec::new();
+        {
+            let mut index: HashMap<(u32, bool), usize> = HashMap::new();
+            for run in runs {
+                let sid = run.surface & 0x7fff_ffff;
                 let Some(surf) = surfaces.list.get(sid as usize) else {
                     continue;
                 };
                 if surf.kind != Kind::Curved {
                     continue;
                 }
-                let back = id >> 31 == 1;
-                let list = curved_hits.entry((surf.shape, back)).or_default();
-                for h in &hits[a..e] {
-                    let sp = scene.surface_point(surf.tris[0], from_fixed(h.u), from_fixed(h.v));
-                    let n = if back { -sp.frame.n } else { sp.frame.n };
-                    list.push((sp.p, n, decode_rgb9e5(h.rgb)));
+                let key = (surf.shape, run.surface >> 31 == 1);
+                let k = *index.entry(key).or_insert_with(|| {
+                    keys.push((key, Vec::new()));
+                    keys.len() - 1
+                });
+                keys[k].1.push(*run);
+            }
+        }
+        keys.sort_by_key(|k| k.0);
+        for (key, kruns) in keys {
+            let sh = &scene.shapes[key.0 as usize];
+            let tris: Vec<u32> = (sh.first_tri..sh.first_tri + sh.tri_count).collect();
+            let area: f32 = tris.iter().map(|&t| scene.tri_area(t)).sum();
+            let n_key: u64 = kruns.iter().map(|r| r.count).sum();
+            let h = s.c1 * (area / n_key.max(1) as f32).sqrt();
+            let at: Vec<(Vec3, Vec3)> = tris
+                .iter()
+                .flat_map(|&t| {
+                    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)].map(|(b1, b2)| {
+                        let sp = scene.surface_point(t, b1, b2);
+                        (sp.p, if key.1 { -sp.frame.n } else { sp.frame.n })
+                    })
+                })
+                .collect();
+            let mut sum = vec![Vec3::ZERO; at.len()];
+            let mut buf: Vec<(Vec3, Vec3, Vec3)> = Vec::new();
+            let flush = |buf: &mut Vec<(Vec3, Vec3, Vec3)>, sum: &mut Vec<Vec3>| {
+                let part = kernel::estimate_3d(&at, buf, h, phi as f32);
+                for (a, b) in sum.iter_mut().zip(part) {
+                    *a += b;
+                }
+                buf.clear();
+            };
+            for run in &kruns {
+                let surf = &surfaces.list[(run.surface & 0x7fff_ffff) as usize];
+                let mut done = 0;
+                while done < run.count {
+                    let m = (run.count - done).min(cap - buf.len() as u64);
+                    let hits = file.read_range(run.start + done, m)?;
+                    for hh in &hits {
+                        let sp =
+                            scene.surface_point(surf.tris[0], from_fixed(hh.u), from_fixed(hh.v));
+                        let n = if key.1 { -sp.frame.n } else { sp.frame.n };
+                        buf.push((sp.p, n, decode_rgb9e5(hh.rgb)));
+                    }
+                    max_in_memory = max_in_memory.max(buf.len() as u64);
+                    done += m;
+                    if buf.len() as u64 >= cap {
+                        flush(&mut buf, &mut sum);
+                    }
                 }
             }
+            if !buf.is_empty() {
+                flush(&mut buf, &mut sum);
+            }
+            curved.push(CurvedMesh {
+                shape: key.0,
+                back: key.1,
+                h: sum.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                tris,
+            });
         }
         Ok(())
     })();
@@ -369,6 +488,8 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     }
     let _ = std::fs::remove_dir_all(&dir);
     result?;
+    stats.max_hits_in_memory = max_in_memory;
+    stats.max_sort_records = file.max_sort_records;
 
     // Front sides without hits still get a (black) mesh, so that the
     // display mesh covers every diffuse surface.
@@ -378,51 +499,37 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
             let ct = surf.chart_tris(scene);
             let est =
                 kernel::estimate_planar(surf.rectangle, surf.size, surf.area, &ct, &[], &params);
-            planar.push(PlanarMesh::new(
+            planar.push(PlanarMesh::unindexed(
                 sid as u32, est.verts, est.tris, est.h, 0.0, 0,
             ));
         }
     }
     planar.sort_by_key(|m| m.surface);
-
-    // Curved shapes: the 3D kernel at their vertices
-    let mut keys: Vec<(u32, bool)> = curved_hits.keys().copied().collect();
-    keys.sort();
-    let mut curved = Vec::new();
-    for key in keys {
-        let hits = &curved_hits[&key];
-        let sh = &scene.shapes[key.0 as usize];
-        let tris: Vec<u32> = (sh.first_tri..sh.first_tri + sh.tri_count).collect();
-        let area: f32 = tris.iter().map(|&t| scene.tri_area(t)).sum();
-        let h = s.c1 * (area / hits.len().max(1) as f32).sqrt();
-        let at: Vec<(Vec3, Vec3)> = tris
-            .iter()
-            .flat_map(|&t| {
-                [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)].map(|(b1, b2)| {
-                    let sp = scene.surface_point(t, b1, b2);
-                    (sp.p, if key.1 { -sp.frame.n } else { sp.frame.n })
-                })
-            })
-            .collect();
-        let est = kernel::estimate_3d(&at, hits, h, phi as f32);
-        curved.push(CurvedMesh {
-            shape: key.0,
-            back: key.1,
-            h: est.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-            tris,
-        });
-    }
-    drop(curved_hits);
     stats.t_estimate = t1.elapsed().as_secs_f64();
     stats.tris_before = planar.iter().map(|m| m.tris.len() as u64).sum::<u64>()
         + curved.iter().map(|m| m.tris.len() as u64).sum::<u64>();
 
+    // R at the vertices: one value for an untextured surface, else the
+    // texture at each vertex (§3.2: L = R(u, v)·H(u, v)/π)
+    let reflectance = |m: &PlanarMesh| -> Vec<Vec3> {
+        let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
+        if surf.textured {
+            surf.reflectance_at(scene, &m.verts)
+        } else {
+            vec![surf.reflectance]
+        }
+    };
+
     // The white point: the 99th percentile of the vertex radiance
     let mut lum: Vec<f32> = planar
-        .iter()
-        .flat_map(|m| {
-            let r = surfaces.list[(m.surface & 0x7fff_ffff) as usize].reflectance;
-            m.h.iter().map(move |h| luminance(r * *h / PI))
+        .par_iter()
+        .flat_map_iter(|m| {
+            let r = reflectance(m);
+            let r_at = move |i: usize| if r.len() == 1 { r[0] } else { r[i] };
+            m.h.iter()
+                .enumerate()
+                .map(move |(i, h)| luminance(r_at(i) * *h / PI))
+                .collect::<Vec<_>>()
         })
         .filter(|v| *v > 0.0)
         .collect();
@@ -443,8 +550,8 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         let out: Vec<(PlanarMesh, decimate::Report)> = planar
             .into_par_iter()
             .map(|m| {
-                let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
-                decimate::decimate_planar(m, surf.reflectance, w0, s.epsilon)
+                let r = reflectance(&m);
+                decimate::decimate_planar(m, &r, w0, s.epsilon)
             })
             .collect();
         planar = Vec::with_capacity(out.len());
@@ -556,9 +663,14 @@ impl Method for Density {
     }
 }
 
-/// The view-dependent second pass along one camera ray: emitted radiance
-/// plus, at the first diffuse surface, R·H/π read from the display mesh;
-/// non-diffuse surfaces are followed by sampling their BSDF.
+/// The view-dependent second pass along one camera ray: emitted radiance,
+/// plus at every surface with a diffuse part its diffuse radiance read from
+/// the display mesh (R·H/π for a Lambertian surface, k T(cos θo) Ĥ for the
+/// others: [`crate::bsdf::DiffusePart`]); the rest of the BSDF (mirrors,
+/// glass, glossy lobes, coats) is followed by sampling the BSDF and
+/// weighting by (f − f_d) cos θ / pdf, which is unbiased for the
+/// non-diffuse integral ∫ (f − f_d) L cos dω (the mixture pdf covers every
+/// lobe). A Lambertian surface ends the path.
 pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
     let scene = &world.scene;
     let mut l = Rgb::ZERO;
@@ -578,22 +690,30 @@ pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) ->
         let sid = bk.surfaces.tri_surface[hit.tri as usize];
         let surf = &bk.surfaces.list[sid as usize];
         let material = scene.material_of(&sp);
+        let bsdf = material.bsdf(sp.uv);
+        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+        let wo = frame.to_local(wo_world);
+        let mut diffuse = None;
         if surf.diffuse {
             let back = wo_world.dot(sp.ng) < 0.0;
             if back && !material.is_two_sided() {
                 break;
             }
-            let r = surfaces::diffuse_reflectance(material, sp.uv).unwrap_or(Rgb::ZERO);
             let h = bk
                 .mesh
                 .irradiance(&bk.surfaces, hit.tri, hit.b1, hit.b2, sp.p, back);
-            l += beta * r * h / PI;
-            break;
+            if let Bsdf::Diffuse { r } = bsdf {
+                l += beta * r * h / PI;
+                break;
+            }
+            if let Some(d) = bsdf.diffuse_part() {
+                if wo.z > 0.0 {
+                    l += beta * d.k * d.t(wo.z) * h;
+                }
+                diffuse = Some(d);
+            }
         }
-        // A non-diffuse surface: follow its BSDF
-        let bsdf = material.bsdf(sp.uv);
-        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
-        let wo = frame.to_local(wo_world);
+        // The non-diffuse rest of the BSDF: follow it
         let Some(s) = bsdf.sample(wo, rng.next_f32(), rng.next_2d(), Mode::Radiance) else {
             break;
         };
@@ -601,7 +721,21 @@ pub fn view_radiance(world: &World, bk: &Bake, mut ray: Ray, rng: &mut Pcg32) ->
         if wi.dot(ng) * s.wi.z <= 0.0 || s.pdf <= 0.0 {
             break;
         }
-        beta *= s.f * (s.wi.z.abs() / s.pdf);
+        let f = match diffuse {
+            Some(d) if !s.delta => {
+                // f − f_d, with the rounding of the two forms of f_d (about
+                // 1e-7 of it) taken as zero
+                let fd = d.f(wo, s.wi);
+                let rest = s.f - fd;
+                if rest.max_element() <= 1e-6 * fd.max_element() {
+                    Rgb::ZERO
+                } else {
+                    rest.max(Rgb::ZERO)
+                }
+            }
+            _ => s.f,
+        };
+        beta *= f * (s.wi.z.abs() / s.pdf);
         if depth > 3 {
             let q = beta.max_element().min(0.95);
             if rng.next_f32() >= q {

@@ -3,12 +3,16 @@
 //! The total power Φ of the luminaires is summed; luminaire i sends an
 //! expected N_i = nΦ_i/Φ particles, ⌊N_i⌋ plus one with probability
 //! N_i − ⌊N_i⌋, from uniform points with cosine-distributed directions (the
-//! pdf ∝ L_e cos θ of a diffuse luminaire). Every particle starts with the
+//! pdf ∝ L_e cos θ of a diffuse luminaire). The environment (constant or
+//! map) is one more luminaire, of power π R² ∫ L dω: its particles enter
+//! the scene as parallel rays from a disk of the bounding radius R, as in
+//! light tracing. Every particle starts with the
 //! power φ = Φ/n (its colour that of the luminaire). At each surface it is
 //! reflected, transmitted or absorbed by the BSDF (sampled in importance
 //! mode, Russian roulette on the largest channel of the albedo, so that a
 //! particle keeps its power while it lives); glass and metal are traced
-//! through. Every hit on a diffuse surface is recorded before scattering.
+//! through. Every hit on a surface with a diffuse part is recorded before
+//! scattering.
 //!
 //! Parallelism and determinism: particles are numbered globally and cut in
 //! chunks of [`CHUNK`]; chunk c draws from the stream keyed (seed, c), chunks
@@ -34,21 +38,38 @@ pub const CHUNK: u64 = 1 << 14;
 /// Chunks traced in parallel before their hits are appended.
 pub const BATCH: u64 = 64;
 
-/// One luminaire: an area light's triangles with their area distribution.
+/// One luminaire of §3.1.
 #[derive(Clone, Debug)]
 pub struct Luminaire {
-    /// Triangles.
-    pub tris: Vec<u32>,
-    /// Area distribution over `tris`.
-    pub dist: Distribution1D,
-    /// Emitted radiance.
-    pub le: Rgb,
-    /// Power per channel, π A L_e.
+    /// Where its particles start.
+    pub kind: LuminaireKind,
+    /// Power per channel: π A L_e for an area light, π R² ∫ L dω for the
+    /// environment (through the disk its particles start from).
     pub phi: Rgb,
 }
 
-/// The luminaires of a scene (area lights; environment lights are not
-/// traced by this method).
+/// How a luminaire emits.
+#[derive(Clone, Debug)]
+pub enum LuminaireKind {
+    /// An area light: uniform points on its triangles, cosine-distributed
+    /// directions (the pdf ∝ L_e cos θ of a diffuse luminaire).
+    Area {
+        /// Triangles.
+        tris: Vec<u32>,
+        /// Area distribution over `tris`.
+        dist: Distribution1D,
+        /// Emitted radiance.
+        le: Rgb,
+    },
+    /// The environment (constant or map): parallel rays from a disk of the
+    /// scene's bounding radius, directions by the environment's own
+    /// sampling ([`crate::emitter::Lights::sample_env_emission`], shared
+    /// with light tracing).
+    Environment,
+}
+
+/// The luminaires of a scene: its area lights, and the environment if it
+/// has one.
 pub fn luminaires(world: &World) -> Vec<Luminaire> {
     let scene = &world.scene;
     let mut out = Vec::new();
@@ -62,13 +83,22 @@ pub fn luminaires(world: &World) -> Vec<Luminaire> {
             let phi = *radiance * (PI * a);
             if luminance(phi) > 0.0 {
                 out.push(Luminaire {
-                    tris,
-                    dist,
-                    le: *radiance,
+                    kind: LuminaireKind::Area {
+                        tris,
+                        dist,
+                        le: *radiance,
+                    },
                     phi,
                 });
             }
         }
+    }
+    let phi = world.lights.env_power();
+    if world.lights.env.is_some() && luminance(phi) > 0.0 {
+        out.push(Luminaire {
+            kind: LuminaireKind::Environment,
+            phi,
+        });
     }
     out
 }
@@ -142,13 +172,19 @@ pub fn trace(
         })
         .collect();
 
-    // Every particle starts with φ = Φ/n, coloured as its luminaire
+    // Every particle starts with φ = Φ/n, coloured as its luminaire (for
+    // the environment, the factor that turns the power of one emission
+    // sample, whose luminance is Φ_env, into that of one of N_env particles)
     let power: Vec<Rgb> = lums
         .iter()
         .map(|l| {
-            let w = weight(l.le) as f32;
+            let LuminaireKind::Area { le, .. } = &l.kind else {
+                return Rgb::splat((phi_total / n as f64 / phi_ref / weight(l.phi)) as f32);
+            };
+            let le = *le;
+            let w = weight(le) as f32;
             let c = match channel {
-                Channel::Rgb => l.le / w.max(1e-30),
+                Channel::Rgb => le / w.max(1e-30),
                 Channel::Single(k) => {
                     let mut v = Rgb::ZERO;
                     v[k] = 1.0;
@@ -214,14 +250,33 @@ fn trace_one(
 ) -> u64 {
     let scene = &world.scene;
     let max_depth = max_depth.unwrap_or(u32::MAX);
-    // Emission: a triangle by area, a uniform point, a cosine direction
-    let (i, _, _) = lum.dist.sample(rng.next_f64());
-    let tri = lum.tris[i];
-    let b = uniform_triangle(rng.next_2d());
-    let sp = scene.surface_point(tri, b.x, b.y);
-    let d = Frame::from_normal(sp.ng).to_world(cosine_hemisphere(rng.next_2d()));
-    let mut ray = Ray::new(offset_point(sp.p, sp.ng, d), d);
-    let mut beta = power;
+    let (mut ray, mut beta) = match &lum.kind {
+        LuminaireKind::Area { tris, dist, .. } => {
+            // Emission: a triangle by area, a uniform point, a cosine direction
+            let (i, _, _) = dist.sample(rng.next_f64());
+            let tri = tris[i];
+            let b = uniform_triangle(rng.next_2d());
+            let sp = scene.surface_point(tri, b.x, b.y);
+            let d = Frame::from_normal(sp.ng).to_world(cosine_hemisphere(rng.next_2d()));
+            (Ray::new(offset_point(sp.p, sp.ng, d), d), power)
+        }
+        LuminaireKind::Environment => {
+            let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
+            let Some(es) = world.lights.sample_env_emission(u_pos, u_dir) else {
+                return 0;
+            };
+            let mut beta = es.phi * power;
+            if let Channel::Single(k) = channel {
+                let keep = beta[k];
+                beta = Rgb::ZERO;
+                beta[k] = keep;
+            }
+            if !beta.is_finite() {
+                return 0;
+            }
+            (es.ray(), beta)
+        }
+    };
     let mut rays = 0;
     let mut depth = 1u32;
     loop {
@@ -236,10 +291,14 @@ fn trace_one(
         let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
         let wo = frame.to_local(wo_world);
 
-        // Record the hit on a diffuse surface (the side the particle came from)
+        // Record the hit on a surface with a diffuse part (the side the
+        // particle came from), its power times the coat's transmittance
+        // T(cos θ) for a coated model (1 otherwise), so that the estimate is
+        // the Ĥ of [`crate::bsdf::DiffusePart`]
         let sid = surfaces.tri_surface[hit.tri as usize];
         let s = &surfaces.list[sid as usize];
         if s.diffuse && wo.z > 0.0 {
+            let t = bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z));
             let back = wo_world.dot(sp.ng) < 0.0;
             let (u, v) = match s.kind {
                 Kind::Planar => {
@@ -252,7 +311,7 @@ fn trace_one(
                 surface: sid | (u32::from(back) << 31),
                 u: to_fixed(u),
                 v: to_fixed(v),
-                rgb: encode_rgb9e5(beta),
+                rgb: encode_rgb9e5(beta * t),
             });
         }
         if depth + 1 > max_depth {

@@ -3,14 +3,17 @@
 //! planar surface with orthogonal length parameters (u, v)"), and curved or
 //! finely tessellated shapes whose triangles are estimated with a 3D kernel.
 //!
-//! Only diffuse materials receive hits (the paper's Lambertian surfaces with
-//! L = R·H/π); every other material is ray-traced in the view pass.
+//! Surfaces whose material has a diffuse part receive hits (the paper's
+//! Lambertian surfaces with L = R·H/π, and the diffuse part of `phong`,
+//! `plastic` and `roughplastic`: [`crate::bsdf::DiffusePart`]); the rest of
+//! every material is ray-traced in the view pass.
 
 use std::collections::HashMap;
 
 use glam::{Vec2, Vec3};
 
-use crate::scene::{Material, Scene};
+use super::kernel::TriGrid;
+use crate::scene::{Material, Scene, Texture};
 
 /// How a surface is parameterised.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,11 +48,14 @@ pub struct Surface {
     pub area: f32,
     /// True when the group is exactly its chart rectangle.
     pub rectangle: bool,
-    /// True when the material is diffuse, so the surface records hits.
+    /// True when the material has a diffuse part, so the surface records
+    /// hits and carries baked lighting.
     pub diffuse: bool,
-    /// The diffuse reflectance at the surface's first vertex (constant
-    /// materials: exact).
+    /// The diffuse reflectance R_d at the surface's first vertex (exact for
+    /// untextured materials; see [`Surface::reflectance_at`]).
     pub reflectance: Vec3,
+    /// True when R_d varies over the surface (a textured diffuse albedo).
+    pub textured: bool,
 }
 
 impl Surface {
@@ -64,6 +70,41 @@ impl Surface {
     #[inline]
     pub fn to_world(&self, c: Vec2) -> Vec3 {
         self.origin + self.su * c.x + self.sv * c.y
+    }
+
+    /// R_d at chart points `pts` of a planar surface (at the corners
+    /// (b1, b2) ∈ {(0,0), (1,0), (0,1)} of a curved one's triangle, given as
+    /// `pts`): the material's textures looked up through the mesh uvs of
+    /// the triangle containing each point, so that the display mesh carries
+    /// R(u, v)·H/π with the reflectance at each vertex (§3.2). Untextured
+    /// materials: [`Surface::reflectance`] everywhere.
+    pub fn reflectance_at(&self, scene: &Scene, pts: &[Vec2]) -> Vec<Vec3> {
+        if !self.textured {
+            return vec![self.reflectance; pts.len()];
+        }
+        let material = &scene.materials[scene.shapes[self.shape as usize].material as usize];
+        let rd = |tri: u32, b1: f32, b2: f32| {
+            let uv = scene.surface_point(tri, b1, b2).uv;
+            diffuse_reflectance(material, uv).unwrap_or(Vec3::ZERO)
+        };
+        if self.kind == Kind::Curved {
+            return pts.iter().map(|b| rd(self.tris[0], b.x, b.y)).collect();
+        }
+        let ct = self.chart_tris(scene);
+        let mut pv = Vec::with_capacity(ct.len() * 3);
+        let mut pt = Vec::with_capacity(ct.len());
+        for t in &ct {
+            let b = pv.len() as u32;
+            pv.extend_from_slice(t);
+            pt.push([b, b + 1, b + 2]);
+        }
+        let grid = TriGrid::new(&pv, &pt);
+        pts.iter()
+            .map(|&c| match grid.locate(&pv, &pt, c) {
+                Some((t, b)) => rd(self.tris[t as usize], b.y, b.z),
+                None => self.reflectance,
+            })
+            .collect()
     }
 
     /// The triangles in chart coordinates.
@@ -84,12 +125,57 @@ pub struct Surfaces {
     pub tri_surface: Vec<u32>,
 }
 
-/// The diffuse reflectance of a material, if it is Lambertian.
+/// The diffuse reflectance R_d of a material at `uv`, if it has a diffuse
+/// part: R for `diffuse` (exactly its texture), π k T̄ for the others
+/// ([`crate::bsdf::DiffusePart::rd`]).
 pub fn diffuse_reflectance(m: &Material, uv: Vec2) -> Option<Vec3> {
     match m {
         Material::Diffuse { reflectance } => Some(reflectance.eval(uv)),
         Material::TwoSided(inner) => diffuse_reflectance(inner, uv),
+        _ => m.bsdf(uv).diffuse_part().map(|d| d.rd()),
+    }
+}
+
+/// The texture of a material's diffuse albedo, if it has a diffuse part.
+fn diffuse_texture(m: &Material) -> Option<&Texture> {
+    match m {
+        Material::Diffuse { reflectance } => Some(reflectance),
+        Material::Phong {
+            diffuse_reflectance,
+            ..
+        }
+        | Material::Plastic {
+            diffuse_reflectance,
+            ..
+        }
+        | Material::RoughPlastic {
+            diffuse_reflectance,
+            ..
+        } => Some(diffuse_reflectance),
+        Material::TwoSided(inner) => diffuse_texture(inner),
         _ => None,
+    }
+}
+
+/// Whether a material's surfaces record hits (`diffuse` always, as the
+/// paper's Lambertian surfaces, even black ones; the other models when
+/// their diffuse albedo is not zero everywhere), and whether that albedo is
+/// textured.
+fn records_hits(m: &Material) -> (bool, bool) {
+    fn lambertian(m: &Material) -> bool {
+        match m {
+            Material::Diffuse { .. } => true,
+            Material::TwoSided(inner) => lambertian(inner),
+            _ => false,
+        }
+    }
+    match (lambertian(m), diffuse_texture(m)) {
+        (true, Some(t)) => (true, !matches!(t, Texture::Constant(_))),
+        (false, Some(t)) => (
+            t.mean().max_element() > 0.0,
+            !matches!(t, Texture::Constant(_)),
+        ),
+        _ => (false, false),
     }
 }
 
@@ -190,21 +276,24 @@ pub fn build(scene: &Scene) -> Surfaces {
         tri_surface[t as usize] = g;
     }
 
+    // once per material: a bitmap's mean is a pass over its pixels
+    let records: Vec<(bool, bool)> = scene.materials.iter().map(records_hits).collect();
     let list = groups
         .into_iter()
         .map(|tris| {
             let c = curved[scene.tri_shape[tris[0] as usize] as usize];
-            make_surface(scene, tris, c)
+            make_surface(scene, tris, c, &records)
         })
         .collect();
     Surfaces { list, tri_surface }
 }
 
-fn make_surface(scene: &Scene, tris: Vec<u32>, curved: bool) -> Surface {
+fn make_surface(scene: &Scene, tris: Vec<u32>, curved: bool, records: &[(bool, bool)]) -> Surface {
     let shape = scene.tri_shape[tris[0] as usize];
     let sh = &scene.shapes[shape as usize];
     let material = &scene.materials[sh.material as usize];
     let uv0 = scene.uvs[scene.triangles[tris[0] as usize][0] as usize];
+    let (diffuse, textured) = records[sh.material as usize];
     let refl = diffuse_reflectance(material, uv0);
     let area: f32 = tris.iter().map(|&t| scene.tri_area(t)).sum();
     // The largest triangle fixes the plane; its edges are chart-axis candidates
@@ -247,7 +336,8 @@ fn make_surface(scene: &Scene, tris: Vec<u32>, curved: bool) -> Surface {
         size: (hi - lo).max(Vec2::splat(1e-9)),
         area,
         rectangle: kind == Kind::Planar && (box_area - area).abs() <= 1e-4 * area,
-        diffuse: refl.is_some(),
+        diffuse,
         reflectance: refl.unwrap_or(Vec3::ZERO),
+        textured,
     }
 }
