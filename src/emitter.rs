@@ -108,16 +108,16 @@ impl Env {
                 if rows.total() <= 0.0 {
                     return None;
                 }
-                let (y, py, _) = rows.sample(u.y as f64);
+                let (y, py, uy) = rows.sample(u.y as f64);
                 let (x, px, ux) = cols[y].sample(u.x as f64);
                 let uu = (x as f32 + ux as f32) / *width as f32;
-                let vv = (y as f32 + 0.5) / *height as f32;
+                let vv = (y as f32 + uy as f32) / *height as f32;
                 let theta = vv * PI;
                 let phi = uu * 2.0 * PI;
                 let (st, ct) = theta.sin_cos();
                 // inverse of map_pixel: u = atan2(x, -z)/(2π), v = acos(y)/π
                 let local = Vec3::new(st * phi.sin(), ct, -st * phi.cos());
-                // the row is sampled at its centre: spread θ uniformly inside it
+                // θ is spread uniformly inside the row, as x is inside the column
                 let pdf_uv = (py * px) as f32 * (*width as f32) * (*height as f32);
                 let pdf = pdf_uv / (2.0 * PI * PI * st.max(1e-6));
                 Some((
@@ -144,11 +144,13 @@ impl Env {
                 if rows.total() <= 0.0 {
                     return 0.0;
                 }
-                let (x, y) = map_pixel(*to_local * dir, *width, *height);
+                let local = *to_local * dir;
+                let (x, y) = map_pixel(local, *width, *height);
                 let pdf_uv = (rows.pmf(y as usize) * cols[y as usize].pmf(x as usize)) as f32
                     * (*width as f32)
                     * (*height as f32);
-                let st = (PI * (y as f32 + 0.5) / *height as f32).sin();
+                // sin θ of the direction itself: θ is uniform inside its row
+                let st = Vec2::new(local.x, local.z).length() / local.length();
                 pdf_uv / (2.0 * PI * PI * st.max(1e-6))
             }
         }
@@ -533,5 +535,50 @@ impl Lights {
             is_env: true,
             tri: u32::MAX,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Pcg32;
+    use crate::scene::TexImage;
+
+    /// Env-map sampling is a true density: on a coarse 4 × 2 map, the
+    /// estimate of ∫ cos²θ L dω = 4π/3 (L = 1) from E[cos²θ L/pdf] is right,
+    /// and `pdf(dir)` agrees with the pdf returned by `sample`. (With θ
+    /// fixed at the row centres, as before, the estimate was 2π²·sin(π/4)·½
+    /// ≈ 6.98 instead of 4.19.) Tolerance: 4 standard errors of the mean,
+    /// measured from the samples.
+    #[test]
+    fn env_map_sampling_is_a_density() {
+        let image = TexImage {
+            width: 4,
+            height: 2,
+            data: vec![Rgb::ONE; 8],
+        };
+        let env = Env::from_map(&image, 1.0, Mat3::IDENTITY);
+        let mut rng = Pcg32::keyed(&[3]);
+        let n = 200_000;
+        let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+        for _ in 0..n {
+            let (d, le, pdf) = env.sample(rng.next_2d()).expect("sample");
+            let back = env.pdf(d);
+            assert!(
+                (back - pdf).abs() <= 1e-3 * pdf,
+                "pdf(dir) {back} vs sample's {pdf}"
+            );
+            let x = (d.y * d.y * le.x / pdf) as f64;
+            sum += x;
+            sum2 += x * x;
+        }
+        let mean = sum / n as f64;
+        let se = ((sum2 / n as f64 - mean * mean) / n as f64).sqrt();
+        let exact = 4.0 * std::f64::consts::PI / 3.0;
+        assert!(
+            (mean - exact).abs() <= 4.0 * se,
+            "∫cos²θ dω estimate {mean} vs {exact} (4σ = {})",
+            4.0 * se
+        );
     }
 }
