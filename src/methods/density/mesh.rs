@@ -39,16 +39,9 @@ impl PlanarMesh {
         bandwidth: f32,
         hits: u64,
     ) -> Self {
-        let grid = TriGrid::new(&verts, &tris);
-        PlanarMesh {
-            surface,
-            verts,
-            tris,
-            h,
-            bandwidth,
-            hits,
-            grid,
-        }
+        let mut m = Self::unindexed(surface, verts, tris, h, bandwidth, hits);
+        m.grid = TriGrid::new(&m.verts, &m.tris);
+        m
     }
 
     /// A mesh without its point-location grid (the over-mesh of phase 2,
