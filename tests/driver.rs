@@ -38,6 +38,8 @@ fn same_seed_same_image_whatever_the_thread_count() {
         (cbox(), "light", None),
         (cbox(), "light", Some("iteration")),
         (glass(), "light", None),
+        (cbox(), "plb", None),
+        (cbox(), "plb", Some("pooled")),
     ] {
         let opts = Options {
             seed: 42,

@@ -238,14 +238,57 @@ const GRID_FLOOR: f64 = 0.05;
 /// cells, estimates how much of the light reflected in that cell reaches
 /// the image, pooled over every hit ever spawned there instead of over one
 /// hit's children (eq. (8)). A hit's importance is Lum(Φ a) · (W + f r̄).
+///
+/// The lanes share what they learn: each lane reads the grid as merged at
+/// the end of the last pass plus its own records since, and at the end of
+/// every pass the lanes' new records are merged in lane order (so a seed
+/// still gives the same image whatever the thread count).
 #[derive(Clone, Debug)]
 struct ImportanceGrid {
     lo: glam::Vec3,
     scale: glam::Vec3,
+    /// Everything this lane knows: the shared grid plus `fresh`.
+    all: CellStats,
+    /// This lane's records since the last merge.
+    fresh: CellStats,
+}
+
+/// Σr and counts per cell, and over all cells.
+#[derive(Clone, Debug)]
+struct CellStats {
     sum: Vec<f64>,
     n: Vec<u32>,
     total: f64,
     count: u64,
+}
+
+impl CellStats {
+    fn new(cells: usize) -> Self {
+        CellStats {
+            sum: vec![0.0; cells],
+            n: vec![0; cells],
+            total: 0.0,
+            count: 0,
+        }
+    }
+
+    fn add(&mut self, cell: usize, r: f64) {
+        self.sum[cell] += r;
+        self.n[cell] += 1;
+        self.total += r;
+        self.count += 1;
+    }
+
+    fn merge(&mut self, o: &CellStats) {
+        for (a, b) in self.sum.iter_mut().zip(&o.sum) {
+            *a += b;
+        }
+        for (a, b) in self.n.iter_mut().zip(&o.n) {
+            *a += b;
+        }
+        self.total += o.total;
+        self.count += o.count;
+    }
 }
 
 impl ImportanceGrid {
@@ -255,10 +298,8 @@ impl ImportanceGrid {
         ImportanceGrid {
             lo,
             scale: glam::Vec3::splat(GRID_RES as f32) / extent,
-            sum: vec![0.0; cells],
-            n: vec![0; cells],
-            total: 0.0,
-            count: 0,
+            all: CellStats::new(cells),
+            fresh: CellStats::new(cells),
         }
     }
 
@@ -277,21 +318,36 @@ impl ImportanceGrid {
         if !r.is_finite() {
             return;
         }
-        self.sum[cell as usize] += r;
-        self.n[cell as usize] += 1;
-        self.total += r;
-        self.count += 1;
+        self.all.add(cell as usize, r);
+        self.fresh.add(cell as usize, r);
     }
 
     /// W(cell) + f r̄, always positive.
     fn weight(&self, cell: u32) -> f64 {
-        let mean = if self.total > 0.0 {
-            self.total / self.count as f64
+        let a = &self.all;
+        let mean = if a.total > 0.0 {
+            a.total / a.count as f64
         } else {
             1.0
         };
-        let (sum, n) = (self.sum[cell as usize], self.n[cell as usize] as f64);
+        let (sum, n) = (a.sum[cell as usize], a.n[cell as usize] as f64);
         (sum + GRID_PRIOR * mean) / (n + GRID_PRIOR) + GRID_FLOOR * mean
+    }
+}
+
+/// Merges the lanes' fresh records into `shared` in lane order and gives
+/// every lane the merged grid.
+fn share_grids(shared: &mut CellStats, lanes: &mut [Lane]) {
+    for l in lanes.iter() {
+        if let Some(g) = &l.grid {
+            shared.merge(&g.fresh);
+        }
+    }
+    for l in lanes.iter_mut() {
+        if let Some(g) = l.grid.as_mut() {
+            g.all.clone_from(shared);
+            g.fresh = CellStats::new(shared.sum.len());
+        }
     }
 }
 
@@ -368,6 +424,8 @@ impl Lane {
 /// The progressive state of light path building.
 pub struct Plb {
     settings: Settings,
+    /// The merged pooled-importance grid (`--variant pooled` only).
+    shared: Option<CellStats>,
     lanes: Vec<Lane>,
     pixels: u64,
     camera_pass: CameraPass,
@@ -394,6 +452,8 @@ impl Plb {
                     Lane::new(w, h, grid)
                 })
                 .collect(),
+            shared: (settings.importance == Importance::Pooled)
+                .then(|| CellStats::new(GRID_RES * GRID_RES * GRID_RES)),
             settings,
             pixels: w as u64 * h as u64,
         }
@@ -464,6 +524,9 @@ impl Method for Plb {
                     .sum::<u64>()
             })
             .sum::<u64>();
+        if let Some(shared) = self.shared.as_mut() {
+            share_grids(shared, &mut self.lanes);
+        }
         let camera_rays = self.camera_pass.step(world, pass);
         StepStats {
             rays: rays + camera_rays,
