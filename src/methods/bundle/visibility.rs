@@ -193,6 +193,27 @@ fn raster(t: &[Vec2; 3], z: &[f32; 3], y0: i32, y1: i32, w: i32, mut f: impl FnM
     }
 }
 
+/// Calls `visit(x, y, depth)` for every map pixel in rows `y0..y1` that the
+/// projected patch `pr` covers: its scan conversion, or the one pixel its
+/// sub-pixel roulette kept. The one scan routine of the painter and the
+/// z-buffer.
+#[inline]
+fn scan(pr: &Proj, y0: i32, y1: i32, w: i32, mut visit: impl FnMut(i32, i32, f32)) {
+    match pr.cover {
+        Cover::Raster => {
+            if pr.y1 >= y0 && pr.y0 < y1 {
+                raster(&pr.t, &pr.z, y0, y1, w, visit)
+            }
+        }
+        Cover::One(x, y, z) => {
+            if (y0..y1).contains(&y) {
+                visit(x, y, z)
+            }
+        }
+        Cover::Skip => {}
+    }
+}
+
 /// Transports the radiance of every patch along +d and −d at once and
 /// returns what each patch receives.
 pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
@@ -373,17 +394,8 @@ fn painter_band(
     let mut buf = vec![empty; (w * (y1 - y0)) as usize];
     let mut frags = 0u64;
     for pr in proj {
-        if pr.y1 < y0 || pr.y0 >= y1 {
-            if let Cover::One(_, y, _) = pr.cover {
-                if y < y0 || y >= y1 {
-                    continue;
-                }
-            } else {
-                continue;
-            }
-        }
         let cur = pr.id;
-        let mut visit = |x: i32, y: i32, z: f32| {
+        scan(pr, y0, y1, w, |x, y, z| {
             let px = &mut buf[((y - y0) * w + x) as usize];
             if px.top == SKY || z >= px.z {
                 // in order: cur sees the last writer upstream
@@ -401,16 +413,7 @@ fn painter_band(
                 px.below = cur;
             }
             frags += 1;
-        };
-        match pr.cover {
-            Cover::Raster => raster(&pr.t, &pr.z, y0, y1, w, &mut visit),
-            Cover::One(x, y, z) => {
-                if (y0..y1).contains(&y) {
-                    visit(x, y, z)
-                }
-            }
-            Cover::Skip => {}
-        }
+        });
     }
     // the last patch along each line receives the sky along −d
     if inp.sky_minus != Rgb::ZERO {
@@ -443,26 +446,13 @@ fn zbuffer_band(
         cur_z.fill(f32::INFINITY);
         cur_id.fill(NONE);
         for pr in proj {
-            let mut visit = |x: i32, y: i32, z: f32| {
+            scan(pr, y0, y1, w, |x, y, z| {
                 let k = ((y - y0) * w + x) as usize;
                 if z > prev_z[k] && z < cur_z[k] {
                     cur_z[k] = z;
                     cur_id[k] = pr.id;
                 }
-            };
-            match pr.cover {
-                Cover::Raster => {
-                    if pr.y1 >= y0 && pr.y0 < y1 {
-                        raster(&pr.t, &pr.z, y0, y1, w, &mut visit)
-                    }
-                }
-                Cover::One(x, y, z) => {
-                    if (y0..y1).contains(&y) {
-                        visit(x, y, z)
-                    }
-                }
-                Cover::Skip => {}
-            }
+            });
         }
         let mut any = false;
         for k in 0..size {
