@@ -58,9 +58,10 @@ pub struct Settings {
     /// Target patch edge length in scene units (overrides `patches`).
     pub edge: Option<f32>,
     /// Visibility-map resolution across the scene's bounding sphere; None
-    /// picks 8R/h (four pixels per patch edge), clamped to 1024..=4096
-    /// (below 1024 the cbox image was measurably too dark, see
-    /// BENCHMARKS-bundle.md).
+    /// picks 8R/h (four pixels per patch edge), clamped to 1024..=4096.
+    /// (The floor of 1024 came from cbox images that looked too dark at
+    /// smaller maps; that was the painter's one-layer depth repair, not the
+    /// resolution: see `visibility::painter_band`.)
     pub map_res: Option<u32>,
     /// The sequence of global directions.
     pub sequence: Sequence,
