@@ -155,6 +155,29 @@ fn owns(a: Vec2, b: Vec2) -> bool {
     d.y > 0.0 || (d.y == 0.0 && d.x > 0.0)
 }
 
+/// ⌊v⌋ as i32 (saturating, NaN → 0), like `v.floor() as i32`, without the
+/// libm call that `floor` compiles to on baseline x86-64.
+#[inline]
+fn floor_i32(v: f32) -> i32 {
+    let i = v as i32;
+    if (i as f32) > v {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
+/// ⌈v⌉ as i32 (saturating, NaN → 0), like `v.ceil() as i32`.
+#[inline]
+fn ceil_i32(v: f32) -> i32 {
+    let i = v as i32;
+    if (i as f32) < v {
+        i.saturating_add(1)
+    } else {
+        i
+    }
+}
+
 /// Calls `f(x, y, depth)` for every pixel centre inside the triangle, rows
 /// `y0..y1`, columns `0..w`.
 #[inline]
@@ -173,17 +196,27 @@ fn raster(t: &[Vec2; 3], z: &[f32; 3], y0: i32, y1: i32, w: i32, mut f: impl FnM
     let _ = &mut a;
     let lo = a.min(b).min(c);
     let hi = a.max(b).max(c);
-    let xs = ((lo.x - 0.5).ceil() as i32).max(0);
-    let xe = ((hi.x - 0.5).floor() as i32).min(w - 1);
-    let ys = ((lo.y - 0.5).ceil() as i32).max(y0);
-    let ye = ((hi.y - 0.5).floor() as i32).min(y1 - 1);
+    let xs = ceil_i32(lo.x - 0.5).max(0);
+    let xe = floor_i32(hi.x - 0.5).min(w - 1);
+    let ys = ceil_i32(lo.y - 0.5).max(y0);
+    let ye = floor_i32(hi.y - 0.5).min(y1 - 1);
     let (oa, ob, oc) = (owns(b, c), owns(c, a), owns(a, b));
     let inv = 1.0 / area;
     for y in ys..=ye {
         let py = y as f32 + 0.5;
+        // edge(u, v, p) = (v.x − u.x)(p.y − u.y) − (v.y − u.y)(p.x − u.x):
+        // the first product is the same along a row (same operations in
+        // the same order, so the values are bit-identical to edge())
+        let (ra, rb, rc) = (
+            (c.x - b.x) * (py - b.y),
+            (a.x - c.x) * (py - c.y),
+            (b.x - a.x) * (py - a.y),
+        );
         for x in xs..=xe {
-            let p = Vec2::new(x as f32 + 0.5, py);
-            let (wa, wb, wc) = (edge(b, c, p), edge(c, a, p), edge(a, b, p));
+            let px = x as f32 + 0.5;
+            let wa = ra - (c.y - b.y) * (px - b.x);
+            let wb = rb - (a.y - c.y) * (px - c.x);
+            let wc = rc - (b.y - a.y) * (px - a.x);
             let inside = (wa > 0.0 || (wa == 0.0 && oa))
                 && (wb > 0.0 || (wb == 0.0 && ob))
                 && (wc > 0.0 || (wc == 0.0 && oc));
@@ -292,8 +325,8 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
                 id,
                 t,
                 z,
-                y0: (lo.y - 0.5).ceil() as i32,
-                y1: (hi.y - 0.5).floor() as i32,
+                y0: ceil_i32(lo.y - 0.5),
+                y1: floor_i32(hi.y - 0.5),
                 cover,
             }
         })
@@ -521,4 +554,36 @@ fn zbuffer_band(
         }
     }
     frags
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The integer floor and ceiling agree with `floor`/`ceil` then `as
+    /// i32`, including the saturating and NaN cases.
+    #[test]
+    fn floor_ceil_match_std() {
+        let mut rng = Pcg32::keyed(&[77]);
+        let mut vals = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.5e9,
+            -2.5e9,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            16777217.0,
+            -0.49999997,
+        ];
+        vals.extend((0..100_000).map(|_| (rng.next_f32() - 0.5) * 5000.0));
+        for v in vals {
+            assert_eq!(floor_i32(v), v.floor() as i32, "floor {v}");
+            assert_eq!(ceil_i32(v), v.ceil() as i32, "ceil {v}");
+        }
+    }
 }
