@@ -334,6 +334,23 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
 
     // Scan-convert band by band
     let rows_per_band = (h as usize).div_ceil(BANDS) as i32;
+    // Which projections each band scans, in sorted order (a patch spans one
+    // or two bands, so a band no longer walks every patch to skip it)
+    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); BANDS];
+    for (k, pr) in proj.iter().enumerate() {
+        let (r0, r1) = match pr.cover {
+            Cover::Raster => (pr.y0.max(0), pr.y1.min(h - 1)),
+            Cover::One(_, y, _) => (y, y),
+            Cover::Skip => continue,
+        };
+        if r0 > r1 {
+            continue;
+        }
+        let b1 = ((r1 / rows_per_band) as usize).min(BANDS - 1);
+        for list in &mut lists[(r0 / rows_per_band) as usize..=b1] {
+            list.push(k as u32);
+        }
+    }
     let bands: Vec<(Vec<Rgb>, Vec<Rgb>, u64)> = (0..BANDS)
         .into_par_iter()
         .map(|band| {
@@ -345,8 +362,12 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
                 return (ep, em, 0);
             }
             let frags = match inp.visibility {
-                Visibility::Painter => painter_band(&proj, inp, y0, y1, w, &mut ep, &mut em),
-                Visibility::ZBuffer => zbuffer_band(&proj, inp, y0, y1, w, &mut ep, &mut em),
+                Visibility::Painter => {
+                    painter_band(&proj, &lists[band], inp, y0..y1, w, &mut ep, &mut em)
+                }
+                Visibility::ZBuffer => {
+                    zbuffer_band(&proj, &lists[band], inp, y0..y1, w, &mut ep, &mut em)
+                }
             };
             (ep, em, frags)
         })
@@ -381,7 +402,7 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
 
 /// Adds (sign = 1) or removes (sign = −1) the transfer between `a` (upstream,
 /// or [`SKY`]) and `b` (downstream) through one pixel.
-#[inline]
+#[inline(always)]
 fn pair(inp: &SweepInput, ep: &mut [Rgb], em: &mut [Rgb], a: u32, b: u32, sign: f32) {
     if a == SKY {
         ep[b as usize] += inp.sky_plus * sign;
@@ -431,7 +452,8 @@ impl Px {
     }
 }
 
-/// The painter's sweep over rows `y0..y1`.
+/// The painter's sweep over `rows` of the map, for the projections in
+/// `list` (indices into `proj`, in sorted order).
 ///
 /// Sorting by centroid misorders patches whose projections overlap while
 /// their centroids do not follow their true order, which happens for large
@@ -452,16 +474,17 @@ impl Px {
 /// base, as before.
 fn painter_band(
     proj: &[Proj],
+    list: &[u32],
     inp: &SweepInput,
-    y0: i32,
-    y1: i32,
+    rows: std::ops::Range<i32>,
     w: i32,
     ep: &mut [Rgb],
     em: &mut [Rgb],
 ) -> u64 {
+    let (y0, y1) = (rows.start, rows.end);
     let mut buf = vec![Px::EMPTY; (w * (y1 - y0)) as usize];
     let mut frags = 0u64;
-    for pr in proj {
+    for pr in list.iter().map(|&k| &proj[k as usize]) {
         let cur = pr.id;
         scan(pr, y0, y1, w, |x, y, z| {
             let px = &mut buf[((y - y0) * w + x) as usize];
@@ -496,16 +519,18 @@ fn painter_band(
     frags
 }
 
-/// The z-buffer (depth-peeling) sweep over rows `y0..y1`.
+/// The z-buffer (depth-peeling) sweep over `rows`, for the projections in
+/// `list`.
 fn zbuffer_band(
     proj: &[Proj],
+    list: &[u32],
     inp: &SweepInput,
-    y0: i32,
-    y1: i32,
+    rows: std::ops::Range<i32>,
     w: i32,
     ep: &mut [Rgb],
     em: &mut [Rgb],
 ) -> u64 {
+    let (y0, y1) = (rows.start, rows.end);
     let size = (w * (y1 - y0)) as usize;
     let mut prev_z = vec![f32::NEG_INFINITY; size];
     let mut prev_id = vec![SKY; size];
@@ -515,7 +540,7 @@ fn zbuffer_band(
     for _layer in 0..1024 {
         cur_z.fill(f32::INFINITY);
         cur_id.fill(NONE);
-        for pr in proj {
+        for pr in list.iter().map(|&k| &proj[k as usize]) {
             scan(pr, y0, y1, w, |x, y, z| {
                 let k = ((y - y0) * w + x) as usize;
                 if z > prev_z[k] && z < cur_z[k] {
