@@ -250,11 +250,17 @@ impl Bundle {
 
     /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
     /// corner ids) and of the transient per-iteration buffers per patch
-    /// (incoming radiance, band accumulators, sort keys, projections).
+    /// (incoming radiance, sort key, projection, and the band entries: a
+    /// patch is in the list of one band, or of two when it straddles a band
+    /// edge; the figure counts two, so it is an upper bound). The map
+    /// itself is not per patch: 20 bytes per map pixel for the painter.
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
         let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
-        let transient = 2 * size_of::<Rgb>() * (1 + visibility::BANDS) + size_of::<u64>() + 48;
+        // list index, patch id and the two accumulators of a band entry
+        let band_entry = 2 * size_of::<u32>() + 2 * size_of::<Rgb>();
+        let transient =
+            2 * size_of::<Rgb>() + size_of::<u64>() + visibility::PROJ_BYTES + 2 * band_entry;
         (state, transient)
     }
 }

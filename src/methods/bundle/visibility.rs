@@ -132,6 +132,9 @@ enum Cover {
     Skip,
 }
 
+/// Bytes of one patch's projection (for the memory report).
+pub const PROJ_BYTES: usize = std::mem::size_of::<Proj>();
+
 #[derive(Clone, Copy)]
 struct Proj {
     id: u32,
@@ -351,25 +354,25 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
             list.push(k as u32);
         }
     }
-    let bands: Vec<(Vec<Rgb>, Vec<Rgb>, u64)> = (0..BANDS)
+    let bands: Vec<(Band, u64)> = (0..BANDS)
         .into_par_iter()
         .map(|band| {
             let y0 = band as i32 * rows_per_band;
             let y1 = (y0 + rows_per_band).min(h);
-            let mut ep = vec![Rgb::ZERO; n];
-            let mut em = vec![Rgb::ZERO; n];
+            let list = &lists[band];
+            let mut acc = Band {
+                gid: list.iter().map(|&k| proj[k as usize].id).collect(),
+                ep: vec![Rgb::ZERO; list.len()],
+                em: vec![Rgb::ZERO; list.len()],
+            };
             if y0 >= y1 {
-                return (ep, em, 0);
+                return (acc, 0);
             }
             let frags = match inp.visibility {
-                Visibility::Painter => {
-                    painter_band(&proj, &lists[band], inp, y0..y1, w, &mut ep, &mut em)
-                }
-                Visibility::ZBuffer => {
-                    zbuffer_band(&proj, &lists[band], inp, y0..y1, w, &mut ep, &mut em)
-                }
+                Visibility::Painter => painter_band(&proj, list, inp, y0..y1, w, &mut acc),
+                Visibility::ZBuffer => zbuffer_band(&proj, list, inp, y0..y1, w, &mut acc),
             };
-            (ep, em, frags)
+            (acc, frags)
         })
         .collect();
 
@@ -377,20 +380,20 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     let da = delta * delta;
     let mut e_plus = vec![Rgb::ZERO; n];
     let mut e_minus = vec![Rgb::ZERO; n];
+    for (b, _) in &bands {
+        for (j, &g) in b.gid.iter().enumerate() {
+            e_plus[g as usize] += b.ep[j];
+            e_minus[g as usize] += b.em[j];
+        }
+    }
     e_plus
         .par_iter_mut()
         .zip(e_minus.par_iter_mut())
-        .enumerate()
-        .for_each(|(i, (p, m))| {
-            let (mut sp, mut sm) = (Rgb::ZERO, Rgb::ZERO);
-            for b in &bands {
-                sp += b.0[i];
-                sm += b.1[i];
-            }
-            *p = sp * da;
-            *m = sm * da;
+        .for_each(|(p, m)| {
+            *p *= da;
+            *m *= da;
         });
-    let fragments = bands.iter().map(|b| b.2).sum();
+    let fragments = bands.iter().map(|b| b.1).sum();
     Incoming {
         e_plus,
         e_minus,
@@ -400,15 +403,31 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     }
 }
 
-/// Adds (sign = 1) or removes (sign = −1) the transfer between `a` (upstream,
-/// or [`SKY`]) and `b` (downstream) through one pixel.
-#[inline(always)]
-fn pair(inp: &SweepInput, ep: &mut [Rgb], em: &mut [Rgb], a: u32, b: u32, sign: f32) {
-    if a == SKY {
-        ep[b as usize] += inp.sky_plus * sign;
-    } else {
-        ep[b as usize] += inp.l_plus[a as usize] * sign;
-        em[a as usize] += inp.l_minus[b as usize] * sign;
+/// What one band of the map gathers. Its patches are numbered by their
+/// place in the band's list (the map buffers hold these local numbers), so
+/// that the accumulators hold only the band's own patches and stay small
+/// enough for the cache, instead of one full-length pair per band.
+struct Band {
+    /// Patch id of each local number.
+    gid: Vec<u32>,
+    /// Σ L(+d) δP/δP received along +d, per local number.
+    ep: Vec<Rgb>,
+    /// The same along −d.
+    em: Vec<Rgb>,
+}
+
+impl Band {
+    /// Adds (sign = 1) or removes (sign = −1) the transfer between `a`
+    /// (upstream, or [`SKY`]) and `b` (downstream) through one pixel; `a`
+    /// and `b` are local numbers.
+    #[inline(always)]
+    fn pair(&mut self, inp: &SweepInput, a: u32, b: u32, sign: f32) {
+        if a == SKY {
+            self.ep[b as usize] += inp.sky_plus * sign;
+        } else {
+            self.ep[b as usize] += inp.l_plus[self.gid[a as usize] as usize] * sign;
+            self.em[a as usize] += inp.l_minus[self.gid[b as usize] as usize] * sign;
+        }
     }
 }
 
@@ -478,14 +497,13 @@ fn painter_band(
     inp: &SweepInput,
     rows: std::ops::Range<i32>,
     w: i32,
-    ep: &mut [Rgb],
-    em: &mut [Rgb],
+    acc: &mut Band,
 ) -> u64 {
     let (y0, y1) = (rows.start, rows.end);
     let mut buf = vec![Px::EMPTY; (w * (y1 - y0)) as usize];
     let mut frags = 0u64;
-    for pr in list.iter().map(|&k| &proj[k as usize]) {
-        let cur = pr.id;
+    for (cur, &k) in list.iter().enumerate() {
+        let (pr, cur) = (&proj[k as usize], cur as u32);
         scan(pr, y0, y1, w, |x, y, z| {
             let px = &mut buf[((y - y0) * w + x) as usize];
             // the first kept layer that cur lies downstream of (ties keep
@@ -496,13 +514,13 @@ fn painter_band(
             let a = if k < LAYERS { px.id[k] } else { px.base };
             if k == 0 {
                 // in order: cur sees the last writer upstream
-                pair(inp, ep, em, a, cur, 1.0);
+                acc.pair(inp, a, cur, 1.0);
             } else {
                 // sorted too late: slide cur in between a and b
                 let b = px.id[k - 1];
-                pair(inp, ep, em, a, b, -1.0);
-                pair(inp, ep, em, a, cur, 1.0);
-                pair(inp, ep, em, cur, b, 1.0);
+                acc.pair(inp, a, b, -1.0);
+                acc.pair(inp, a, cur, 1.0);
+                acc.pair(inp, cur, b, 1.0);
             }
             px.insert(k, cur, z);
             frags += 1;
@@ -512,7 +530,7 @@ fn painter_band(
     if inp.sky_minus != Rgb::ZERO {
         for px in &buf {
             if px.id[0] != SKY {
-                em[px.id[0] as usize] += inp.sky_minus;
+                acc.em[px.id[0] as usize] += inp.sky_minus;
             }
         }
     }
@@ -527,8 +545,7 @@ fn zbuffer_band(
     inp: &SweepInput,
     rows: std::ops::Range<i32>,
     w: i32,
-    ep: &mut [Rgb],
-    em: &mut [Rgb],
+    acc: &mut Band,
 ) -> u64 {
     let (y0, y1) = (rows.start, rows.end);
     let size = (w * (y1 - y0)) as usize;
@@ -540,12 +557,12 @@ fn zbuffer_band(
     for _layer in 0..1024 {
         cur_z.fill(f32::INFINITY);
         cur_id.fill(NONE);
-        for pr in list.iter().map(|&k| &proj[k as usize]) {
-            scan(pr, y0, y1, w, |x, y, z| {
+        for (local, &k) in list.iter().enumerate() {
+            scan(&proj[k as usize], y0, y1, w, |x, y, z| {
                 let k = ((y - y0) * w + x) as usize;
                 if z > prev_z[k] && z < cur_z[k] {
                     cur_z[k] = z;
-                    cur_id[k] = pr.id;
+                    cur_id[k] = local as u32;
                 }
             });
         }
@@ -557,13 +574,7 @@ fn zbuffer_band(
             }
             any = true;
             frags += 1;
-            let prev = prev_id[k];
-            if prev == SKY {
-                ep[cur as usize] += inp.sky_plus;
-            } else {
-                ep[cur as usize] += inp.l_plus[prev as usize];
-                em[prev as usize] += inp.l_minus[cur as usize];
-            }
+            acc.pair(inp, prev_id[k], cur, 1.0);
             prev_id[k] = cur;
             prev_z[k] = cur_z[k];
         }
@@ -574,7 +585,7 @@ fn zbuffer_band(
     if inp.sky_minus != Rgb::ZERO {
         for &id in &prev_id {
             if id != SKY {
-                em[id as usize] += inp.sky_minus;
+                acc.em[id as usize] += inp.sky_minus;
             }
         }
     }
