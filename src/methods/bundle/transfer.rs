@@ -80,15 +80,26 @@ pub fn brdf(p: &Patch, ns: Vec3, d: Vec3, w: Vec3) -> Rgb {
 /// leaving the ratio out made the image 19 % too dark. Where cos θ_g → 0
 /// the ratio grows, but the pixel coverage that it multiplies falls in
 /// proportion, so the product stays an unbiased estimate of L |cos θ_s|.
+///
+/// cos θ_g is floored at [`MIN_COS_G`], so that a patch seen exactly
+/// edge-on (cos θ_g below ~3e-39 makes 1/cos θ_g infinite in f32) cannot
+/// put an infinite radiance into the iteration, where the painter's
+/// undone pairs would turn it into NaN. The floor changes the estimate
+/// only for incoming directions with cos θ_g < 1e-6, a band of solid angle
+/// 2π · 1e-6 on the patch's side, so it lowers ∫ L |cos θ_s| dω by at most
+/// 2π · 1e-6 · max L.
 #[inline]
 pub fn shading_ratio(cos_s: f32, ng_dot_d: f32) -> f32 {
     let cg = ng_dot_d.abs();
     if cg > 0.0 {
-        cos_s.abs() / cg
+        cos_s.abs() / cg.max(MIN_COS_G)
     } else {
         0.0
     }
 }
+
+/// Floor of cos θ_g in [`shading_ratio`].
+pub const MIN_COS_G: f32 = 1e-6;
 
 /// Radiance leaving patch `p` toward `w` after reflecting what it received
 /// from the sweep along ±d: Le(w) + 2π Σ_{±} f̃(±d, w) E_±/A.
