@@ -58,9 +58,10 @@ pub struct Settings {
     /// Target patch edge length in scene units (overrides `patches`).
     pub edge: Option<f32>,
     /// Visibility-map resolution across the scene's bounding sphere; None
-    /// picks 8R/h (four pixels per patch edge), clamped to 1024..=4096
-    /// (below 1024 the cbox image was measurably too dark, see
-    /// BENCHMARKS-bundle.md).
+    /// picks 8R/h (four pixels per patch edge), clamped to 1024..=4096.
+    /// (The floor of 1024 came from cbox images that looked too dark at
+    /// smaller maps; that was the painter's one-layer depth repair, not the
+    /// resolution: see `visibility::painter_band`.)
     pub map_res: Option<u32>,
     /// The sequence of global directions.
     pub sequence: Sequence,
@@ -249,11 +250,17 @@ impl Bundle {
 
     /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
     /// corner ids) and of the transient per-iteration buffers per patch
-    /// (incoming radiance, band accumulators, sort keys, projections).
+    /// (incoming radiance, sort key, projection, and the band entries: a
+    /// patch is in the list of one band, or of two when it straddles a band
+    /// edge; the figure counts two, so it is an upper bound). The map
+    /// itself is not per patch: 20 bytes per map pixel for the painter.
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
         let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
-        let transient = 2 * size_of::<Rgb>() * (1 + visibility::BANDS) + size_of::<u64>() + 48;
+        // list index, patch id and the two accumulators of a band entry
+        let band_entry = 2 * size_of::<u32>() + 2 * size_of::<Rgb>();
+        let transient =
+            2 * size_of::<Rgb>() + size_of::<u64>() + visibility::PROJ_BYTES + 2 * band_entry;
         (state, transient)
     }
 }

@@ -24,8 +24,9 @@
 //! along a line receives the sky radiance; the last patch receives the sky
 //! along −d.
 //!
-//! Each pixel also remembers the depth of its last writer, which repairs
-//! one-layer misorders of the centroid sort (see the painter band's notes).
+//! Each pixel also remembers the depths of its last [`LAYERS`] writers,
+//! which repairs misorders of the centroid sort up to that many layers
+//! deep (see the painter band's notes).
 //!
 //! **Sub-pixel patches** (§6, §8) are handled by Russian roulette: a patch
 //! whose projection is smaller than one pixel covers one pixel with
@@ -131,6 +132,9 @@ enum Cover {
     Skip,
 }
 
+/// Bytes of one patch's projection (for the memory report).
+pub const PROJ_BYTES: usize = std::mem::size_of::<Proj>();
+
 #[derive(Clone, Copy)]
 struct Proj {
     id: u32,
@@ -154,6 +158,29 @@ fn owns(a: Vec2, b: Vec2) -> bool {
     d.y > 0.0 || (d.y == 0.0 && d.x > 0.0)
 }
 
+/// ⌊v⌋ as i32 (saturating, NaN → 0), like `v.floor() as i32`, without the
+/// libm call that `floor` compiles to on baseline x86-64.
+#[inline]
+fn floor_i32(v: f32) -> i32 {
+    let i = v as i32;
+    if (i as f32) > v {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
+/// ⌈v⌉ as i32 (saturating, NaN → 0), like `v.ceil() as i32`.
+#[inline]
+fn ceil_i32(v: f32) -> i32 {
+    let i = v as i32;
+    if (i as f32) < v {
+        i.saturating_add(1)
+    } else {
+        i
+    }
+}
+
 /// Calls `f(x, y, depth)` for every pixel centre inside the triangle, rows
 /// `y0..y1`, columns `0..w`.
 #[inline]
@@ -172,17 +199,27 @@ fn raster(t: &[Vec2; 3], z: &[f32; 3], y0: i32, y1: i32, w: i32, mut f: impl FnM
     let _ = &mut a;
     let lo = a.min(b).min(c);
     let hi = a.max(b).max(c);
-    let xs = ((lo.x - 0.5).ceil() as i32).max(0);
-    let xe = ((hi.x - 0.5).floor() as i32).min(w - 1);
-    let ys = ((lo.y - 0.5).ceil() as i32).max(y0);
-    let ye = ((hi.y - 0.5).floor() as i32).min(y1 - 1);
+    let xs = ceil_i32(lo.x - 0.5).max(0);
+    let xe = floor_i32(hi.x - 0.5).min(w - 1);
+    let ys = ceil_i32(lo.y - 0.5).max(y0);
+    let ye = floor_i32(hi.y - 0.5).min(y1 - 1);
     let (oa, ob, oc) = (owns(b, c), owns(c, a), owns(a, b));
     let inv = 1.0 / area;
     for y in ys..=ye {
         let py = y as f32 + 0.5;
+        // edge(u, v, p) = (v.x − u.x)(p.y − u.y) − (v.y − u.y)(p.x − u.x):
+        // the first product is the same along a row (same operations in
+        // the same order, so the values are bit-identical to edge())
+        let (ra, rb, rc) = (
+            (c.x - b.x) * (py - b.y),
+            (a.x - c.x) * (py - c.y),
+            (b.x - a.x) * (py - a.y),
+        );
         for x in xs..=xe {
-            let p = Vec2::new(x as f32 + 0.5, py);
-            let (wa, wb, wc) = (edge(b, c, p), edge(c, a, p), edge(a, b, p));
+            let px = x as f32 + 0.5;
+            let wa = ra - (c.y - b.y) * (px - b.x);
+            let wb = rb - (a.y - c.y) * (px - c.x);
+            let wc = rc - (b.y - a.y) * (px - a.x);
             let inside = (wa > 0.0 || (wa == 0.0 && oa))
                 && (wb > 0.0 || (wb == 0.0 && ob))
                 && (wc > 0.0 || (wc == 0.0 && oc));
@@ -190,6 +227,27 @@ fn raster(t: &[Vec2; 3], z: &[f32; 3], y0: i32, y1: i32, w: i32, mut f: impl FnM
                 f(x, y, (wa * za + wb * zb + wc * zc) * inv);
             }
         }
+    }
+}
+
+/// Calls `visit(x, y, depth)` for every map pixel in rows `y0..y1` that the
+/// projected patch `pr` covers: its scan conversion, or the one pixel its
+/// sub-pixel roulette kept. The one scan routine of the painter and the
+/// z-buffer.
+#[inline]
+fn scan(pr: &Proj, y0: i32, y1: i32, w: i32, mut visit: impl FnMut(i32, i32, f32)) {
+    match pr.cover {
+        Cover::Raster => {
+            if pr.y1 >= y0 && pr.y0 < y1 {
+                raster(&pr.t, &pr.z, y0, y1, w, visit)
+            }
+        }
+        Cover::One(x, y, z) => {
+            if (y0..y1).contains(&y) {
+                visit(x, y, z)
+            }
+        }
+        Cover::Skip => {}
     }
 }
 
@@ -270,8 +328,8 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
                 id,
                 t,
                 z,
-                y0: (lo.y - 0.5).ceil() as i32,
-                y1: (hi.y - 0.5).floor() as i32,
+                y0: ceil_i32(lo.y - 0.5),
+                y1: floor_i32(hi.y - 0.5),
                 cover,
             }
         })
@@ -279,21 +337,42 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
 
     // Scan-convert band by band
     let rows_per_band = (h as usize).div_ceil(BANDS) as i32;
-    let bands: Vec<(Vec<Rgb>, Vec<Rgb>, u64)> = (0..BANDS)
+    // Which projections each band scans, in sorted order (a patch spans one
+    // or two bands, so a band no longer walks every patch to skip it)
+    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); BANDS];
+    for (k, pr) in proj.iter().enumerate() {
+        let (r0, r1) = match pr.cover {
+            Cover::Raster => (pr.y0.max(0), pr.y1.min(h - 1)),
+            Cover::One(_, y, _) => (y, y),
+            Cover::Skip => continue,
+        };
+        if r0 > r1 {
+            continue;
+        }
+        let b1 = ((r1 / rows_per_band) as usize).min(BANDS - 1);
+        for list in &mut lists[(r0 / rows_per_band) as usize..=b1] {
+            list.push(k as u32);
+        }
+    }
+    let bands: Vec<(Band, u64)> = (0..BANDS)
         .into_par_iter()
         .map(|band| {
             let y0 = band as i32 * rows_per_band;
             let y1 = (y0 + rows_per_band).min(h);
-            let mut ep = vec![Rgb::ZERO; n];
-            let mut em = vec![Rgb::ZERO; n];
+            let list = &lists[band];
+            let mut acc = Band {
+                gid: list.iter().map(|&k| proj[k as usize].id).collect(),
+                ep: vec![Rgb::ZERO; list.len()],
+                em: vec![Rgb::ZERO; list.len()],
+            };
             if y0 >= y1 {
-                return (ep, em, 0);
+                return (acc, 0);
             }
             let frags = match inp.visibility {
-                Visibility::Painter => painter_band(&proj, inp, y0, y1, w, &mut ep, &mut em),
-                Visibility::ZBuffer => zbuffer_band(&proj, inp, y0, y1, w, &mut ep, &mut em),
+                Visibility::Painter => painter_band(&proj, list, inp, y0..y1, w, &mut acc),
+                Visibility::ZBuffer => zbuffer_band(&proj, list, inp, y0..y1, w, &mut acc),
             };
-            (ep, em, frags)
+            (acc, frags)
         })
         .collect();
 
@@ -301,20 +380,20 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     let da = delta * delta;
     let mut e_plus = vec![Rgb::ZERO; n];
     let mut e_minus = vec![Rgb::ZERO; n];
+    for (b, _) in &bands {
+        for (j, &g) in b.gid.iter().enumerate() {
+            e_plus[g as usize] += b.ep[j];
+            e_minus[g as usize] += b.em[j];
+        }
+    }
     e_plus
         .par_iter_mut()
         .zip(e_minus.par_iter_mut())
-        .enumerate()
-        .for_each(|(i, (p, m))| {
-            let (mut sp, mut sm) = (Rgb::ZERO, Rgb::ZERO);
-            for b in &bands {
-                sp += b.0[i];
-                sm += b.1[i];
-            }
-            *p = sp * da;
-            *m = sm * da;
+        .for_each(|(p, m)| {
+            *p *= da;
+            *m *= da;
         });
-    let fragments = bands.iter().map(|b| b.2).sum();
+    let fragments = bands.iter().map(|b| b.1).sum();
     Incoming {
         e_plus,
         e_minus,
@@ -324,115 +403,151 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     }
 }
 
-/// Adds (sign = 1) or removes (sign = −1) the transfer between `a` (upstream,
-/// or [`SKY`]) and `b` (downstream) through one pixel.
-#[inline]
-fn pair(inp: &SweepInput, ep: &mut [Rgb], em: &mut [Rgb], a: u32, b: u32, sign: f32) {
-    if a == SKY {
-        ep[b as usize] += inp.sky_plus * sign;
-    } else {
-        ep[b as usize] += inp.l_plus[a as usize] * sign;
-        em[a as usize] += inp.l_minus[b as usize] * sign;
+/// What one band of the map gathers. Its patches are numbered by their
+/// place in the band's list (the map buffers hold these local numbers), so
+/// that the accumulators hold only the band's own patches and stay small
+/// enough for the cache, instead of one full-length pair per band.
+struct Band {
+    /// Patch id of each local number.
+    gid: Vec<u32>,
+    /// Σ L(+d) δP/δP received along +d, per local number.
+    ep: Vec<Rgb>,
+    /// The same along −d.
+    em: Vec<Rgb>,
+}
+
+impl Band {
+    /// Adds (sign = 1) or removes (sign = −1) the transfer between `a`
+    /// (upstream, or [`SKY`]) and `b` (downstream) through one pixel; `a`
+    /// and `b` are local numbers.
+    #[inline(always)]
+    fn pair(&mut self, inp: &SweepInput, a: u32, b: u32, sign: f32) {
+        if a == SKY {
+            self.ep[b as usize] += inp.sky_plus * sign;
+        } else {
+            self.ep[b as usize] += inp.l_plus[self.gid[a as usize] as usize] * sign;
+            self.em[a as usize] += inp.l_minus[self.gid[b as usize] as usize] * sign;
+        }
     }
 }
 
-/// One pixel of the painter's map: the last patch written, its depth, and
-/// the patch it covered.
+/// Layers of depth the painter keeps per pixel to repair the centroid
+/// sort (see [`painter_band`]).
+pub const LAYERS: usize = 2;
+
+/// One pixel of the painter's map: the last [`LAYERS`] patches along the
+/// line with their depths, most downstream first (unused layers hold
+/// [`SKY`] at depth −∞), and the patch upstream of the deepest kept layer.
 #[derive(Clone, Copy)]
 struct Px {
-    top: u32,
-    z: f32,
-    below: u32,
+    id: [u32; LAYERS],
+    z: [f32; LAYERS],
+    base: u32,
 }
 
-/// The painter's sweep over rows `y0..y1`.
+impl Px {
+    const EMPTY: Px = Px {
+        id: [SKY; LAYERS],
+        z: [f32::NEG_INFINITY; LAYERS],
+        base: SKY,
+    };
+
+    /// Puts `cur` at layer `k` (0 = top), pushing the deeper layers down;
+    /// the deepest one falls out into `base`. `k == LAYERS` makes `cur`
+    /// the new base.
+    #[inline]
+    fn insert(&mut self, k: usize, cur: u32, z: f32) {
+        if k == LAYERS {
+            self.base = cur;
+            return;
+        }
+        self.base = self.id[LAYERS - 1];
+        for j in (k + 1..LAYERS).rev() {
+            self.id[j] = self.id[j - 1];
+            self.z[j] = self.z[j - 1];
+        }
+        self.id[k] = cur;
+        self.z[k] = z;
+    }
+}
+
+/// The painter's sweep over `rows` of the map, for the projections in
+/// `list` (indices into `proj`, in sorted order).
 ///
 /// Sorting by centroid misorders patches whose projections overlap while
 /// their centroids do not follow their true order, which happens for large
-/// parallel patches close together (a luminaire hanging 0.5 units under a
-/// ceiling of patches 50 units wide: about half the light was lost). Each
-/// pixel therefore also keeps the depth of its last writer and the patch
-/// under it; a fragment that arrives with a smaller depth than the last
-/// writer is slid in between: the pair (below, top) is undone and replaced
-/// by (below, new) and (new, top). This repairs misorders one layer deep,
-/// exactly the case above, at the cost of 12 bytes per pixel.
+/// parallel patches close together: cbox's luminaire hangs 0.5 units under
+/// a ceiling whose mesh holds, at the luminaire, a second, reversed quad
+/// coplanar with the ceiling. Each pixel therefore keeps the last
+/// [`LAYERS`] patches along its line with their depths. A fragment that
+/// arrives with a smaller depth than the last writer is slid in where its
+/// depth belongs, between the kept layers a (upstream) and b (downstream):
+/// the pair (a, b) is undone and replaced by (a, new) and (new, b).
+///
+/// One layer (the first version) was not enough on cbox: the two coplanar
+/// ceiling quads both sorted before the luminaire for about 9 % of the
+/// directions, so the luminaire slid in between them and gave its light
+/// to the ceiling instead of the floor (the direct light received was 4 %
+/// low, the image 6 % too dark at every map resolution; the z-buffer was
+/// right). Misorders deeper than [`LAYERS`] are still slid in above the
+/// base, as before.
 fn painter_band(
     proj: &[Proj],
+    list: &[u32],
     inp: &SweepInput,
-    y0: i32,
-    y1: i32,
+    rows: std::ops::Range<i32>,
     w: i32,
-    ep: &mut [Rgb],
-    em: &mut [Rgb],
+    acc: &mut Band,
 ) -> u64 {
-    let empty = Px {
-        top: SKY,
-        z: f32::NEG_INFINITY,
-        below: SKY,
-    };
-    let mut buf = vec![empty; (w * (y1 - y0)) as usize];
+    let (y0, y1) = (rows.start, rows.end);
+    let mut buf = vec![Px::EMPTY; (w * (y1 - y0)) as usize];
     let mut frags = 0u64;
-    for pr in proj {
-        if pr.y1 < y0 || pr.y0 >= y1 {
-            if let Cover::One(_, y, _) = pr.cover {
-                if y < y0 || y >= y1 {
-                    continue;
-                }
-            } else {
-                continue;
-            }
-        }
-        let cur = pr.id;
-        let mut visit = |x: i32, y: i32, z: f32| {
+    for (cur, &k) in list.iter().enumerate() {
+        let (pr, cur) = (&proj[k as usize], cur as u32);
+        scan(pr, y0, y1, w, |x, y, z| {
             let px = &mut buf[((y - y0) * w + x) as usize];
-            if px.top == SKY || z >= px.z {
+            // the first kept layer that cur lies downstream of (ties keep
+            // the sorted order)
+            let k = (0..LAYERS)
+                .find(|&k| px.id[k] == SKY || z >= px.z[k])
+                .unwrap_or(LAYERS);
+            let a = if k < LAYERS { px.id[k] } else { px.base };
+            if k == 0 {
                 // in order: cur sees the last writer upstream
-                pair(inp, ep, em, px.top, cur, 1.0);
-                *px = Px {
-                    top: cur,
-                    z,
-                    below: px.top,
-                };
+                acc.pair(inp, a, cur, 1.0);
             } else {
-                // sorted too late: slide cur in under the last writer
-                pair(inp, ep, em, px.below, px.top, -1.0);
-                pair(inp, ep, em, px.below, cur, 1.0);
-                pair(inp, ep, em, cur, px.top, 1.0);
-                px.below = cur;
+                // sorted too late: slide cur in between a and b
+                let b = px.id[k - 1];
+                acc.pair(inp, a, b, -1.0);
+                acc.pair(inp, a, cur, 1.0);
+                acc.pair(inp, cur, b, 1.0);
             }
+            px.insert(k, cur, z);
             frags += 1;
-        };
-        match pr.cover {
-            Cover::Raster => raster(&pr.t, &pr.z, y0, y1, w, &mut visit),
-            Cover::One(x, y, z) => {
-                if (y0..y1).contains(&y) {
-                    visit(x, y, z)
-                }
-            }
-            Cover::Skip => {}
-        }
+        });
     }
     // the last patch along each line receives the sky along −d
     if inp.sky_minus != Rgb::ZERO {
         for px in &buf {
-            if px.top != SKY {
-                em[px.top as usize] += inp.sky_minus;
+            if px.id[0] != SKY {
+                acc.em[px.id[0] as usize] += inp.sky_minus;
             }
         }
     }
     frags
 }
 
-/// The z-buffer (depth-peeling) sweep over rows `y0..y1`.
+/// The z-buffer (depth-peeling) sweep over `rows`, for the projections in
+/// `list`.
 fn zbuffer_band(
     proj: &[Proj],
+    list: &[u32],
     inp: &SweepInput,
-    y0: i32,
-    y1: i32,
+    rows: std::ops::Range<i32>,
     w: i32,
-    ep: &mut [Rgb],
-    em: &mut [Rgb],
+    acc: &mut Band,
 ) -> u64 {
+    let (y0, y1) = (rows.start, rows.end);
     let size = (w * (y1 - y0)) as usize;
     let mut prev_z = vec![f32::NEG_INFINITY; size];
     let mut prev_id = vec![SKY; size];
@@ -442,27 +557,14 @@ fn zbuffer_band(
     for _layer in 0..1024 {
         cur_z.fill(f32::INFINITY);
         cur_id.fill(NONE);
-        for pr in proj {
-            let mut visit = |x: i32, y: i32, z: f32| {
+        for (local, &k) in list.iter().enumerate() {
+            scan(&proj[k as usize], y0, y1, w, |x, y, z| {
                 let k = ((y - y0) * w + x) as usize;
                 if z > prev_z[k] && z < cur_z[k] {
                     cur_z[k] = z;
-                    cur_id[k] = pr.id;
+                    cur_id[k] = local as u32;
                 }
-            };
-            match pr.cover {
-                Cover::Raster => {
-                    if pr.y1 >= y0 && pr.y0 < y1 {
-                        raster(&pr.t, &pr.z, y0, y1, w, &mut visit)
-                    }
-                }
-                Cover::One(x, y, z) => {
-                    if (y0..y1).contains(&y) {
-                        visit(x, y, z)
-                    }
-                }
-                Cover::Skip => {}
-            }
+            });
         }
         let mut any = false;
         for k in 0..size {
@@ -472,13 +574,7 @@ fn zbuffer_band(
             }
             any = true;
             frags += 1;
-            let prev = prev_id[k];
-            if prev == SKY {
-                ep[cur as usize] += inp.sky_plus;
-            } else {
-                ep[cur as usize] += inp.l_plus[prev as usize];
-                em[prev as usize] += inp.l_minus[cur as usize];
-            }
+            acc.pair(inp, prev_id[k], cur, 1.0);
             prev_id[k] = cur;
             prev_z[k] = cur_z[k];
         }
@@ -489,9 +585,41 @@ fn zbuffer_band(
     if inp.sky_minus != Rgb::ZERO {
         for &id in &prev_id {
             if id != SKY {
-                em[id as usize] += inp.sky_minus;
+                acc.em[id as usize] += inp.sky_minus;
             }
         }
     }
     frags
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The integer floor and ceiling agree with `floor`/`ceil` then `as
+    /// i32`, including the saturating and NaN cases.
+    #[test]
+    fn floor_ceil_match_std() {
+        let mut rng = Pcg32::keyed(&[77]);
+        let mut vals = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.5e9,
+            -2.5e9,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            16777217.0,
+            -0.49999997,
+        ];
+        vals.extend((0..100_000).map(|_| (rng.next_f32() - 0.5) * 5000.0));
+        for v in vals {
+            assert_eq!(floor_i32(v), v.floor() as i32, "floor {v}");
+            assert_eq!(ceil_i32(v), v.ceil() as i32, "ceil {v}");
+        }
+    }
 }
