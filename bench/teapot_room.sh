@@ -14,7 +14,7 @@ if [ ! -f $out/teapot-room-ref.exr ]; then
 fi
 for m in bundle path light; do
   $K render $S --method $m --time $T --seed 7 --ref $out/teapot-room-ref.exr \
-    --log $res/teapot-room-$m.csv --log-every 0.5 -o $out/teapot-room-$m.png -q
+    --log $res/teapot-room-$m.csv --log-every 0.5 -o $out/teapot-room-$m.exr -q
 done
 $K plot bundle=$res/teapot-room-bundle.csv -o $res/fig10-teapot-room-iter.png --x spp --title "teapot-room: bundle, error vs iterations"
 $K plot bundle=$res/teapot-room-bundle.csv -o $res/fig10-teapot-room-time.png --x time --title "teapot-room: bundle, error vs time"
