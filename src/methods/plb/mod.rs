@@ -777,33 +777,41 @@ fn compute_importance(hits: &mut [Hit], lambda: f64) {
 /// so that Σk_i = `cap` (when more than `cap` hits have s_i > 0); survivors'
 /// power and importance are divided by k_i, and σ is folded into the stored
 /// powers. Parent links to killed hits are cut.
+///
+/// The survivors are compacted in place, in order, so the population keeps
+/// its allocation from phase to phase (building a new vector each phase
+/// reallocated the whole population whenever the next phase outgrew it:
+/// callgrind counted 8.6 % more instructions for plb pooled on hidden-gap).
 fn purge(hits: &mut Vec<Hit>, sigma: f64, cap: usize, rng: &mut Pcg32) {
     let n = hits.len();
     let c = survival_scale(hits.iter().map(|h| h.s), cap);
     let mut new_index = vec![NO_PARENT; n];
-    let mut kept = Vec::with_capacity(n.min(cap * 2));
-    for (i, mut h) in hits.drain(..).enumerate() {
+    let (mut i, mut kept) = (0, 0);
+    // retain_mut visits the hits once each, in order
+    hits.retain_mut(|h| {
+        let index = i;
+        i += 1;
         let k = match c {
             None => 1.0,
             Some(c) => (c * h.s).min(1.0),
         };
         if k <= 0.0 || (k < 1.0 && rng.next_f64() >= k) {
-            continue;
+            return false;
         }
         let f = (sigma / k) as f32;
         h.phi *= f;
         h.contrib *= f;
         h.out_lum *= f;
         h.s *= sigma / k;
-        new_index[i] = kept.len() as u32;
-        kept.push(h);
-    }
-    for h in kept.iter_mut() {
+        new_index[index] = kept;
+        kept += 1;
+        true
+    });
+    for h in hits.iter_mut() {
         if h.parent != NO_PARENT {
             h.parent = new_index[h.parent as usize];
         }
     }
-    *hits = kept;
 }
 
 /// The c with Σ min(1, c s_i) = `cap`, or None when every hit with s_i > 0
