@@ -616,7 +616,7 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
         rays += trace(world, ray, stored, parent, depth, max_depth, rng, lane);
         // Pooled importance: the image impact per unit power of where the
         // ray from the parent's cell landed (0 if it added no visible hit)
-        if parent != NO_PARENT {
+        if let Some(g) = lane.grid.as_mut().filter(|_| parent != NO_PARENT) {
             let r = lane.hits.get(before).map_or(0.0, |c| {
                 let l = luminance(c.phi) as f64;
                 if l > 0.0 {
@@ -625,10 +625,7 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
                     0.0
                 }
             });
-            let cell = lane.hits[parent as usize].cell;
-            if let Some(g) = lane.grid.as_mut() {
-                g.record(cell, r);
-            }
+            g.record(lane.hits[parent as usize].cell, r);
         }
     }
 
