@@ -279,6 +279,13 @@ impl CellStats {
         self.count += 1;
     }
 
+    fn clear(&mut self) {
+        self.sum.fill(0.0);
+        self.n.fill(0);
+        self.total = 0.0;
+        self.count = 0;
+    }
+
     fn merge(&mut self, o: &CellStats) {
         for (a, b) in self.sum.iter_mut().zip(&o.sum) {
             *a += b;
@@ -346,7 +353,7 @@ fn share_grids(shared: &mut CellStats, lanes: &mut [Lane]) {
     for l in lanes.iter_mut() {
         if let Some(g) = l.grid.as_mut() {
             g.all.clone_from(shared);
-            g.fresh = CellStats::new(shared.sum.len());
+            g.fresh.clear();
         }
     }
 }
