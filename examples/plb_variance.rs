@@ -55,7 +55,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             log_every: 0.0,
         };
         let t = Instant::now();
-        let r = driver.run(m.as_mut(), &world, |_| {});
+        let r = driver.run(m.as_mut(), &world, |_| {}).expect("render");
         secs += t.elapsed().as_secs_f64();
         rays += r.rays;
         mean += channel_means(&r.image);

@@ -78,7 +78,8 @@ fn budgets_stop_the_render() {
         reference: None,
         log_every: 0.0,
     }
-    .run(m.as_mut(), &world, |_| {});
+    .run(m.as_mut(), &world, |_| {})
+    .expect("render");
     assert_eq!(spp.passes, 5);
     let mut m = methods::create("light", &world, &Options::default()).expect("method");
     let rays = Driver {
@@ -90,7 +91,8 @@ fn budgets_stop_the_render() {
         reference: None,
         log_every: 0.0,
     }
-    .run(m.as_mut(), &world, |_| {});
+    .run(m.as_mut(), &world, |_| {})
+    .expect("render");
     assert!(rays.rays >= 200_000);
     // it stopped at the first pass that reached the budget
     let per_pass = rays.rays as f64 / rays.passes as f64;
@@ -115,7 +117,8 @@ fn a_cancelled_render_returns_what_it_has() {
         if p.passes == 2 {
             cancel.store(true, std::sync::atomic::Ordering::SeqCst);
         }
-    });
+    })
+    .expect("render");
     assert!(r.interrupted);
     assert_eq!(r.passes, 2);
     assert!(r.image.data.iter().any(|p| p.x > 0.0));

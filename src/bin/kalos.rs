@@ -475,7 +475,7 @@ fn render(a: RenderArgs) -> Result<()> {
             0.0
         };
         bar.set_message(format!("{} passes, {:.2} Mrays/s", p.passes, mrays));
-    });
+    })?;
     bar.finish_and_clear();
 
     let png = PngOptions {

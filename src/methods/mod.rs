@@ -61,6 +61,14 @@ pub struct StepStats {
 pub trait Method: Send {
     /// The method's name on the command line.
     fn name(&self) -> &'static str;
+    /// One-time setup that needs the world and may fail (the camera pass's
+    /// pre-pass, bundle's patches and transfer tables, density's bake). The
+    /// driver runs it once, before the first step, inside its clock, and
+    /// counts its rays like a step's, so that equal-time and equal-ray
+    /// comparisons include it.
+    fn prepare(&mut self, _world: &World) -> Result<StepStats, MethodError> {
+        Ok(StepStats::default())
+    }
     /// Adds one pass of work; `pass` counts from 0 and keys the random streams.
     fn step(&mut self, world: &World, pass: u64) -> StepStats;
     /// The current estimate.
@@ -259,10 +267,11 @@ impl Driver<'_> {
         method: &mut dyn Method,
         world: &World,
         mut on_progress: impl FnMut(&Progress),
-    ) -> RenderResult {
+    ) -> Result<RenderResult, MethodError> {
         let start = Instant::now();
         let mut excluded = 0.0f64; // time spent on logging, not rendering
-        let mut rays = 0u64;
+                                   // Setup runs inside the clock and its rays count toward the budget
+        let mut rays = method.prepare(world)?.rays;
         let mut pass = 0u64;
         let mut log = Vec::new();
         let mut next_log = self.log_every;
@@ -333,7 +342,7 @@ impl Driver<'_> {
             spp: method.spp(),
             rel_mse,
         });
-        RenderResult {
+        Ok(RenderResult {
             image,
             rays,
             passes: pass,
@@ -341,6 +350,6 @@ impl Driver<'_> {
             seconds,
             interrupted,
             log,
-        }
+        })
     }
 }

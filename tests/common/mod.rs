@@ -86,7 +86,7 @@ pub fn render_budget(scene: &Scene, method: &str, opts: &Options, budget: Budget
         reference: None,
         log_every: 0.0,
     };
-    let r = driver.run(m.as_mut(), &world, |_| {});
+    let r = driver.run(m.as_mut(), &world, |_| {}).expect("render");
     (r.image, r.rays)
 }
 
