@@ -19,3 +19,4 @@ pub mod metrics;
 pub mod plot;
 pub mod sampling;
 pub mod scene;
+pub mod world;
