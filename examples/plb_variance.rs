@@ -10,7 +10,9 @@
 //! ```
 //!
 //! The method's flags are those of `kalos render --method METHOD`, e.g.
-//! `--lambda 2 --variant pooled` for plb.
+//! `--lambda 2 --variant pooled` for plb; the short forms `lambda=L`,
+//! `phase=P`, `pop=C`, `discard=D` and `variant=V` that BENCHMARKS.md
+//! records are read as those flags.
 
 use std::time::Instant;
 
@@ -38,8 +40,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     // The method's own flags, parsed as `kalos render --method METHOD` does
     let info = methods::by_name(method).map_err(|e| e.to_string())?;
+    let mut flags = Vec::new();
+    for a in &args[5..] {
+        let long = |f: &str, v: &str| [format!("--{f}"), v.to_string()];
+        match a.split_once('=') {
+            Some(("lambda", v)) => flags.extend(long("lambda", v)),
+            Some(("phase", v)) => flags.extend(long("phase-len", v)),
+            Some(("pop", v)) => flags.extend(long("population", v)),
+            Some(("discard", v)) => flags.extend(long("discard", v)),
+            Some(("variant", v)) => flags.extend(long("variant", v)),
+            _ => flags.push(a.clone()),
+        }
+    }
     let matches = (info.args)(clap::Command::new(info.name).no_binary_name(true))
-        .try_get_matches_from(&args[5..])?;
+        .try_get_matches_from(&flags)?;
     let cfg = (info.from_args)(&matches)?;
     let world = World::new(scene);
     let mut stats = PixelStats::new(world.camera.width, world.camera.height);

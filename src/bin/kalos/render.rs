@@ -70,6 +70,10 @@ pub struct RenderArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+    /// Check the arguments and the method's settings, then exit without
+    /// loading the scene or rendering (to vet a job before it is queued).
+    #[arg(long)]
+    dry_run: bool,
 }
 
 /// The `render` command for `method`: the shared flags, `--method`, and the
@@ -146,6 +150,10 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         max_depth: a.max_depth,
     };
     cfg.check(&common)?;
+    if a.dry_run {
+        crate::say!("{}: arguments accepted", cfg.name());
+        return Ok(());
+    }
     set_threads(a.threads)?;
     let t0 = Instant::now();
     let mut scene = load_scene(a.scene.as_deref())?;
