@@ -236,22 +236,7 @@ fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
 fn compare(a: CompareArgs) -> Result<()> {
     let img = image_io::read_image(&a.image)?;
     let r = image_io::read_image(&a.reference)?;
-    let rel = metrics::rel_mse(&img, &r)?;
-    let rmse = metrics::rmse(&img, &r)?;
-    let mi = metrics::channel_means(&img);
-    let mr = metrics::channel_means(&r);
-    say!("relMSE  {rel:.6e}");
-    say!("RMSE    {rmse:.6e}");
-    say!("relL1   {:.6e}", metrics::rel_l1(&img, &r)?);
-    say!(
-        "means   image ({:.6}, {:.6}, {:.6})  reference ({:.6}, {:.6}, {:.6})",
-        mi.x,
-        mi.y,
-        mi.z,
-        mr.x,
-        mr.y,
-        mr.z
-    );
+    say!("{}", metrics::Comparison::new(&img, &r)?);
     if let Some(out) = &a.error_image {
         let e = metrics::false_color_error(&img, &r)?;
         image_io::write_image(out, &e, &PngOptions::default())?;
@@ -262,69 +247,8 @@ fn compare(a: CompareArgs) -> Result<()> {
 
 fn info(path: Option<&Path>) -> Result<()> {
     let s = load_scene(path)?;
-    let (lo, hi) = s.bounds();
-    say!("scene      {}", s.source);
-    say!("triangles  {}", s.triangles.len());
-    say!("vertices   {}", s.positions.len());
-    say!("shapes     {}", s.shapes.len());
-    say!("materials  {}", s.materials.len());
-    for (i, m) in s.materials.iter().enumerate() {
-        say!("  [{i}] {}", material_name(m));
-    }
-    say!("emitters   {}", s.emitters.len());
-    for e in &s.emitters {
-        match e {
-            scene::EmitterDesc::Area { shape, radiance } => say!(
-                "  area on '{}', radiance ({}, {}, {})",
-                s.shapes[*shape as usize].name,
-                radiance.x,
-                radiance.y,
-                radiance.z
-            ),
-            scene::EmitterDesc::Constant { radiance } => {
-                say!(
-                    "  constant, radiance ({}, {}, {})",
-                    radiance.x,
-                    radiance.y,
-                    radiance.z
-                )
-            }
-            scene::EmitterDesc::EnvMap { image, scale, .. } => {
-                say!("  envmap {}x{}, scale {scale}", image.width, image.height)
-            }
-        }
-    }
-    say!(
-        "bounds     ({}, {}, {}) .. ({}, {}, {})",
-        lo.x,
-        lo.y,
-        lo.z,
-        hi.x,
-        hi.y,
-        hi.z
-    );
-    say!(
-        "camera     {}x{}, fov_x {:.3} deg",
-        s.camera.width,
-        s.camera.height,
-        s.camera.fov_x_deg
-    );
+    say!("{}", scene::Summary(&s));
     Ok(())
-}
-
-fn material_name(m: &scene::Material) -> String {
-    use scene::Material as M;
-    match m {
-        M::Diffuse { .. } => "diffuse".into(),
-        M::Phong { .. } => "phong".into(),
-        M::Conductor { .. } => "conductor".into(),
-        M::RoughConductor { .. } => "roughconductor".into(),
-        M::Plastic { .. } => "plastic".into(),
-        M::RoughPlastic { .. } => "roughplastic".into(),
-        M::Dielectric { .. } => "dielectric".into(),
-        M::ThinDielectric { .. } => "thindielectric".into(),
-        M::TwoSided(inner) => format!("twosided({})", material_name(inner)),
-    }
 }
 
 fn plot_cmd(a: PlotArgs) -> Result<()> {
