@@ -67,7 +67,7 @@ fn average(imgs: &[Image]) -> Image {
 /// weighted as one phase of history (see `src/methods/plb/mod.rs`), the
 /// expected error of the phase images falls geometrically, and the average
 /// of N phase images keeps a deficit of order 1/N. Measured with these runs
-/// (32 seeds at 1 pass, 16 at 8 passes, as here; BENCHMARKS-plb.md): about −0.6 % of
+/// (32 seeds at 1 pass, 16 at 8 passes, as here; BENCHMARKS.md): about −0.6 % of
 /// the red channel mean after 1 pass and under −0.1 % after 8 passes, green
 /// and blue smaller.
 ///
