@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use crate::geometry::Ray;
 use crate::methods::World;
 use crate::sampling::{uniform_sphere, Pcg32};
+use crate::scene::shapes::{Diagonal, LatLong, Pole};
 use crate::scene::{CameraDesc, Material, Scene, Texture};
 
 /// A generated scene of about `triangles` triangles: finely tessellated
@@ -21,32 +22,19 @@ pub fn generated_scene(triangles: u64) -> Scene {
     let m = scene.add_material(Material::Diffuse {
         reflectance: Texture::Constant(Vec3::splat(0.5)),
     });
-    // each sphere: 2·rings·segments triangles
-    let (rings, segs) = (64u32, 128u32);
-    let per = 2 * rings as u64 * segs as u64;
+    // each sphere: all 2·rings·segments triangles of the crate's
+    // latitude–longitude sphere, wound inward (normals outward), as in
+    // earlier measurements
+    let sphere = LatLong {
+        rings: 64,
+        pole: Pole::Y,
+        diagonal: Diagonal::Anti,
+        seam: true,
+        pole_triangles: true,
+    };
+    let per = 2 * sphere.rings as u64 * 2 * sphere.rings as u64;
     let count = (triangles / per).max(1);
     let mut rng = Pcg32::new(7, 0);
-    let mut pos = Vec::new();
-    let mut idx = Vec::new();
-    for r in 0..=rings {
-        let theta = std::f32::consts::PI * r as f32 / rings as f32;
-        for s in 0..=segs {
-            let phi = 2.0 * std::f32::consts::PI * s as f32 / segs as f32;
-            pos.push(Vec3::new(
-                theta.sin() * phi.cos(),
-                theta.cos(),
-                theta.sin() * phi.sin(),
-            ));
-        }
-    }
-    for r in 0..rings {
-        for s in 0..segs {
-            let a = r * (segs + 1) + s;
-            let b = a + segs + 1;
-            idx.push([a, b, a + 1]);
-            idx.push([a + 1, b, b + 1]);
-        }
-    }
     let side = (count as f32).cbrt().ceil().max(1.0);
     for i in 0..count {
         let g = Vec3::new(
@@ -57,8 +45,18 @@ pub fn generated_scene(triangles: u64) -> Scene {
         let jitter = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
         let c = ((g + 0.5 + 0.3 * jitter) / side) * 2.0 - Vec3::ONE;
         let radius = (0.35 / side) * (0.6 + 0.4 * rng.next_f32());
-        let p: Vec<Vec3> = pos.iter().map(|v| c + *v * radius).collect();
-        scene.add_mesh(format!("sphere{i}"), &p, Some(&pos), None, &idx, m, None);
+        let mut mesh = sphere.mesh(c, radius);
+        mesh.reverse_winding();
+        let normals = mesh.normals.as_deref();
+        scene.add_mesh(
+            format!("sphere{i}"),
+            &mesh.positions,
+            normals,
+            None,
+            &mesh.indices,
+            m,
+            None,
+        );
     }
     // the room: a closed box around everything, normals inward
     let r = 1.6f32;

@@ -15,6 +15,8 @@ use std::path::Path;
 
 use glam::Vec3;
 
+use super::shapes::{Diagonal, LatLong, Pole};
+
 /// Names `generate` knows.
 pub const SCENES: &[&str] = &["sphereflake", "teapot-room", "terrain"];
 
@@ -46,31 +48,22 @@ impl Obj {
         s
     }
 
-    /// A UV sphere with `rings` rings and 2·rings segments, outward normals.
+    /// A sphere around +y with `rings` rings and 2·rings segments, outward
+    /// normals: the crate's [`LatLong`] tessellation, welded at the seam.
     fn sphere(&mut self, c: Vec3, r: f32, rings: u32) {
-        let segs = 2 * rings;
+        let sphere = LatLong {
+            rings,
+            pole: Pole::Y,
+            diagonal: Diagonal::Anti,
+            seam: false,
+            pole_triangles: false,
+        }
+        .mesh(c, r);
         let base = self.v.len() as u32;
-        for i in 0..=rings {
-            let th = PI * i as f32 / rings as f32;
-            for j in 0..segs {
-                let ph = 2.0 * PI * j as f32 / segs as f32;
-                let n = Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
-                self.v.push(c + n * r);
-                self.n.push(n);
-            }
-        }
-        let id = |i: u32, j: u32| base + i * segs + j % segs;
-        for i in 0..rings {
-            for j in 0..segs {
-                let (a, b, c2, d) = (id(i, j), id(i, j + 1), id(i + 1, j), id(i + 1, j + 1));
-                if i != 0 {
-                    self.f.push([a, b, c2]);
-                }
-                if i + 1 != rings {
-                    self.f.push([b, d, c2]);
-                }
-            }
-        }
+        self.v.extend_from_slice(&sphere.positions);
+        self.n.extend(sphere.normals.iter().flatten());
+        self.f
+            .extend(sphere.indices.iter().map(|t| t.map(|i| base + i)));
     }
 
     /// A surface of revolution around +y of a profile (radius, height),
