@@ -351,3 +351,67 @@ pub fn look_at(origin: Vec3, target: Vec3, up: Vec3) -> Option<Mat4> {
     up.cross(dir).try_normalize()?;
     Some(geometry::look_at(origin, target, up))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every variant of the sphere: the triangle count its options promise,
+    /// non-degenerate triangles wound outward, vertices on the sphere.
+    #[test]
+    fn lat_long_counts_and_winding() {
+        let (c, r, rings) = (Vec3::new(0.5, -1.0, 2.0), 0.75, 6);
+        let segs = 2 * rings;
+        for pole in [Pole::Z, Pole::Y] {
+            for diagonal in [Diagonal::Main, Diagonal::Anti] {
+                for seam in [false, true] {
+                    for pole_triangles in [false, true] {
+                        let s = LatLong {
+                            rings,
+                            pole,
+                            diagonal,
+                            seam,
+                            pole_triangles,
+                        };
+                        let m = s.mesh(c, r);
+                        let cols = segs + seam as u32;
+                        assert_eq!(m.positions.len() as u32, (rings + 1) * cols);
+                        let tris = 2 * rings * segs - if pole_triangles { 0 } else { 2 * segs };
+                        assert_eq!(m.indices.len() as u32, tris, "{s:?}");
+                        for p in &m.positions {
+                            assert!(((*p - c).length() - r).abs() < 1e-5);
+                        }
+                        for t in &m.indices {
+                            let [a, b, d] = t.map(|i| m.positions[i as usize]);
+                            let n = (b - a).cross(d - a);
+                            if n.length() > 1e-6 {
+                                assert!(n.dot((a + b + d) / 3.0 - c) > 0.0, "{s:?} {t:?}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Mitsuba's sphere has its pole on +z, the generated scenes' on +y.
+    #[test]
+    fn lat_long_poles() {
+        let mut s = LatLong::mitsuba(4);
+        assert_eq!(s.mesh(Vec3::ZERO, 1.0).positions[0], Vec3::Z);
+        s.pole = Pole::Y;
+        assert_eq!(s.mesh(Vec3::ZERO, 1.0).positions[0], Vec3::Y);
+    }
+
+    /// A degenerate lookat is `None`; otherwise the matrix is geometry's.
+    #[test]
+    fn look_at_reports_degenerate_input() {
+        assert!(look_at(Vec3::ONE, Vec3::ONE, Vec3::Y).is_none());
+        assert!(look_at(Vec3::ZERO, Vec3::Y, Vec3::Y).is_none());
+        let (o, t) = (Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.0, 0.5, -1.0));
+        assert_eq!(
+            look_at(o, t, Vec3::Y),
+            Some(geometry::look_at(o, t, Vec3::Y))
+        );
+    }
+}
