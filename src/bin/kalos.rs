@@ -73,7 +73,7 @@ enum Command {
 }
 
 /// The scenes `kalos gen` writes.
-const GEN_SCENES: &[&str] = &["sphereflake", "teapot-room", "terrain", "big-room"];
+const GEN_SCENES: &[&str] = kalos::scenegen::NAMES;
 
 #[derive(Clone, Copy, ValueEnum)]
 enum OnOff {
@@ -796,14 +796,7 @@ fn bake_cmd(a: BakeArgs) -> Result<()> {
 }
 
 fn gen_cmd(what: &str, output: &Path, seed: u64) -> Result<()> {
-    match what {
-        "big-room" => {
-            let n = kalos::bake::gen::big_room(output, seed)?;
-            say!("{}: big-room with {n} triangles", output.display());
-            Ok(())
-        }
-        other => scene::gen::generate(other, output)
-            .map(|p| say!("wrote {}", p.display()))
-            .with_context(|| format!("writing {}", output.display())),
-    }
+    let xml = kalos::scenegen::generate(what, output, seed)?;
+    say!("wrote {}", xml.display());
+    Ok(())
 }

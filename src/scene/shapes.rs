@@ -12,7 +12,7 @@
 //! | [`sphere`] | unit sphere (then `center`, `radius`), outward | `(φ/2π, θ/π)` |
 //!
 //! [`LatLong`] is the crate's one sphere tessellation, shared with the
-//! generated scenes.
+//! generated scenes of [`crate::scenegen`].
 
 use std::f32::consts::{PI, TAU};
 
@@ -225,8 +225,8 @@ pub enum Diagonal {
 
 /// A latitude–longitude tessellation of a sphere, the one sphere
 /// tessellation of the crate: Mitsuba's `sphere` shape ([`sphere`]), the
-/// spheres of the generated scenes and of the bench scene all come from
-/// [`LatLong::mesh`].
+/// spheres of the generated scenes ([`crate::scenegen`]) and of the bench
+/// scene all come from [`LatLong::mesh`].
 ///
 /// Vertex (i, j) sits at θ = π·i/rings from the pole and φ = 2π·j/segments
 /// with segments = 2·rings, rows i = 0..=rings. The options below differ

@@ -1,0 +1,254 @@
+//! `big-room`: a furnished room of about 150k triangles (after Fig. 6 of the
+//! density-estimation paper: tables, chairs, shelves full of books, a
+//! lattice of ceiling lights), its furniture jittered by a seed.
+
+use std::fmt::Write as _;
+
+use glam::Vec3;
+
+use super::mesh::Mesh;
+use super::SceneFiles;
+use crate::sampling::Pcg32;
+
+/// The scene: `meshes/*.obj` and `scene.xml`, the furniture laid out by
+/// `seed`.
+pub(super) fn build(seed: u64) -> SceneFiles {
+    let mut rng = Pcg32::keyed(&[seed, 0xB16_0000]);
+    let (w, h, d) = (16.0f32, 3.0f32, 12.0f32);
+    let mut room = Mesh::default();
+    // inward-facing floor, ceiling and walls
+    room.quad([
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(0.0, 0.0, d),
+        Vec3::new(w, 0.0, d),
+        Vec3::new(w, 0.0, 0.0),
+    ]);
+    let mut ceiling = Mesh::default();
+    ceiling.quad([
+        Vec3::new(0.0, h, 0.0),
+        Vec3::new(w, h, 0.0),
+        Vec3::new(w, h, d),
+        Vec3::new(0.0, h, d),
+    ]);
+    let mut walls = Mesh::default();
+    walls.quad([
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(w, 0.0, 0.0),
+        Vec3::new(w, h, 0.0),
+        Vec3::new(0.0, h, 0.0),
+    ]);
+    walls.quad([
+        Vec3::new(0.0, 0.0, d),
+        Vec3::new(0.0, h, d),
+        Vec3::new(w, h, d),
+        Vec3::new(w, 0.0, d),
+    ]);
+    walls.quad([
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(0.0, h, 0.0),
+        Vec3::new(0.0, h, d),
+        Vec3::new(0.0, 0.0, d),
+    ]);
+    walls.quad([
+        Vec3::new(w, 0.0, 0.0),
+        Vec3::new(w, 0.0, d),
+        Vec3::new(w, h, d),
+        Vec3::new(w, h, 0.0),
+    ]);
+
+    let mut wood = Mesh::default();
+    let mut chairs = Mesh::default();
+    let mut shelves = Mesh::default();
+    let mut books = [Mesh::default(), Mesh::default(), Mesh::default()];
+
+    // Tables with four chairs each, on a grid in the middle of the room
+    for i in 0..6 {
+        for j in 0..4 {
+            let c = Vec3::new(3.5 + i as f32 * 1.9, 0.0, 2.6 + j as f32 * 2.3);
+            let (tw, td) = (1.2, 0.8);
+            wood.cuboid(
+                c + Vec3::new(-tw / 2.0, 0.72, -td / 2.0),
+                c + Vec3::new(tw / 2.0, 0.76, td / 2.0),
+            );
+            for (sx, sz) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
+                let l = c + Vec3::new(sx * (tw / 2.0 - 0.06), 0.0, sz * (td / 2.0 - 0.06));
+                wood.cuboid(
+                    l - Vec3::new(0.03, 0.0, 0.03),
+                    l + Vec3::new(0.03, 0.72, 0.03),
+                );
+            }
+            for k in 0..4 {
+                let side = if k % 2 == 0 { -1.0 } else { 1.0 };
+                let off = if k < 2 { -0.3 } else { 0.3 };
+                let s = c + Vec3::new(off, 0.0, side * (td / 2.0 + 0.25));
+                let jitter = Vec3::new(rng.next_f32() - 0.5, 0.0, rng.next_f32() - 0.5) * 0.1;
+                let s = s + jitter;
+                chairs.cuboid(
+                    s + Vec3::new(-0.22, 0.44, -0.22),
+                    s + Vec3::new(0.22, 0.48, 0.22),
+                );
+                for (lx, lz) in [(-0.19, -0.19), (0.19, -0.19), (-0.19, 0.19), (0.19, 0.19)] {
+                    let l = s + Vec3::new(lx, 0.0, lz);
+                    chairs.cuboid(
+                        l - Vec3::new(0.02, 0.0, 0.02),
+                        l + Vec3::new(0.02, 0.44, 0.02),
+                    );
+                }
+                let bz = s.z + side * 0.2;
+                chairs.cuboid(
+                    Vec3::new(s.x - 0.22, 0.48, bz - 0.02),
+                    Vec3::new(s.x + 0.22, 0.95, bz + 0.02),
+                );
+            }
+        }
+    }
+
+    // Shelf units along the four walls, filled with books. A unit is built
+    // in wall coordinates (a along the wall, y up, depth from the wall) and
+    // mapped to the room by `map`.
+    let shelf = |a0: f32,
+                 map: &dyn Fn(f32, f32, f32) -> Vec3,
+                 shelves: &mut Mesh,
+                 books: &mut [Mesh; 3],
+                 rng: &mut Pcg32| {
+        let put = |o: &mut Mesh, lo: Vec3, hi: Vec3| {
+            let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
+            o.cuboid(p.min(q), p.max(q));
+        };
+        let (uw, ud, uh) = (0.9f32, 0.35f32, 2.2f32);
+        put(
+            shelves,
+            Vec3::new(a0, 0.0, 0.0),
+            Vec3::new(a0 + 0.02, uh, ud),
+        );
+        put(
+            shelves,
+            Vec3::new(a0 + uw - 0.02, 0.0, 0.0),
+            Vec3::new(a0 + uw, uh, ud),
+        );
+        for b in 0..7 {
+            let y = 0.05 + b as f32 * 0.36;
+            put(
+                shelves,
+                Vec3::new(a0 + 0.02, y, 0.0),
+                Vec3::new(a0 + uw - 0.02, y + 0.02, ud),
+            );
+            if b == 6 {
+                break;
+            }
+            let mut x = a0 + 0.025;
+            loop {
+                let t = 0.012 + 0.018 * rng.next_f32();
+                if x + t > a0 + uw - 0.025 {
+                    break;
+                }
+                let bh = 0.2 + 0.12 * rng.next_f32();
+                let bd = 0.18 + 0.12 * rng.next_f32();
+                let k = (rng.next_u32() % 3) as usize;
+                put(
+                    &mut books[k],
+                    Vec3::new(x, y + 0.02, 0.01),
+                    Vec3::new(x + t, y + 0.02 + bh, 0.01 + bd),
+                );
+                x += t + 0.001;
+            }
+        }
+    };
+    for i in 0..16 {
+        let a0 = 0.4 + i as f32 * 0.95;
+        shelf(
+            a0,
+            &|a, y, p| Vec3::new(a, y, p),
+            &mut shelves,
+            &mut books,
+            &mut rng,
+        );
+        shelf(
+            a0,
+            &|a, y, p| Vec3::new(a, y, d - p),
+            &mut shelves,
+            &mut books,
+            &mut rng,
+        );
+    }
+    for i in 0..11 {
+        let a0 = 0.55 + i as f32 * 0.95;
+        shelf(
+            a0,
+            &|a, y, p| Vec3::new(p, y, a),
+            &mut shelves,
+            &mut books,
+            &mut rng,
+        );
+        shelf(
+            a0,
+            &|a, y, p| Vec3::new(w - p, y, a),
+            &mut shelves,
+            &mut books,
+            &mut rng,
+        );
+    }
+
+    let [red, green, blue] = books;
+    let parts: [(&str, Mesh, &str); 9] = [
+        ("floor", room, "floor"),
+        ("ceiling", ceiling, "white"),
+        ("walls", walls, "white"),
+        ("wood", wood, "wood"),
+        ("chairs", chairs, "dark"),
+        ("shelves", shelves, "white"),
+        ("books-red", red, "red"),
+        ("books-green", green, "green"),
+        ("books-blue", blue, "blue"),
+    ];
+    let mut tris = 0;
+    let mut shapes = String::new();
+    let mut meshes = Vec::new();
+    for (name, mesh, mat) in parts {
+        tris += mesh.indices.len();
+        meshes.push((format!("meshes/{name}.obj"), mesh));
+        let _ = writeln!(
+            shapes,
+            "    <shape type=\"obj\" id=\"mesh-{name}\">\n        <string name=\"filename\" value=\"meshes/{name}.obj\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <ref id=\"{mat}\"/>\n    </shape>"
+        );
+    }
+    // A 4 × 3 lattice of ceiling panels, facing down
+    for i in 0..4 {
+        for j in 0..3 {
+            let (x, z) = (2.0 + i as f32 * 4.0, 2.0 + j as f32 * 4.0);
+            let _ = writeln!(
+                shapes,
+                "    <shape type=\"rectangle\">\n        <transform name=\"to_world\">\n            <scale x=\"0.4\" y=\"0.4\"/>\n            <rotate x=\"1\" angle=\"90\"/>\n            <translate x=\"{x}\" y=\"{}\" z=\"{z}\"/>\n        </transform>\n        <ref id=\"white\"/>\n        <emitter type=\"area\"><rgb name=\"radiance\" value=\"30, 28, 24\"/></emitter>\n    </shape>",
+                h - 0.01
+            );
+            tris += 2;
+        }
+    }
+    let xml = format!(
+        r#"<scene version="3.0.0">
+    <!-- big-room: generated by `kalos gen big-room` (seed {seed}), {tris} triangles -->
+    <integrator type="path"/>
+    <sensor type="perspective">
+        <float name="fov" value="70"/>
+        <transform name="to_world">
+            <lookat origin="15.5, 2.2, 6" target="4, 0.6, 6" up="0, 1, 0"/>
+        </transform>
+        <sampler type="independent"><integer name="sample_count" value="64"/></sampler>
+        <film type="hdrfilm">
+            <integer name="width" value="320"/>
+            <integer name="height" value="240"/>
+            <rfilter type="box"/>
+        </film>
+    </sensor>
+    <bsdf type="twosided" id="white"><bsdf type="diffuse"><rgb name="reflectance" value="0.75, 0.74, 0.72"/></bsdf></bsdf>
+    <bsdf type="twosided" id="floor"><bsdf type="diffuse"><rgb name="reflectance" value="0.45, 0.38, 0.3"/></bsdf></bsdf>
+    <bsdf type="twosided" id="wood"><bsdf type="diffuse"><rgb name="reflectance" value="0.55, 0.36, 0.2"/></bsdf></bsdf>
+    <bsdf type="twosided" id="dark"><bsdf type="diffuse"><rgb name="reflectance" value="0.15, 0.15, 0.17"/></bsdf></bsdf>
+    <bsdf type="twosided" id="red"><bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.1, 0.08"/></bsdf></bsdf>
+    <bsdf type="twosided" id="green"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.45, 0.12"/></bsdf></bsdf>
+    <bsdf type="twosided" id="blue"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.15, 0.55"/></bsdf></bsdf>
+{shapes}</scene>
+"#
+    );
+    SceneFiles { meshes, xml }
+}
