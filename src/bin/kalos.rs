@@ -659,7 +659,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
 fn bench(a: BenchArgs) -> Result<()> {
     let scene = match &a.scene {
         Some(p) => load_scene(Some(p))?,
-        None => kalos::bench::generated_scene(a.triangles),
+        None => kalos::scenegen::bench_scene(a.triangles),
     };
     say!(
         "scene: {} ({} triangles)",

@@ -1,5 +1,6 @@
 //! Generated scenes: `kalos gen NAME -o DIR` writes one as Mitsuba 3 XML
-//! plus OBJ meshes, so that Mitsuba renders it too.
+//! plus OBJ meshes (so that Mitsuba renders it too), and `kalos bench`
+//! traces one built in memory.
 //!
 //! Written by [`generate`] (the names are [`NAMES`]):
 //!
@@ -16,10 +17,15 @@
 //!   lattice of ceiling lights); the only one whose layout depends on the
 //!   seed.
 //!
-//! Every scene is built in memory first and then written file by file, each
+//! Built in memory by [`bench_scene`]: finely tessellated spheres on a
+//! jittered grid inside a closed room, for the ray-core throughput of
+//! `kalos bench` ([`crate::bench`]).
+//!
+//! A scene to write is built in memory first, then written file by file, each
 //! atomically (a temporary file beside the target, renamed over it), the
 //! meshes before the `scene.xml` that names them.
 
+mod bench;
 mod big_room;
 mod mesh;
 mod sphereflake;
@@ -32,6 +38,7 @@ use std::path::{Path, PathBuf};
 
 use crate::image_io::{write_atomic, ImageIoError};
 
+pub use bench::bench_scene;
 use mesh::Mesh;
 
 /// The scenes [`generate`] writes.
