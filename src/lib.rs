@@ -21,4 +21,5 @@ pub mod plot;
 pub mod render;
 pub mod sampling;
 pub mod scene;
+pub mod scenegen;
 pub mod world;

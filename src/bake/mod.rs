@@ -10,7 +10,6 @@
 //! to a second glTF primitive with a plain PBR material, so that a viewer
 //! still shows the geometry.
 
-pub mod gen;
 pub mod gltf;
 pub mod ply;
 

@@ -5,7 +5,6 @@
 //! [`gltf`], [`obj`], [`ply`]); nothing else in the crate reads files.
 
 pub mod builtin;
-pub mod gen;
 pub mod gltf;
 pub mod material;
 pub mod mitsuba;

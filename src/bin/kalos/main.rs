@@ -81,7 +81,7 @@ enum Command {
 }
 
 /// The scenes `kalos gen` writes.
-const GEN_SCENES: &[&str] = &["sphereflake", "teapot-room", "terrain", "big-room"];
+const GEN_SCENES: &[&str] = kalos::scenegen::NAMES;
 
 #[derive(Clone, Copy, ValueEnum)]
 enum TonemapArg {
@@ -281,7 +281,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
 fn bench(a: BenchArgs) -> Result<()> {
     let scene = match &a.scene {
         Some(p) => load_scene(Some(p))?,
-        None => kalos::bench::generated_scene(a.triangles),
+        None => kalos::scenegen::bench_scene(a.triangles),
     };
     say!(
         "scene: {} ({} triangles)",
@@ -309,14 +309,7 @@ fn bench(a: BenchArgs) -> Result<()> {
 }
 
 fn gen_cmd(what: &str, output: &Path, seed: u64) -> Result<()> {
-    match what {
-        "big-room" => {
-            let n = kalos::bake::gen::big_room(output, seed)?;
-            say!("{}: big-room with {n} triangles", output.display());
-            Ok(())
-        }
-        other => scene::gen::generate(other, output)
-            .map(|p| say!("wrote {}", p.display()))
-            .with_context(|| format!("writing {}", output.display())),
-    }
+    let xml = kalos::scenegen::generate(what, output, seed)?;
+    say!("wrote {}", xml.display());
+    Ok(())
 }
