@@ -19,4 +19,5 @@ pub mod metrics;
 pub mod plot;
 pub mod sampling;
 pub mod scene;
+pub mod transport;
 pub mod world;

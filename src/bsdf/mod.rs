@@ -23,8 +23,10 @@
 //!   in radiance mode transmitted `f` carries 1/η², η being the relative index
 //!   of the side entered by the path over the side it leaves (radiance is
 //!   compressed into the denser medium); in importance mode it does not. The
-//!   shading-normal correction of importance transport is the integrator's
-//!   job ([`shading_normal_correction`]).
+//!   shading-normal correction of importance transport
+//!   ([`shading_normal_correction`]) is applied where light paths scatter
+//!   and meet the camera ([`crate::transport::scatter`],
+//!   [`crate::transport::connect_to_camera`]).
 //!
 //! The models reproduce Mitsuba 3's plugins of the same names (same
 //! parameters, same Fresnel and microfacet terms, same lobe-selection

@@ -7,7 +7,6 @@
 //! current estimate. Methods never print and never touch files.
 
 pub mod bundle;
-pub mod camera_pass;
 pub mod density;
 pub mod light;
 pub mod path;

@@ -27,11 +27,10 @@ use super::hitfile::{encode_rgb9e5, to_fixed, Hit, HitFileError, HitWriter};
 use super::surfaces::{Kind, Surfaces};
 
 use crate::geometry::{offset_point, Frame, Ray};
-use crate::methods::light::scatter;
-use crate::methods::path::orient;
 use crate::methods::World;
 use crate::sampling::{cosine_hemisphere, uniform_triangle, Distribution1D, Pcg32};
 use crate::scene::{luminance, EmitterDesc, Rgb};
+use crate::transport::scatter;
 
 /// Particles per chunk (one random stream each).
 pub const CHUNK: u64 = 1 << 14;
@@ -284,12 +283,8 @@ fn trace_one(
         let Some(hit) = world.accel.intersect(&ray) else {
             break;
         };
-        let sp = scene.surface_point(hit.tri, hit.b1, hit.b2);
-        let wo_world = -ray.d;
-        let material = scene.material_of(&sp);
-        let bsdf = material.bsdf(sp.uv);
-        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
-        let wo = frame.to_local(wo_world);
+        let v = world.vertex(&ray, &hit);
+        let (sp, wo_world, bsdf, wo) = (&v.sp, v.wo, &v.bsdf, v.wo_local);
 
         // Record the hit on a surface with a diffuse part (the side the
         // particle came from), its power times the coat's transmittance
@@ -328,7 +323,7 @@ fn trace_one(
         if rng.next_f32() >= a {
             break;
         }
-        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
+        let Some((wi, w)) = scatter(&v, rng) else {
             break;
         };
         beta *= w / a;
