@@ -1,9 +1,10 @@
 //! The shared transport layer: the light walk's depth convention (Mitsuba's
-//! `max_depth`, as `path` and `light` count) and its hook.
+//! `max_depth`, as `path` and `light` count), its hook, and the density
+//! method that now follows the same convention.
 
 use std::ops::ControlFlow;
 
-use kalos::methods::World;
+use kalos::methods::{self, Options, World};
 use kalos::sampling::Pcg32;
 use kalos::scene::{self, Rgb, Scene};
 use kalos::transport::{light_walk, Spectrum};
@@ -108,4 +109,59 @@ fn a_hook_can_end_the_walk() {
         ended += calls;
     }
     assert!(ended > 100, "most first rays should hit the closed box");
+}
+
+/// Density estimation follows the same convention: at `max_depth` 1 no
+/// particle hit is recorded (a hit of depth 1 joined to the eye is a path
+/// of two segments), so only the emitters are seen; at 2 the walls are lit.
+#[test]
+fn density_at_max_depth_1_shows_only_the_emitters() {
+    let world = World::new(load("cbox/cbox.xml", 24));
+    let render = |max_depth| {
+        let opts = Options {
+            max_depth: Some(max_depth),
+            particles: Some(20_000),
+            ..Default::default()
+        };
+        let mut m = methods::create("density", &world, &opts).expect("method");
+        m.prepare(&world).expect("prepare");
+        m.step(&world, 0);
+        m.image(&world)
+    };
+    // pixels that see an emitter nowhere (centre and four inset corners)
+    let (w, h) = (world.camera.width, world.camera.height);
+    let sees_light = |x: u32, y: u32| {
+        [
+            (0.5, 0.5),
+            (0.01, 0.01),
+            (0.99, 0.01),
+            (0.01, 0.99),
+            (0.99, 0.99),
+        ]
+        .iter()
+        .any(|&(dx, dy)| {
+            let ray = world.camera.ray(x as f32 + dx, y as f32 + dy);
+            world
+                .accel
+                .intersect(&ray)
+                .is_some_and(|hit| world.lights.is_emitter(hit.tri))
+        })
+    };
+    let d1 = render(1);
+    let d2 = render(2);
+    let (mut dark, mut lit, mut light) = (0, 0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            if sees_light(x, y) {
+                light += u32::from(d1.data[i].max_element() > 0.0);
+                continue;
+            }
+            assert_eq!(d1.data[i], glam::Vec3::ZERO, "pixel ({x}, {y}) at depth 1");
+            dark += 1;
+            lit += u32::from(d2.data[i].max_element() > 0.0);
+        }
+    }
+    assert!(light > 0, "the light itself must show at depth 1");
+    assert!(lit > dark / 2, "depth 2 lights the walls: {lit} of {dark}");
 }
