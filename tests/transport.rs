@@ -1,12 +1,14 @@
 //! The shared transport layer: the light walk's depth convention (Mitsuba's
-//! `max_depth`, as `path` and `light` count), its hook, and the density
-//! method that now follows the same convention.
+//! `max_depth`, as `path` and `light` count), its hook, the density method
+//! that now follows the same convention, and setup rays counted by
+//! `Method::prepare`.
 
 use std::ops::ControlFlow;
 
 use kalos::methods::{self, Options, World};
 use kalos::sampling::Pcg32;
 use kalos::scene::{self, Rgb, Scene};
+use kalos::transport::camera_pass::CameraPass;
 use kalos::transport::{light_walk, Spectrum};
 
 fn load(name: &str, res: u32) -> Scene {
@@ -164,4 +166,35 @@ fn density_at_max_depth_1_shows_only_the_emitters() {
     }
     assert!(light > 0, "the light itself must show at depth 1");
     assert!(lit > dark / 2, "depth 2 lights the walls: {lit} of {dark}");
+}
+
+/// Setup is counted: the camera pass's pre-pass traces between one and 16
+/// rays per pixel in `prepare` (and nothing in a scene that needs no camera
+/// pass), and bundle's view traces at least one ray per pixel sample there.
+#[test]
+fn prepare_counts_the_setup_rays() {
+    let res = 24u64;
+    let glass = World::new(load("glass-mirror/scene.xml", res as u32));
+    let mut cp = CameraPass::new(&glass, true, 0, None);
+    let rays = cp.prepare(&glass);
+    assert!(
+        (res * res..=16 * res * res).contains(&rays),
+        "pre-pass rays {rays}"
+    );
+    assert_eq!(cp.prepare(&glass), 0, "the pre-pass runs once");
+
+    let mut light = methods::create("light", &glass, &Options::default()).expect("method");
+    assert_eq!(light.prepare(&glass).expect("prepare").rays, rays);
+    let cbox = World::new(load("cbox/cbox.xml", res as u32));
+    let mut light = methods::create("light", &cbox, &Options::default()).expect("method");
+    assert_eq!(light.prepare(&cbox).expect("prepare").rays, 0);
+
+    let opts = Options {
+        patches: Some(300),
+        map_res: Some(64),
+        ..Default::default()
+    };
+    let mut bundle = methods::create("bundle", &cbox, &opts).expect("method");
+    let setup = bundle.prepare(&cbox).expect("prepare").rays;
+    assert!(setup >= 4 * res * res, "bundle setup rays {setup}");
 }

@@ -163,6 +163,12 @@ impl Method for LightTracer {
         "light"
     }
 
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        Ok(StepStats {
+            rays: self.camera_pass.prepare(world),
+        })
+    }
+
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
         let n = self.per_pass();
         let lanes = self.films.len() as u64;

@@ -25,13 +25,15 @@
 //! adds emission at x₁.
 //!
 //! Budget. Scenes with neither delta lobes nor an environment need no camera
-//! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass of
-//! up to 4×4 stratified primary rays per pixel marks the pixels whose first
-//! hit has a delta lobe or that see the environment; marked pixels get one
-//! camera sample per pass, and the others, so that a sliver the pre-pass
-//! missed still converges, one with probability 1/16 (weighted by 16). The
-//! effort thus follows the fraction of pixels whose first hit is delta, as
-//! the light-based method gives about one light path per pixel per pass.
+//! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass
+//! ([`CameraPass::prepare`], run by the methods' `prepare`, so inside the
+//! driver's clock and with its rays counted) of up to 4×4 stratified primary
+//! rays per pixel marks the pixels whose first hit has a delta lobe or that
+//! see the environment; marked pixels get one camera sample per pass, and
+//! the others, so that a sliver the pre-pass missed still converges, one
+//! with probability 1/16 (weighted by 16). The effort thus follows the
+//! fraction of pixels whose first hit is delta, as the light-based method
+//! gives about one light path per pixel per pass.
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -64,7 +66,8 @@ pub struct CameraPass {
 }
 
 impl CameraPass {
-    /// Prepares the camera pass (runs the pre-pass); `enabled = false`
+    /// The camera pass of a light-based method, not yet prepared: it traces
+    /// nothing until [`CameraPass::prepare`]. `enabled = false`
     /// (`--camera-pass off`) gives the raw light-based method; so does a
     /// scene with neither delta lobes nor an environment.
     pub fn new(world: &World, enabled: bool, seed: u64, max_depth: Option<u32>) -> Self {
@@ -75,7 +78,7 @@ impl CameraPass {
                 .iter()
                 .any(|m| m.bsdf(glam::Vec2::ZERO).has_delta());
         let active = enabled && needed;
-        let mut pass = CameraPass {
+        CameraPass {
             active,
             prepared: !active,
             marked: Vec::new(),
@@ -86,15 +89,13 @@ impl CameraPass {
                 max_depth,
                 rr_depth: RR_DEPTH,
             },
-        };
-        pass.prepare(world);
-        pass
+        }
     }
 
     /// The pre-pass: marks the pixels whose first hit has a delta lobe or
     /// that see the environment, stopping at a pixel's first such ray.
     /// Returns the rays traced; runs once (later calls trace nothing).
-    fn prepare(&mut self, world: &World) -> u64 {
+    pub fn prepare(&mut self, world: &World) -> u64 {
         if self.prepared {
             return 0;
         }
@@ -141,11 +142,13 @@ impl CameraPass {
         }
     }
 
-    /// One pass; returns the rays traced.
+    /// One pass; returns the rays traced. Runs the pre-pass first if the
+    /// caller has not (its rays then count in this pass).
     pub fn step(&mut self, world: &World, pass: u64) -> u64 {
         if !self.active {
             return 0;
         }
+        let pre = self.prepare(world);
         self.passes += 1;
         let w = world.camera.width as usize;
         let (seed, limits) = (self.seed, &self.limits);
@@ -176,7 +179,7 @@ impl CameraPass {
                 rays
             })
             .sum();
-        rays
+        pre + rays
     }
 
     /// Adds the camera pass's estimate to `img`.

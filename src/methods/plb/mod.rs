@@ -521,6 +521,12 @@ impl Method for Plb {
         "plb"
     }
 
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        Ok(StepStats {
+            rays: self.camera_pass.prepare(world),
+        })
+    }
+
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
         let n = self.steps_per_lane();
         let s = &self.settings;
