@@ -306,23 +306,28 @@ fn iterate(
     let last = chain.last.take();
     let mut start = None;
     if let Some(t) = &last {
-        let a = t
-            .vertex
-            .bsdf
-            .albedo(t.vertex.wo_local)
-            .max_element()
-            .clamp(0.0, 1.0);
-        let reflected = a * luminance(t.phi);
-        let p_point = reflected / (phi_e + reflected);
-        if t.depth < max_depth.saturating_sub(1) && p_point > 0.0 && rng.next_f32() < p_point {
-            start = Some((t, p_point));
-        } else if p_point > 0.0 {
-            // selected the lights with probability 1 − p_point
-            return rays + emit_and_transfer(world, rng, target, chain, 1.0 - p_point);
+        // A point whose next transfer could not reach the eye within
+        // max_depth (it would land at depth + 1 and join the eye at depth +
+        // 2) has no power left to transfer: L_{n−1} is then the lights' alone
+        if t.depth < max_depth.saturating_sub(1) {
+            let a = t
+                .vertex
+                .bsdf
+                .albedo(t.vertex.wo_local)
+                .max_element()
+                .clamp(0.0, 1.0);
+            let reflected = a * luminance(t.phi);
+            let p_point = reflected / (phi_e + reflected);
+            if p_point > 0.0 && rng.next_f32() < p_point {
+                start = Some((t, p_point));
+            } else if p_point > 0.0 {
+                // selected the lights with probability 1 − p_point
+                return rays + emit_and_transfer(world, s, rng, target, chain, 1.0 - p_point);
+            }
         }
     }
     let Some((t, p_point)) = start else {
-        return rays + emit_and_transfer(world, rng, target, chain, 1.0);
+        return rays + emit_and_transfer(world, s, rng, target, chain, 1.0);
     };
 
     // Reflect the point's power into a direction sampled from f cos
@@ -333,6 +338,7 @@ fn iterate(
     let sp = &t.vertex.sp;
     rays + transfer(
         world,
+        s,
         Ray::new(offset_point(sp.p, sp.ng, wi), wi),
         phi,
         t.depth + 1,
@@ -345,6 +351,7 @@ fn iterate(
 /// Starts a new ray from the lights, carrying Φ_e/prob.
 fn emit_and_transfer(
     world: &World,
+    s: &Settings,
     rng: &mut Pcg32,
     film: &mut Film,
     chain: &mut Chain,
@@ -358,15 +365,19 @@ fn emit_and_transfer(
         return 0;
     };
     let ray = es.ray();
-    transfer(world, ray, es.phi / prob, 1, rng, film, chain)
+    transfer(world, s, ray, es.phi / prob, 1, rng, film, chain)
 }
 
 /// Sends power `phi` along `ray`; the hit point becomes T*_n L_{n−1}, and is
 /// measured through a camera connection. Delta surfaces cannot be measured
 /// and pass the power on at once ([`follow_delta_chain`]): the operator over
-/// a delta chain is one transfer to the first non-delta point.
+/// a delta chain is one transfer to the first non-delta point. A point
+/// reached by more segments than `max_depth` allows before the eye is
+/// neither measured nor kept.
+#[allow(clippy::too_many_arguments)]
 fn transfer(
     world: &World,
+    s: &Settings,
     ray: Ray,
     phi: Rgb,
     depth: u32,
@@ -378,6 +389,10 @@ fn transfer(
     let Some(landing) = follow_delta_chain(world, ray, phi, depth, rng, &mut rays) else {
         return rays;
     };
+    // A light path of `depth` segments joined to the eye has depth + 1
+    if landing.depth >= s.max_depth.unwrap_or(u32::MAX) {
+        return rays;
+    }
     if let Some((pix, c)) = connect_to_camera(world, &landing.vertex, landing.phi, &mut rays) {
         film.splat(pix.x, pix.y, c);
     }
