@@ -74,10 +74,9 @@ pub fn brdf(p: &Patch, ns: Vec3, d: Vec3, w: Vec3) -> Rgb {
 /// |cos θ_g| (geometric normal), so E/A_i estimates L · |cos θ_g|. The
 /// reflection integral that `path` (and Mitsuba) evaluate weights the
 /// incoming radiance by the cosine to the *shading* normal, |cos θ_s|. With
-/// flat shading the two agree; with interpolated normals they do not: on
-/// the teapot-room's walls (one OBJ without normals, so Mitsuba-style
-/// vertex normals averaged over the room's corners, tilted by up to 55°)
-/// leaving the ratio out made the image 19 % too dark. Where cos θ_g → 0
+/// flat shading the two agree; with interpolated normals they do not, and
+/// leaving the ratio out darkens the image (measured in BENCHMARKS.md and
+/// checked by `tests/bundle.rs`, `shading_normals_vs_path`). Where cos θ_g → 0
 /// the ratio grows, but the pixel coverage that it multiplies falls in
 /// proportion, so the product stays an unbiased estimate of L |cos θ_s|.
 ///

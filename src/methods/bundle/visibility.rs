@@ -39,10 +39,9 @@
 //! - single-pixel roulette: keep the patch with probability = its area and
 //!   put it on the pixel under a uniformly chosen point of it. The expected
 //!   coverage is the same, but the patch lands on a line that may not pass
-//!   through it, so it is paired with patches it does not see: on cbox at a
-//!   64² map the luminaire (0.5 units under the ceiling) then gave part of
-//!   its light to the ceiling's back, and the image was 9 % too dark, against
-//!   0.5 % for the pixel-centre form at the same map.
+//!   through it, so it is paired with patches it does not see (on cbox the
+//!   luminaire, just under the ceiling, gives part of its light to the
+//!   ceiling's back; the darkening is measured in BENCHMARKS.md).
 //!
 //! **Z-buffer variant**, for comparison (the hardware approach of ref. 40):
 //! depth peeling. Each layer rasterises every patch and keeps, per pixel,
@@ -486,13 +485,11 @@ impl Px {
 /// depth belongs, between the kept layers a (upstream) and b (downstream):
 /// the pair (a, b) is undone and replaced by (a, new) and (new, b).
 ///
-/// One layer (the first version) was not enough on cbox: the two coplanar
-/// ceiling quads both sorted before the luminaire for about 9 % of the
-/// directions, so the luminaire slid in between them and gave its light
-/// to the ceiling instead of the floor (the direct light received was 4 %
-/// low, the image 6 % too dark at every map resolution; the z-buffer was
-/// right). Misorders deeper than [`LAYERS`] are still slid in above the
-/// base, as before.
+/// Why two layers: with one, when two coplanar patches (cbox's ceiling
+/// quads) both sort before a third that lies between them in depth (the
+/// luminaire), the third slides in between them and gives its light to the
+/// ceiling instead of the floor (the bias is measured in BENCHMARKS.md).
+/// Misorders deeper than [`LAYERS`] are still slid in above the base.
 fn painter_band(
     proj: &[Proj],
     list: &[u32],
