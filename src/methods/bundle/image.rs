@@ -7,7 +7,7 @@
 //!   preprocessing pass, and stored ("stored in a map", §5). Glossy
 //!   highlights follow the per-pixel BRDF.
 //! - **Gouraud**: the BRDF is evaluated once per patch toward the eye
-//!   (L^eye[i] of §5), the values are averaged onto the shared vertices
+//!   (L^eye\[i\] of §5), the values are averaged onto the shared vertices
 //!   (area-weighted) and interpolated over each patch.
 //!
 //! Both take emission at the visible point exactly. Delta surfaces seen by

@@ -11,8 +11,8 @@
 //! 2. the received radiance is reflected toward the eye and averaged into
 //!    the image ([`image`]: Phong or Gouraud estimate);
 //! 3. a new direction ω_{m+1} is drawn ([`sequence`]) and the received
-//!    radiance is reflected into it: L_new[i] = L_i^e(ω_{m+1}) +
-//!    4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L[j] ([`transfer`]).
+//!    radiance is reflected into it: L_new\[i\] = L_i^e(ω_{m+1}) +
+//!    4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L\[j\] ([`transfer`]).
 //!
 //! The image converges to the exact image up to the patch and map
 //! discretisation: radiance is constant over a patch in each direction

@@ -1,7 +1,7 @@
 //! Patches: the finite elements of §5 (eq. (23)). Every scene triangle is cut
 //! into k² congruent sub-triangles (k chosen per triangle so that no edge is
 //! longer than the target edge length), and each sub-triangle is a patch with
-//! constant emission L_i^e(ω), BRDF f̃_i, area A_i and radiance L[i].
+//! constant emission L_i^e(ω), BRDF f̃_i, area A_i and radiance L\[i\].
 //!
 //! The sub-triangles of triangle t are numbered row by row in the barycentric
 //! grid (b1 = i/k, b2 = j/k): row j holds k − j "up" and k − j − 1 "down"

@@ -1,6 +1,6 @@
 //! The random transport operator of eq. (27) and the loop of §5:
 //!
-//! L_new[i] = L_i^e(ω_{m+1}) + 4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L[j].
+//! L_new\[i\] = L_i^e(ω_{m+1}) + 4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L\[j\].
 //!
 //! With the bi-directional transfer both ω_m and −ω_m carry radiance in one
 //! sweep, so each patch keeps two values, L[i](+ω) and L[i](−ω), and the

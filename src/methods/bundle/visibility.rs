@@ -433,7 +433,7 @@ impl Band {
 }
 
 /// Layers of depth the painter keeps per pixel to repair the centroid
-/// sort (see [`painter_band`]).
+/// sort (see `painter_band`).
 pub const LAYERS: usize = 2;
 
 /// One pixel of the painter's map: the last [`LAYERS`] patches along the
