@@ -1,0 +1,168 @@
+//! Hit importance, §3.1: the paper's `ComputeImportance` (eqs. (8) and (9)),
+//! and the pooled-importance grid of `--variant pooled` (our extension, not
+//! in the paper).
+
+use super::iterate::{Hit, Lane, NO_PARENT};
+use crate::scene::luminance;
+
+/// `ComputeImportance` of §3.1: the potential impact of eq. (9) plus λ times
+/// the image impact of each child, eq. (8), averaged over the hit and its
+/// children. Left unnormalised (the selection normalises by the sum).
+pub(super) fn compute_importance(hits: &mut [Hit], lambda: f64) {
+    for h in hits.iter_mut() {
+        h.s = 0.0;
+        h.nchild = 0;
+    }
+    for i in 0..hits.len() {
+        let potential = (hits[i].out_lum * hits[i].g_star) as f64;
+        hits[i].s += potential;
+        let p = hits[i].parent;
+        if p != NO_PARENT {
+            let impact = luminance(hits[i].contrib).max(0.0) as f64;
+            let parent = &mut hits[p as usize];
+            parent.s += lambda * impact;
+            parent.nchild += 1;
+        }
+    }
+    for h in hits.iter_mut() {
+        h.s /= (h.nchild + 1) as f64;
+    }
+}
+
+/// Cells per axis of the pooled-importance grid.
+pub(super) const GRID_RES: usize = 16;
+/// Pseudo-count of the grid's prior: a cell's weight is shrunk toward the
+/// mean over all cells as if it had this many samples at the mean.
+const GRID_PRIOR: f64 = 4.0;
+/// Defensive floor of a cell's weight, as a fraction of the mean, so that
+/// every hit keeps a positive selection probability (E[T*L] = TL).
+const GRID_FLOOR: f64 = 0.05;
+
+/// Pooled importance (`--variant pooled`, not in the paper): a uniform grid
+/// over the scene's bounds. Each cell keeps Σr and the count of the rays
+/// spawned from hits inside it, where r = Lum(child's image contribution) /
+/// Lum(child's power) is the image impact per unit power of where the ray
+/// landed (0 when it escaped or landed hidden from the camera). Then
+/// W(cell) = (Σr + n₀ r̄) / (n + n₀), shrunk toward the mean r̄ over all
+/// cells, estimates how much of the light reflected in that cell reaches
+/// the image, pooled over every hit ever spawned there instead of over one
+/// hit's children (eq. (8)). A hit's importance is Lum(Φ a) · (W + f r̄).
+///
+/// The lanes share what they learn: each lane reads the grid as merged at
+/// the end of the last pass plus its own records since, and at the end of
+/// every pass the lanes' new records are merged in lane order (so a seed
+/// still gives the same image whatever the thread count).
+#[derive(Clone, Debug)]
+pub(super) struct ImportanceGrid {
+    lo: glam::Vec3,
+    scale: glam::Vec3,
+    /// Everything this lane knows: the shared grid plus `fresh`.
+    all: CellStats,
+    /// This lane's records since the last merge.
+    fresh: CellStats,
+}
+
+/// Σr and counts per cell, and over all cells.
+#[derive(Clone, Debug)]
+pub(super) struct CellStats {
+    sum: Vec<f64>,
+    n: Vec<u32>,
+    total: f64,
+    count: u64,
+}
+
+impl CellStats {
+    pub(super) fn new(cells: usize) -> Self {
+        CellStats {
+            sum: vec![0.0; cells],
+            n: vec![0; cells],
+            total: 0.0,
+            count: 0,
+        }
+    }
+
+    fn add(&mut self, cell: usize, r: f64) {
+        self.sum[cell] += r;
+        self.n[cell] += 1;
+        self.total += r;
+        self.count += 1;
+    }
+
+    fn clear(&mut self) {
+        self.sum.fill(0.0);
+        self.n.fill(0);
+        self.total = 0.0;
+        self.count = 0;
+    }
+
+    fn merge(&mut self, o: &CellStats) {
+        for (a, b) in self.sum.iter_mut().zip(&o.sum) {
+            *a += b;
+        }
+        for (a, b) in self.n.iter_mut().zip(&o.n) {
+            *a += b;
+        }
+        self.total += o.total;
+        self.count += o.count;
+    }
+}
+
+impl ImportanceGrid {
+    pub(super) fn new(lo: glam::Vec3, hi: glam::Vec3) -> Self {
+        let extent = (hi - lo).max(glam::Vec3::splat(1e-6));
+        let cells = GRID_RES * GRID_RES * GRID_RES;
+        ImportanceGrid {
+            lo,
+            scale: glam::Vec3::splat(GRID_RES as f32) / extent,
+            all: CellStats::new(cells),
+            fresh: CellStats::new(cells),
+        }
+    }
+
+    pub(super) fn cell(&self, p: glam::Vec3) -> u32 {
+        let q = ((p - self.lo) * self.scale).max(glam::Vec3::ZERO);
+        let r = GRID_RES as u32 - 1;
+        let (x, y, z) = (
+            (q.x as u32).min(r),
+            (q.y as u32).min(r),
+            (q.z as u32).min(r),
+        );
+        (z * GRID_RES as u32 + y) * GRID_RES as u32 + x
+    }
+
+    pub(super) fn record(&mut self, cell: u32, r: f64) {
+        if !r.is_finite() {
+            return;
+        }
+        self.all.add(cell as usize, r);
+        self.fresh.add(cell as usize, r);
+    }
+
+    /// W(cell) + f r̄, always positive.
+    pub(super) fn weight(&self, cell: u32) -> f64 {
+        let a = &self.all;
+        let mean = if a.total > 0.0 {
+            a.total / a.count as f64
+        } else {
+            1.0
+        };
+        let (sum, n) = (a.sum[cell as usize], a.n[cell as usize] as f64);
+        (sum + GRID_PRIOR * mean) / (n + GRID_PRIOR) + GRID_FLOOR * mean
+    }
+}
+
+/// Merges the lanes' fresh records into `shared` in lane order and gives
+/// every lane the merged grid.
+pub(super) fn share_grids(shared: &mut CellStats, lanes: &mut [Lane]) {
+    for l in lanes.iter() {
+        if let Some(g) = &l.grid {
+            shared.merge(&g.fresh);
+        }
+    }
+    for l in lanes.iter_mut() {
+        if let Some(g) = l.grid.as_mut() {
+            g.all.clone_from(shared);
+            g.fresh.clear();
+        }
+    }
+}
