@@ -1,7 +1,7 @@
 //! `plb`: progressive light path building (Szirmay-Kalos, Antal and Sbert),
 //! self-correcting iteration over a population of photon hits.
 //!
-//! Each step of [`iterate`](iterate::iterate) is the paper's `Iterate`: pick hit i with
+//! Each step of `iterate` is the paper's `Iterate`: pick hit i with
 //! probability s_i or the lights with probability 1 − Σs_i; shoot from the
 //! light, or reflect hit i into a direction sampled from its cosine-weighted
 //! BSDF, with the listing's power weights (Φ_e/(1 − Σs_i), or
@@ -20,13 +20,13 @@
 //! Choices the paper leaves open, made here (each is cited where it is coded):
 //! - *Lights against hits.* `ComputeImportance` normalises Σs_i to 1, which
 //!   would never pick the light again; the lights must keep a positive
-//!   probability for E[T*L] = TL. The split is §3's power rule: the lights
+//!   probability for E\[T*L\] = TL. The split is §3's power rule: the lights
 //!   are chosen with Φ_e / (Φ_e + Σ Lum(Φ_i a_i)) (for a closed scene 1 − ā,
 //!   as the paper says of s), and the rest is shared among the hits in
 //!   proportion to their importance.
 //! - *Hits born during a phase* have importance = potential impact, eq. (9),
 //!   until the next `ComputeImportance` (they have no children yet), so that
-//!   every hit can spawn at once (again needed for E[T*L] = TL).
+//!   every hit can spawn at once (again needed for E\[T*L\] = TL).
 //! - *The step counter m across phases.* The survivors of a purge carry the
 //!   estimate L_m; restarting m at 1 would erase them (τ_1 = 1) and keep the
 //!   start-up defect of a 400-step run in every phase, while letting m grow
@@ -60,7 +60,7 @@
 //! through a gap the paper's importance barely prefers the hits that matter
 //! (BENCHMARKS.md, plb diagnosis). The pooled rule keeps, per cell of a 16³
 //! grid over the scene, the mean image impact per unit power of every ray
-//! ever spawned from that cell ([`ImportanceGrid`]), and sets a hit's
+//! ever spawned from that cell (`ImportanceGrid`), and sets a hit's
 //! importance to its output luminance times that mean (shrunk toward the
 //! global mean, with a floor so that every hit can still spawn). The
 //! iteration, power weights, phases and purge are unchanged, so it is
@@ -149,7 +149,7 @@ pub enum Importance {
     /// Not in the paper (`--variant pooled`): the output luminance times the
     /// measured image impact per unit power of the rays spawned from the
     /// same grid cell, pooled over all hits ever spawned there, with a
-    /// defensive floor. See [`ImportanceGrid`].
+    /// defensive floor (`importance::ImportanceGrid`).
     Pooled,
 }
 

@@ -46,8 +46,8 @@ pub(super) fn end_phase(s: &Settings, rng: &mut Pcg32, lane: &mut Lane) {
 ///
 /// The survivors are compacted in place, in order, so the population keeps
 /// its allocation from phase to phase (building a new vector each phase
-/// reallocated the whole population whenever the next phase outgrew it:
-/// callgrind counted 8.6 % more instructions for plb pooled on hidden-gap).
+/// reallocated the whole population whenever the next phase outgrew it;
+/// the cost is measured in BENCHMARKS.md).
 fn purge(hits: &mut Vec<Hit>, sigma: f64, cap: usize, rng: &mut Pcg32) {
     let n = hits.len();
     let c = survival_scale(hits.iter().map(|h| h.s), cap);
