@@ -133,15 +133,6 @@ impl CameraPass {
         self.active
     }
 
-    /// Fraction of pixels marked as seeing a delta surface or the environment.
-    pub fn marked_fraction(&self) -> f64 {
-        if self.marked.is_empty() {
-            0.0
-        } else {
-            self.marked.iter().filter(|&&m| m).count() as f64 / self.marked.len() as f64
-        }
-    }
-
     /// One pass; returns the rays traced. Runs the pre-pass first if the
     /// caller has not (its rays then count in this pass).
     pub fn step(&mut self, world: &World, pass: u64) -> u64 {
