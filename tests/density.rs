@@ -11,6 +11,7 @@ use kalos::geometry::look_at;
 use kalos::image_io::read_image;
 use kalos::methods::density::hitfile::{Hit, HitFile, HitWriter};
 use kalos::methods::density::mesh::PlanarMesh;
+use kalos::methods::density::surfaces::SurfaceId;
 use kalos::methods::density::{self, decimate, kernel, Settings};
 use kalos::methods::{Method, World};
 use kalos::metrics::{rel_mse, rel_mse_pair};
@@ -209,7 +210,7 @@ fn check_floor_irradiance(floor: Material, w: impl Fn(f64) -> f64 + Copy, n: u64
     let bake = density::bake(&world, &st).expect("bake");
     let floor_tri = 0u32;
     let mesh = &bake.mesh.planar[0];
-    assert_eq!(mesh.surface, 0, "the floor records hits");
+    assert_eq!(mesh.surface, SurfaceId::front(0), "the floor records hits");
     let phi = (PI * s * s) as f64 / n as f64; // Φ = π A L, L = 1
     let h = mesh.bandwidth as f64;
     let area = 64.0f64;
@@ -374,7 +375,10 @@ fn hit_file_round_trip_and_determinism() {
     let mut rng = Pcg32::new(5, 0);
     let hits: Vec<Hit> = (0..100_000)
         .map(|_| Hit {
-            surface: (rng.next_u32() % 1000) | ((rng.next_u32() & 1) << 31),
+            surface: SurfaceId {
+                index: rng.next_u32() % 1000,
+                back: rng.next_u32() & 1 == 1,
+            },
             u: rng.next_u32() as u16,
             v: rng.next_u32() as u16,
             rgb: rng.next_u32(),
@@ -392,7 +396,7 @@ fn hit_file_round_trip_and_determinism() {
         .collect();
     let mut expected = hits.clone();
     // bucket by surface id without the side bit, then stable sort by full id
-    expected.sort_by_key(|h| ((h.surface & 0x7fff_ffff) / 143, h.surface));
+    expected.sort_by_key(|h| (h.surface.index / 143, h.surface));
     assert_eq!(back, expected);
 
     // the bucket sort in chunks of 1 000 records (a bucket has ~14 000)
@@ -459,7 +463,14 @@ fn decimation_invariants() {
     let r = Vec3::splat(0.7);
     let w0 = 3.0;
     let eps = 0.01;
-    let m = PlanarMesh::new(0, verts.clone(), tris.clone(), h.clone(), 0.05, 1000);
+    let m = PlanarMesh::new(
+        SurfaceId::front(0),
+        verts.clone(),
+        tris.clone(),
+        h.clone(),
+        0.05,
+        1000,
+    );
     let (d, rep) = decimate::decimate_planar(m, &[r], w0, eps);
     eprintln!(
         "decimation: {} → {} triangles, max error {:.4}",
@@ -661,7 +672,7 @@ fn phase_two_hit_memory_does_not_grow_with_n() {
         assert_eq!(ma.surface, mb.surface);
         assert_eq!(ma.verts, mb.verts);
         for (x, y) in ma.h.iter().zip(&mb.h) {
-            assert!(close(*x, *y), "surface {}: {x} vs {y}", ma.surface);
+            assert!(close(*x, *y), "surface {:?}: {x} vs {y}", ma.surface);
         }
     }
     assert_eq!(a.mesh.curved.len(), b.mesh.curved.len());
@@ -969,7 +980,7 @@ fn assert_faces_receive_pi(bake: &density::Bake, label: &str) {
         let tol = 4.0 / (m.hits as f64).sqrt();
         eprintln!(
             "{label}, face {}: {} hits, mean H {mean:.4} vs π (rel {:+.4}, tol {tol:.4})",
-            m.surface,
+            m.surface.index,
             m.hits,
             mean / std::f64::consts::PI - 1.0
         );

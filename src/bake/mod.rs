@@ -58,8 +58,8 @@ pub fn collect(scene: &Scene, bake: &Bake) -> (BakedMesh, BakedMesh) {
         }
     };
     for m in &bake.mesh.planar {
-        let back = m.surface >> 31 == 1;
-        let s = &bake.surfaces.list[(m.surface & 0x7fff_ffff) as usize];
+        let back = m.surface.back;
+        let s = bake.surfaces.of(m.surface);
         let n = if back { -s.normal } else { s.normal };
         let le = if back { Vec3::ZERO } else { emitted(s.shape) };
         let base = lit.positions.len() as u32;

@@ -27,6 +27,8 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
+use super::surfaces::SurfaceId;
+
 /// Bytes per hit record.
 pub const HIT_BYTES: usize = 12;
 const MAGIC: &[u8; 8] = b"KALOSHIT";
@@ -34,8 +36,8 @@ const MAGIC: &[u8; 8] = b"KALOSHIT";
 /// One particle hit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Hit {
-    /// Surface id; bit 31 set for the back side.
-    pub surface: u32,
+    /// The surface side that was hit.
+    pub surface: SurfaceId,
     /// Chart coordinate u in 1/65535 of the chart's width.
     pub u: u16,
     /// Chart coordinate v.
@@ -48,7 +50,7 @@ impl Hit {
     /// The 12 bytes of the record.
     pub fn to_bytes(self) -> [u8; HIT_BYTES] {
         let mut b = [0u8; HIT_BYTES];
-        b[0..4].copy_from_slice(&self.surface.to_le_bytes());
+        b[0..4].copy_from_slice(&self.surface.encode().to_le_bytes());
         b[4..6].copy_from_slice(&self.u.to_le_bytes());
         b[6..8].copy_from_slice(&self.v.to_le_bytes());
         b[8..12].copy_from_slice(&self.rgb.to_le_bytes());
@@ -59,7 +61,7 @@ impl Hit {
     pub fn from_bytes(b: &[u8]) -> Hit {
         let w = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
         Hit {
-            surface: w(0),
+            surface: SurfaceId::decode(w(0)),
             u: u16::from_le_bytes([b[4], b[5]]),
             v: u16::from_le_bytes([b[6], b[7]]),
             rgb: w(8),
@@ -174,8 +176,8 @@ impl HitWriter {
         self.dir.join(format!("bucket-{b:05}.bin"))
     }
 
-    fn bucket_of(&self, surface: u32) -> usize {
-        (((surface & 0x7fff_ffff) / self.ids_per_bucket) as usize).min(self.buffers.len() - 1)
+    fn bucket_of(&self, surface: SurfaceId) -> usize {
+        ((surface.index / self.ids_per_bucket) as usize).min(self.buffers.len() - 1)
     }
 
     /// Appends a chunk of hits, in order.
@@ -184,7 +186,7 @@ impl HitWriter {
             let b = self.bucket_of(h.surface);
             self.buffers[b].extend_from_slice(&h.to_bytes());
             self.counts[b] += 1;
-            let k = side_index(h.surface);
+            let k = h.surface.side_index();
             if k >= self.side_counts.len() {
                 self.side_counts.resize(k + 1, 0);
             }
@@ -245,7 +247,7 @@ impl HitWriter {
         }
 
         // Where each surface side starts: buckets in order, inside a bucket
-        // the ids in the order of `surface` as a u32 (front sides, then back)
+        // the ids in the order of `SurfaceId` (front sides, then back)
         let ns = (self.side_counts.len() / 2) as u32;
         let mut runs: Vec<Run> = Vec::new();
         let mut next = vec![0u64; self.side_counts.len()];
@@ -257,15 +259,15 @@ impl HitWriter {
             } else {
                 ((b as u32 + 1) * self.ids_per_bucket).min(ns)
             };
-            for side in 0..2u32 {
-                for id in lo..hi {
-                    let full = id | (side << 31);
-                    let k = side_index(full);
+            for back in [false, true] {
+                for index in lo..hi {
+                    let surface = SurfaceId { index, back };
+                    let k = surface.side_index();
                     let c = self.side_counts[k];
                     next[k] = rec;
                     if c > 0 {
                         runs.push(Run {
-                            surface: full,
+                            surface,
                             start: rec,
                             count: c,
                         });
@@ -308,7 +310,7 @@ impl HitWriter {
                     while i < hits.len() {
                         let id = hits[i].surface;
                         let j = i + hits[i..].partition_point(|h| h.surface == id);
-                        let k = side_index(id);
+                        let k = id.side_index();
                         out.clear();
                         for h in &hits[i..j] {
                             out.extend_from_slice(&h.to_bytes());
@@ -336,17 +338,11 @@ impl HitWriter {
     }
 }
 
-/// Index of a surface side in per-side tables: 2·id + side.
-#[inline]
-fn side_index(surface: u32) -> usize {
-    2 * (surface & 0x7fff_ffff) as usize + (surface >> 31) as usize
-}
-
 /// The records of one surface side: a contiguous span of the hit file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Run {
-    /// Surface id, bit 31 set for the back side.
-    pub surface: u32,
+    /// The surface side.
+    pub surface: SurfaceId,
     /// Index of its first record.
     pub start: u64,
     /// Number of records.

@@ -70,7 +70,7 @@ use hitfile::{decode_rgb9e5, from_fixed, HitFile, HitFileError, HitWriter, HIT_B
 use kernel::Params;
 use mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
 use particles::Channel;
-use surfaces::{Kind, Surfaces};
+use surfaces::{Kind, SurfaceId, Surfaces};
 
 /// Settings of the density method (defaults inside the paper's ranges).
 #[derive(Clone, Debug)]
@@ -332,14 +332,9 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     let mut curved = Vec::new();
     let mut max_in_memory = 0u64;
     let result = (|| -> Result<(), HitFileError> {
-        let is_planar = |id: u32| {
-            surfaces
-                .list
-                .get((id & 0x7fff_ffff) as usize)
-                .is_some_and(|s| s.kind == Kind::Planar)
-        };
+        let is_planar = |id: SurfaceId| surfaces.get(id).is_some_and(|s| s.kind == Kind::Planar);
         let new_estimator = |run: &hitfile::Run| {
-            let surf = &surfaces.list[(run.surface & 0x7fff_ffff) as usize];
+            let surf = surfaces.of(run.surface);
             let ct = surf.chart_tris(scene);
             kernel::PlanarEstimator::new(
                 surf.rectangle,
@@ -412,14 +407,13 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         {
             let mut index: HashMap<(u32, bool), usize> = HashMap::new();
             for run in runs {
-                let sid = run.surface & 0x7fff_ffff;
-                let Some(surf) = surfaces.list.get(sid as usize) else {
+                let Some(surf) = surfaces.get(run.surface) else {
                     continue;
                 };
                 if surf.kind != Kind::Curved {
                     continue;
                 }
-                let key = (surf.shape, run.surface >> 31 == 1);
+                let key = (surf.shape, run.surface.back);
                 let k = *index.entry(key).or_insert_with(|| {
                     keys.push((key, Vec::new()));
                     keys.len() - 1
@@ -453,7 +447,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
                 buf.clear();
             };
             for run in &kruns {
-                let surf = &surfaces.list[(run.surface & 0x7fff_ffff) as usize];
+                let surf = surfaces.of(run.surface);
                 let mut done = 0;
                 while done < run.count {
                     let m = (run.count - done).min(cap - buf.len() as u64);
@@ -493,14 +487,15 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
 
     // Front sides without hits still get a (black) mesh, so that the
     // display mesh covers every diffuse surface.
-    let have: std::collections::HashSet<u32> = planar.iter().map(|m| m.surface).collect();
+    let have: std::collections::HashSet<SurfaceId> = planar.iter().map(|m| m.surface).collect();
     for (sid, surf) in surfaces.list.iter().enumerate() {
-        if surf.kind == Kind::Planar && surf.diffuse && !have.contains(&(sid as u32)) {
+        let front = SurfaceId::front(sid as u32);
+        if surf.kind == Kind::Planar && surf.diffuse && !have.contains(&front) {
             let ct = surf.chart_tris(scene);
             let est =
                 kernel::estimate_planar(surf.rectangle, surf.size, surf.area, &ct, &[], &params);
             planar.push(PlanarMesh::unindexed(
-                sid as u32, est.verts, est.tris, est.h, 0.0, 0,
+                front, est.verts, est.tris, est.h, 0.0, 0,
             ));
         }
     }
@@ -512,7 +507,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     // R at the vertices: one value for an untextured surface, else the
     // texture at each vertex (§3.2: L = R(u, v)·H(u, v)/π)
     let reflectance = |m: &PlanarMesh| -> Vec<Vec3> {
-        let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
+        let surf = surfaces.of(m.surface);
         if surf.textured {
             surf.reflectance_at(scene, &m.verts)
         } else {

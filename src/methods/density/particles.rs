@@ -24,7 +24,7 @@ use std::f32::consts::PI;
 use rayon::prelude::*;
 
 use super::hitfile::{encode_rgb9e5, to_fixed, Hit, HitFileError, HitWriter};
-use super::surfaces::{Kind, Surfaces};
+use super::surfaces::{Kind, SurfaceId, Surfaces};
 
 use crate::geometry::{offset_point, Frame, Ray};
 use crate::methods::light::scatter;
@@ -308,7 +308,7 @@ fn trace_one(
                 Kind::Curved => (hit.b1, hit.b2),
             };
             hits.push(Hit {
-                surface: sid | (u32::from(back) << 31),
+                surface: SurfaceId { index: sid, back },
                 u: to_fixed(u),
                 v: to_fixed(v),
                 rgb: encode_rgb9e5(beta * t),
