@@ -9,7 +9,8 @@ use common::furnace;
 use glam::{Vec2, Vec3};
 use kalos::geometry::look_at;
 use kalos::image_io::read_image;
-use kalos::methods::density::hitfile::{Hit, HitFile, HitWriter};
+use kalos::methods::density::hitfile::{HitFile, HitWriter};
+use kalos::methods::density::hits::{Hit, HitSink, HitSource, MemoryWriter};
 use kalos::methods::density::mesh::PlanarMesh;
 use kalos::methods::density::surfaces::SurfaceId;
 use kalos::methods::density::{self, decimate, kernel, Settings};
@@ -384,11 +385,11 @@ fn hit_file_round_trip_and_determinism() {
             rgb: rng.next_u32(),
         })
         .collect();
-    let mut w = HitWriter::new(&dir, 1000, 7).expect("writer");
+    let mut w = HitWriter::new(&dir, &dir.join("hits.bin"), 1000, 7).expect("writer");
     for c in hits.chunks(3000) {
         w.push(c).expect("push");
     }
-    let f = w.finish(&dir.join("hits.bin")).expect("finish");
+    let f = w.finish().expect("finish");
     let f = HitFile::open(&f.path).expect("open");
     assert_eq!(f.len(), hits.len() as u64);
     let back: Vec<Hit> = (0..f.buckets.len())
@@ -401,12 +402,13 @@ fn hit_file_round_trip_and_determinism() {
 
     // the bucket sort in chunks of 1 000 records (a bucket has ~14 000)
     // writes the same bytes, and the runs index every surface side
-    let mut w = HitWriter::new(&dir.join("chunked"), 1000, 7).expect("writer");
+    let mut w = HitWriter::new(&dir.join("chunked"), &dir.join("hits-chunked.bin"), 1000, 7)
+        .expect("writer");
     w.sort_chunk = 1000;
     for c in hits.chunks(3000) {
         w.push(c).expect("push");
     }
-    let g = w.finish(&dir.join("hits-chunked.bin")).expect("finish");
+    let g = w.finish().expect("finish");
     assert_eq!(g.max_sort_records, 1000);
     assert_eq!(
         std::fs::read(&f.path).expect("read"),
@@ -422,6 +424,26 @@ fn hit_file_round_trip_and_determinism() {
         g.runs.iter().map(|r| r.count).sum::<u64>(),
         hits.len() as u64
     );
+
+    // the in-memory store holds every side's records in the same order
+    let mut m = MemoryWriter::new();
+    for c in hits.chunks(3000) {
+        m.push(c).expect("push");
+    }
+    let m = m.finish().expect("finish");
+    assert_eq!(m.hit_count(), g.hit_count());
+    let sorted = |runs: &[kalos::methods::density::hits::Run]| {
+        let mut r = runs.to_vec();
+        r.sort_by_key(|r| r.surface);
+        r
+    };
+    let (mr, gr) = (sorted(m.runs()), sorted(g.runs()));
+    assert_eq!(mr.len(), gr.len());
+    for (a, b) in mr.iter().zip(&gr) {
+        assert_eq!((a.surface, a.count), (b.surface, b.count));
+        let (x, y) = (m.read(a.start, a.count), g.read(b.start, b.count));
+        assert_eq!(*x.expect("memory"), *y.expect("file"));
+    }
 
     // same seed, 1 thread and 2 threads: identical bytes
     let sc = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("cbox");

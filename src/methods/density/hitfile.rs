@@ -1,15 +1,10 @@
-//! The hit file of §4.1: one 12-byte record per particle hit on a
-//! non-specular surface, streamed to disk in chunks and grouped by surface id.
-//!
-//! Record layout (little-endian): surface id (u32; bit 31 = back side), u and
-//! v in 16-bit fixed point over the surface's chart (barycentrics for curved
-//! triangles), and the particle's RGB power relative to φ = Φ/n in the
-//! shared-exponent RGB9E5 format (4 bytes). 12 bytes per hit, one RGB pass
-//! (see `mod.rs` for why one pass rather than the paper's per-channel runs).
+//! The hit file of §4.1, the disk [`HitSink`] / [`HitSource`]: one 12-byte
+//! record per particle hit on a surface with a diffuse part (layout:
+//! [`Hit::to_bytes`]), streamed to disk in chunks and grouped by surface id.
 //!
 //! Grouping: hits go to `buckets` temporary files by surface-id range, as
 //! they are produced (bounded buffers), and the writer counts the hits of
-//! every surface side. [`HitWriter::finish`] then knows where each surface's
+//! every surface side. [`HitSink::finish`] then knows where each surface's
 //! records go in the single hit file (after a header holding the bucket
 //! offsets) and moves every bucket there by a stable counting sort, reading
 //! it in chunks of at most [`HitWriter::sort_chunk`] records: memory stays
@@ -21,101 +16,15 @@
 //! every surface side in file order, and [`HitFile::read_range`] reads any
 //! span of records, so that phase 2 can stream a surface's hits in chunks.
 
+use std::borrow::Cow;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-use glam::Vec3;
-
+use super::hits::{Hit, HitSink, HitSource, Run, HIT_BYTES};
 use super::surfaces::SurfaceId;
 
-/// Bytes per hit record.
-pub const HIT_BYTES: usize = 12;
 const MAGIC: &[u8; 8] = b"KALOSHIT";
-
-/// One particle hit.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Hit {
-    /// The surface side that was hit.
-    pub surface: SurfaceId,
-    /// Chart coordinate u in 1/65535 of the chart's width.
-    pub u: u16,
-    /// Chart coordinate v.
-    pub v: u16,
-    /// RGB9E5 power relative to φ.
-    pub rgb: u32,
-}
-
-impl Hit {
-    /// The 12 bytes of the record.
-    pub fn to_bytes(self) -> [u8; HIT_BYTES] {
-        let mut b = [0u8; HIT_BYTES];
-        b[0..4].copy_from_slice(&self.surface.encode().to_le_bytes());
-        b[4..6].copy_from_slice(&self.u.to_le_bytes());
-        b[6..8].copy_from_slice(&self.v.to_le_bytes());
-        b[8..12].copy_from_slice(&self.rgb.to_le_bytes());
-        b
-    }
-
-    /// Reads a record.
-    pub fn from_bytes(b: &[u8]) -> Hit {
-        let w = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        Hit {
-            surface: SurfaceId::decode(w(0)),
-            u: u16::from_le_bytes([b[4], b[5]]),
-            v: u16::from_le_bytes([b[6], b[7]]),
-            rgb: w(8),
-        }
-    }
-}
-
-/// Fixed point of a coordinate in [0, 1] (clamped), rounded to nearest.
-#[inline]
-pub fn to_fixed(x: f32) -> u16 {
-    (x.clamp(0.0, 1.0) * 65535.0 + 0.5) as u16
-}
-
-/// The coordinate of a fixed-point value (cell-exact inverse of [`to_fixed`]).
-#[inline]
-pub fn from_fixed(x: u16) -> f32 {
-    x as f32 / 65535.0
-}
-
-/// Encodes non-negative RGB in RGB9E5 (9-bit mantissas, shared 5-bit
-/// exponent, as OpenGL's GL_RGB9_E5), rounding to nearest.
-pub fn encode_rgb9e5(c: Vec3) -> u32 {
-    const MAX: f32 = 65408.0;
-    let c = c.max(Vec3::ZERO).min(Vec3::splat(MAX));
-    let c = Vec3::new(
-        if c.x.is_finite() { c.x } else { 0.0 },
-        if c.y.is_finite() { c.y } else { 0.0 },
-        if c.z.is_finite() { c.z } else { 0.0 },
-    );
-    let m = c.max_element();
-    if m <= 0.0 {
-        return 0;
-    }
-    let mut e = (m.log2().floor() as i32).max(-16) + 1 + 15;
-    let mut denom = 2f32.powi(e - 15 - 9);
-    if (m / denom + 0.5).floor() >= 512.0 {
-        e += 1;
-        denom *= 2.0;
-    }
-    let e = e.clamp(0, 31);
-    let q = |x: f32| ((x / denom + 0.5).floor() as u32).min(511);
-    q(c.x) | (q(c.y) << 9) | (q(c.z) << 18) | ((e as u32) << 27)
-}
-
-/// Decodes RGB9E5.
-pub fn decode_rgb9e5(v: u32) -> Vec3 {
-    let e = (v >> 27) as i32;
-    let s = 2f32.powi(e - 15 - 9);
-    Vec3::new(
-        (v & 511) as f32 * s,
-        ((v >> 9) & 511) as f32 * s,
-        ((v >> 18) & 511) as f32 * s,
-    )
-}
 
 /// An I/O error on the hit file.
 #[derive(Debug, thiserror::Error)]
@@ -135,9 +44,11 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> HitFileError + '_ {
     }
 }
 
-/// Streams hits into bucket files by surface-id range.
+/// Streams hits into bucket files by surface-id range; [`HitSink::finish`]
+/// sorts them into the hit file.
 pub struct HitWriter {
     dir: PathBuf,
+    file: PathBuf,
     /// Surface ids (without the side bit) per bucket.
     ids_per_bucket: u32,
     buffers: Vec<Vec<u8>>,
@@ -152,15 +63,16 @@ pub struct HitWriter {
 }
 
 impl HitWriter {
-    /// A writer that will put its bucket files in `dir` (created if needed);
-    /// surface ids (side bit cleared) run over `0..surfaces`.
-    pub fn new(dir: &Path, surfaces: u32, buckets: u32) -> Result<Self, HitFileError> {
+    /// A writer that will put its bucket files in `dir` (created if needed)
+    /// and the hit file at `file`; surface indices run over `0..surfaces`.
+    pub fn new(dir: &Path, file: &Path, surfaces: u32, buckets: u32) -> Result<Self, HitFileError> {
         std::fs::create_dir_all(dir).map_err(io_err(dir))?;
         let buckets = buckets.clamp(1, 4096);
         let ids_per_bucket = surfaces.div_ceil(buckets).max(1);
         let n = surfaces.div_ceil(ids_per_bucket).max(1) as usize;
         Ok(HitWriter {
             dir: dir.to_path_buf(),
+            file: file.to_path_buf(),
             ids_per_bucket,
             buffers: vec![Vec::new(); n],
             files: (0..n).map(|_| None).collect(),
@@ -178,24 +90,6 @@ impl HitWriter {
 
     fn bucket_of(&self, surface: SurfaceId) -> usize {
         ((surface.index / self.ids_per_bucket) as usize).min(self.buffers.len() - 1)
-    }
-
-    /// Appends a chunk of hits, in order.
-    pub fn push(&mut self, hits: &[Hit]) -> Result<(), HitFileError> {
-        for h in hits {
-            let b = self.bucket_of(h.surface);
-            self.buffers[b].extend_from_slice(&h.to_bytes());
-            self.counts[b] += 1;
-            let k = h.surface.side_index();
-            if k >= self.side_counts.len() {
-                self.side_counts.resize(k + 1, 0);
-            }
-            self.side_counts[k] += 1;
-            if self.buffers[b].len() >= self.buffer_bytes {
-                self.flush_bucket(b)?;
-            }
-        }
-        Ok(())
     }
 
     fn flush_bucket(&mut self, b: usize) -> Result<(), HitFileError> {
@@ -218,9 +112,30 @@ impl HitWriter {
     pub fn count(&self) -> u64 {
         self.counts.iter().sum()
     }
+}
+
+impl HitSink for HitWriter {
+    type Source = HitFile;
+
+    fn push(&mut self, hits: &[Hit]) -> Result<(), HitFileError> {
+        for h in hits {
+            let b = self.bucket_of(h.surface);
+            self.buffers[b].extend_from_slice(&h.to_bytes());
+            self.counts[b] += 1;
+            let k = h.surface.side_index();
+            if k >= self.side_counts.len() {
+                self.side_counts.resize(k + 1, 0);
+            }
+            self.side_counts[k] += 1;
+            if self.buffers[b].len() >= self.buffer_bytes {
+                self.flush_bucket(b)?;
+            }
+        }
+        Ok(())
+    }
 
     /// Sorts every bucket by surface id (stable) and writes the hit file
-    /// `path`: header `KALOSHIT`, bucket count, then (offset, count) per
+    /// given to [`HitWriter::new`]: header `KALOSHIT`, bucket count, then (offset, count) per
     /// bucket, then the records. Written to a temporary name and renamed.
     ///
     /// The sort is a counting sort: the writer has counted every surface
@@ -228,7 +143,8 @@ impl HitWriter {
     /// read in chunks of at most [`HitWriter::sort_chunk`] records, each
     /// chunk sorted stably and its runs written at their sides' next
     /// positions. The bytes are those of a stable sort of the whole bucket.
-    pub fn finish(mut self, path: &Path) -> Result<HitFile, HitFileError> {
+    fn finish(mut self) -> Result<HitFile, HitFileError> {
+        let path = self.file.clone();
         for b in 0..self.buffers.len() {
             self.flush_bucket(b)?;
             if let Some(mut f) = self.files[b].take() {
@@ -328,25 +244,14 @@ impl HitWriter {
             }
             f.flush().map_err(io_err(&tmp))?;
         }
-        std::fs::rename(&tmp, path).map_err(io_err(path))?;
+        std::fs::rename(&tmp, &path).map_err(io_err(&path))?;
         Ok(HitFile {
-            path: path.to_path_buf(),
+            path,
             buckets: offsets,
             runs,
             max_sort_records: max_sort,
         })
     }
-}
-
-/// The records of one surface side: a contiguous span of the hit file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Run {
-    /// The surface side.
-    pub surface: SurfaceId,
-    /// Index of its first record.
-    pub start: u64,
-    /// Number of records.
-    pub count: u64,
 }
 
 /// A finished hit file: records grouped and sorted by surface id, in buckets.
@@ -462,23 +367,20 @@ impl HitFile {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+impl HitSource for HitFile {
+    fn runs(&self) -> &[Run] {
+        &self.runs
+    }
 
-    #[test]
-    fn rgb9e5_round_trip_is_close() {
-        for c in [
-            Vec3::new(1.0, 0.5, 0.25),
-            Vec3::new(3.7, 0.01, 0.0),
-            Vec3::new(1e-3, 2e-3, 3e-3),
-        ] {
-            let d = decode_rgb9e5(encode_rgb9e5(c));
-            assert!(
-                (d - c).abs().max_element() <= c.max_element() / 256.0,
-                "{c} {d}"
-            );
-        }
-        assert_eq!(decode_rgb9e5(encode_rgb9e5(Vec3::ZERO)), Vec3::ZERO);
+    fn read(&self, start: u64, count: u64) -> Result<Cow<'_, [Hit]>, HitFileError> {
+        self.read_range(start, count).map(Cow::Owned)
+    }
+
+    fn hit_count(&self) -> u64 {
+        self.len()
+    }
+
+    fn max_sort_records(&self) -> u64 {
+        self.max_sort_records
     }
 }

@@ -45,6 +45,7 @@
 
 pub mod decimate;
 pub mod hitfile;
+pub mod hits;
 pub mod kernel;
 pub mod mesh;
 pub mod particles;
@@ -66,7 +67,8 @@ use crate::geometry::{offset_point, Ray};
 use crate::methods::path::orient;
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb};
-use hitfile::{decode_rgb9e5, from_fixed, HitFile, HitFileError, HitWriter, HIT_BYTES};
+use hitfile::{HitFile, HitFileError, HitWriter};
+use hits::{decode_rgb9e5, from_fixed, HitSink, HIT_BYTES};
 use kernel::Params;
 use mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
 use particles::Channel;
@@ -263,7 +265,7 @@ pub fn trace_to_file(
     let n_expected_hits = s.particles.saturating_mul(4) * if s.per_channel { 3 } else { 1 };
     // buckets of about 32 MB of records
     let buckets = (n_expected_hits * HIT_BYTES as u64 / (32 << 20)).clamp(1, 1024) as u32;
-    let mut w = HitWriter::new(dir, surfaces.list.len() as u32, buckets)?;
+    let mut w = HitWriter::new(dir, path, surfaces.list.len() as u32, buckets)?;
     w.sort_chunk = s.chunk_hits.max(1);
     let mut total = particles::TraceStats::default();
     let channels: Vec<Channel> = if s.per_channel {
@@ -286,7 +288,7 @@ pub fn trace_to_file(
         total.hits += t.hits;
         total.rays += t.rays;
     }
-    let file = w.finish(path)?;
+    let file = w.finish()?;
     Ok((file, total, particles::phi_unit(&lums, s.particles)))
 }
 
@@ -333,7 +335,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     let mut max_in_memory = 0u64;
     let result = (|| -> Result<(), HitFileError> {
         let is_planar = |id: SurfaceId| surfaces.get(id).is_some_and(|s| s.kind == Kind::Planar);
-        let new_estimator = |run: &hitfile::Run| {
+        let new_estimator = |run: &hits::Run| {
             let surf = surfaces.of(run.surface);
             let ct = surf.chart_tris(scene);
             kernel::PlanarEstimator::new(
@@ -345,7 +347,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
                 &params,
             )
         };
-        let finish = |run: &hitfile::Run, est: kernel::PlanarEstimator| {
+        let finish = |run: &hits::Run, est: kernel::PlanarEstimator| {
             let e = est.finish();
             PlanarMesh::unindexed(run.surface, e.verts, e.tris, e.h, e.bandwidth, run.count)
         };
@@ -403,7 +405,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         // shape and side (many runs: one per triangle) streamed in chunks.
         // eq. (2) is additive over chunks, so each chunk's kd-tree gives a
         // partial sum at every vertex.
-        let mut keys: Vec<((u32, bool), Vec<hitfile::Run>)> = Vec::new();
+        let mut keys: Vec<((u32, bool), Vec<hits::Run>)> = Vec::new();
         {
             let mut index: HashMap<(u32, bool), usize> = HashMap::new();
             for run in runs {
