@@ -1009,3 +1009,60 @@ fn assert_faces_receive_pi(bake: &density::Bake, label: &str) {
         assert!((mean / std::f64::consts::PI - 1.0).abs() <= tol, "{label}");
     }
 }
+
+/// An empty directory for a scratch test, and a regular file beside it
+/// (a path under a regular file cannot be created, even by root).
+fn scratch_base(name: &str) -> (PathBuf, PathBuf) {
+    let base = scratch(name);
+    let file = base.with_extension("file");
+    std::fs::write(&file, b"not a directory").expect("regular file");
+    (base, file)
+}
+
+/// The entries of a directory.
+fn entries(dir: &std::path::Path) -> Vec<PathBuf> {
+    std::fs::read_dir(dir)
+        .expect("read dir")
+        .map(|e| e.expect("entry").path())
+        .collect()
+}
+
+/// The bake's scratch directory is gone after a bake, after a bake that
+/// fails once it has written hits (the hit file to keep cannot be
+/// created), and when a panic unwinds past it.
+#[test]
+fn scratch_directory_is_removed() {
+    let world = World::new(furnace(0.5, 1.0, 8));
+    let (base, file) = scratch_base("removed");
+    let st = Settings {
+        scratch: Some(base.clone()),
+        ..settings(20_000, 3)
+    };
+    density::bake(&world, &st).expect("bake");
+    assert_eq!(entries(&base), Vec::<PathBuf>::new(), "after a bake");
+
+    let keep = file.join("hits.bin");
+    let err = density::bake(
+        &world,
+        &Settings {
+            keep_hits: Some(keep.clone()),
+            ..st.clone()
+        },
+    )
+    .expect_err("the hit file cannot be kept under a regular file");
+    let msg = format!("{err}");
+    assert!(msg.contains(&file.display().to_string()), "{msg}");
+    assert_eq!(entries(&base), Vec::<PathBuf>::new(), "after a failed bake");
+
+    let dir = density::scratch::ScratchDir::new(&st).expect("scratch dir");
+    let path = dir.path().to_path_buf();
+    std::fs::write(path.join("bucket"), b"hits").expect("write");
+    let unwound = std::panic::catch_unwind(move || {
+        let _dir = dir;
+        panic!("unwinding past the scratch directory");
+    });
+    assert!(unwound.is_err());
+    assert!(!path.exists(), "after a panic");
+    let _ = std::fs::remove_dir_all(&base);
+    let _ = std::fs::remove_file(&file);
+}

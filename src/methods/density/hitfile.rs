@@ -26,9 +26,10 @@ use super::surfaces::SurfaceId;
 
 const MAGIC: &[u8; 8] = b"KALOSHIT";
 
-/// An I/O error on the hit file.
+/// An I/O error on the hit file or its bucket files (the reason is the
+/// error's source).
 #[derive(Debug, thiserror::Error)]
-#[error("hit file {}: {source}", path.display())]
+#[error("hit file {}", path.display())]
 pub struct HitFileError {
     /// The file.
     pub path: PathBuf,
@@ -112,6 +113,70 @@ impl HitWriter {
     pub fn count(&self) -> u64 {
         self.counts.iter().sum()
     }
+
+    /// Writes the header and every bucket, sorted, to `tmp`; returns the
+    /// largest number of records held at once. `next[k]` is the next record
+    /// of surface side k.
+    fn write_sorted(
+        &self,
+        tmp: &Path,
+        header: u64,
+        offsets: &[(u64, u64)],
+        next: &mut [u64],
+    ) -> Result<u64, HitFileError> {
+        let nb = offsets.len();
+        let mut max_sort = 0u64;
+        let mut f = File::create(tmp).map_err(io_err(tmp))?;
+        let mut head = Vec::with_capacity(header as usize);
+        head.extend_from_slice(MAGIC);
+        head.extend_from_slice(&(nb as u64).to_le_bytes());
+        for &(o, c) in offsets {
+            head.extend_from_slice(&o.to_le_bytes());
+            head.extend_from_slice(&c.to_le_bytes());
+        }
+        f.write_all(&head).map_err(io_err(tmp))?;
+        let chunk = self.sort_chunk.max(1);
+        let mut out = Vec::new();
+        for b in 0..nb {
+            if self.counts[b] == 0 {
+                continue;
+            }
+            let bp = self.bucket_path(b);
+            let mut r = BufReader::new(File::open(&bp).map_err(io_err(&bp))?);
+            let mut left = self.counts[b];
+            let mut bytes = Vec::new();
+            while left > 0 {
+                let m = left.min(chunk as u64);
+                bytes.resize(m as usize * HIT_BYTES, 0);
+                r.read_exact(&mut bytes).map_err(io_err(&bp))?;
+                let mut hits: Vec<Hit> =
+                    bytes.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
+                max_sort = max_sort.max(m);
+                hits.sort_by_key(|h| h.surface);
+                // each run of one side goes to that side's next records
+                let mut i = 0;
+                while i < hits.len() {
+                    let id = hits[i].surface;
+                    let j = i + hits[i..].partition_point(|h| h.surface == id);
+                    let k = id.side_index();
+                    out.clear();
+                    for h in &hits[i..j] {
+                        out.extend_from_slice(&h.to_bytes());
+                    }
+                    f.seek(SeekFrom::Start(header + next[k] * HIT_BYTES as u64))
+                        .map_err(io_err(tmp))?;
+                    f.write_all(&out).map_err(io_err(tmp))?;
+                    next[k] += (j - i) as u64;
+                    i = j;
+                }
+                left -= m;
+            }
+            drop(r);
+            std::fs::remove_file(&bp).map_err(io_err(&bp))?;
+        }
+        f.flush().map_err(io_err(tmp))?;
+        Ok(max_sort)
+    }
 }
 
 impl HitSink for HitWriter {
@@ -192,59 +257,21 @@ impl HitSink for HitWriter {
                 }
             }
         }
-        let mut max_sort = 0u64;
-        {
-            let mut f = File::create(&tmp).map_err(io_err(&tmp))?;
-            let mut head = Vec::with_capacity(header as usize);
-            head.extend_from_slice(MAGIC);
-            head.extend_from_slice(&(nb as u64).to_le_bytes());
-            for &(o, c) in &offsets {
-                head.extend_from_slice(&o.to_le_bytes());
-                head.extend_from_slice(&c.to_le_bytes());
+        // A failed write leaves no partial file (it may sit beside a kept
+        // hit file, outside the scratch directory)
+        let written = self
+            .write_sorted(&tmp, header, &offsets, &mut next)
+            .and_then(|m| {
+                std::fs::rename(&tmp, &path).map_err(io_err(&path))?;
+                Ok(m)
+            });
+        let max_sort = match written {
+            Ok(m) => m,
+            Err(e) => {
+                let _ = std::fs::remove_file(&tmp);
+                return Err(e);
             }
-            f.write_all(&head).map_err(io_err(&tmp))?;
-            let chunk = self.sort_chunk.max(1);
-            let mut out = Vec::new();
-            for b in 0..nb {
-                if self.counts[b] == 0 {
-                    continue;
-                }
-                let bp = self.bucket_path(b);
-                let mut r = BufReader::new(File::open(&bp).map_err(io_err(&bp))?);
-                let mut left = self.counts[b];
-                let mut bytes = Vec::new();
-                while left > 0 {
-                    let m = left.min(chunk as u64);
-                    bytes.resize(m as usize * HIT_BYTES, 0);
-                    r.read_exact(&mut bytes).map_err(io_err(&bp))?;
-                    let mut hits: Vec<Hit> =
-                        bytes.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
-                    max_sort = max_sort.max(m);
-                    hits.sort_by_key(|h| h.surface);
-                    // each run of one side goes to that side's next records
-                    let mut i = 0;
-                    while i < hits.len() {
-                        let id = hits[i].surface;
-                        let j = i + hits[i..].partition_point(|h| h.surface == id);
-                        let k = id.side_index();
-                        out.clear();
-                        for h in &hits[i..j] {
-                            out.extend_from_slice(&h.to_bytes());
-                        }
-                        f.seek(SeekFrom::Start(header + next[k] * HIT_BYTES as u64))
-                            .map_err(io_err(&tmp))?;
-                        f.write_all(&out).map_err(io_err(&tmp))?;
-                        next[k] += (j - i) as u64;
-                        i = j;
-                    }
-                    left -= m;
-                }
-                drop(r);
-                std::fs::remove_file(&bp).map_err(io_err(&bp))?;
-            }
-            f.flush().map_err(io_err(&tmp))?;
-        }
-        std::fs::rename(&tmp, &path).map_err(io_err(&path))?;
+        };
         Ok(HitFile {
             path,
             buckets: offsets,

@@ -49,12 +49,12 @@ pub mod hits;
 pub mod kernel;
 pub mod mesh;
 pub mod particles;
+pub mod scratch;
 pub mod surfaces;
 
 use std::collections::HashMap;
 use std::f32::consts::PI;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
@@ -72,6 +72,7 @@ use hits::{decode_rgb9e5, from_fixed, HitSink, HIT_BYTES};
 use kernel::Params;
 use mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
 use particles::Channel;
+use scratch::ScratchDir;
 use surfaces::{Kind, SurfaceId, Surfaces};
 
 /// Settings of the density method (defaults inside the paper's ranges).
@@ -231,25 +232,24 @@ pub struct Bake {
     pub stats: BakeStats,
 }
 
-/// An error while baking (the hit file's I/O).
+/// An error while baking.
 #[derive(Debug, thiserror::Error)]
 pub enum DensityError {
+    /// The scratch directory could not be made in `base`.
+    #[error("cannot create a scratch directory in {}", base.display())]
+    Scratch {
+        /// The directory it was to be made in.
+        base: PathBuf,
+        /// Why not.
+        #[source]
+        source: std::io::Error,
+    },
     /// Hit-file I/O.
     #[error(transparent)]
     HitFile(#[from] HitFileError),
     /// Bad settings.
     #[error(transparent)]
     Settings(#[from] MethodError),
-}
-
-fn scratch_dir(s: &Settings) -> PathBuf {
-    static N: AtomicU64 = AtomicU64::new(0);
-    let base = s.scratch.clone().unwrap_or_else(std::env::temp_dir);
-    base.join(format!(
-        "kalos-density-{}-{}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ))
 }
 
 /// Phase 1: traces the particles into a hit file at `path` (bucket files in
@@ -305,16 +305,8 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
 
     // Phase 1: particle tracing
     let t0 = Instant::now();
-    let dir = scratch_dir(s);
-    let path = s.keep_hits.clone().unwrap_or_else(|| dir.join("hits.bin"));
-    let traced = trace_to_file(world, &surfaces, s, &dir, &path);
-    let (file, ts, phi) = match traced {
-        Ok(v) => v,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&dir);
-            return Err(e.into());
-        }
-    };
+    let scratch = ScratchDir::new(s)?;
+    let (file, ts, phi) = trace_to_file(world, &surfaces, s, scratch.path(), scratch.hit_file())?;
     stats.particles = ts.particles;
     stats.hits = ts.hits;
     stats.rays = ts.rays;
@@ -479,10 +471,7 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         }
         Ok(())
     })();
-    if s.keep_hits.is_none() {
-        let _ = std::fs::remove_file(&path);
-    }
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(scratch);
     result?;
     stats.max_hits_in_memory = max_in_memory;
     stats.max_sort_records = file.max_sort_records;
