@@ -12,8 +12,9 @@ use kalos::image_io::read_image;
 use kalos::methods::density::hitfile::{HitFile, HitWriter};
 use kalos::methods::density::hits::{Hit, HitSink, HitSource, MemoryWriter};
 use kalos::methods::density::mesh::PlanarMesh;
+use kalos::methods::density::scratch::ScratchDir;
 use kalos::methods::density::surfaces::SurfaceId;
-use kalos::methods::density::{self, decimate, kernel, Settings};
+use kalos::methods::density::{self, decimate, kernel, pipeline, Settings, Storage};
 use kalos::methods::{Method, World};
 use kalos::metrics::{rel_mse, rel_mse_pair};
 use kalos::sampling::Pcg32;
@@ -449,15 +450,23 @@ fn hit_file_round_trip_and_determinism() {
     let sc = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("cbox");
     let world = World::new(sc);
     let surfaces = density::surfaces::build(&world.scene);
-    let st = settings(60_000, 11);
     let trace = |threads: usize, name: &str| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .expect("pool");
-        let d = dir.join(name);
         let path = dir.join(format!("{name}.bin"));
-        pool.install(|| density::trace_to_file(&world, &surfaces, &st, &d, &path).expect("trace"));
+        let st = Settings {
+            scratch: Some(dir.clone()),
+            keep_hits: Some(path.clone()),
+            ..settings(60_000, 11)
+        };
+        pool.install(|| {
+            let scratch = ScratchDir::new(&st).expect("scratch");
+            let mut sink = pipeline::file_sink(&surfaces, &st, &scratch).expect("sink");
+            pipeline::trace(&world, &surfaces, &st, &mut sink).expect("trace");
+            pipeline::group(sink).expect("group");
+        });
         std::fs::read(&path).expect("read")
     };
     let (a, b) = (trace(1, "t1"), trace(2, "t2"));
@@ -1054,7 +1063,7 @@ fn scratch_directory_is_removed() {
     assert!(msg.contains(&file.display().to_string()), "{msg}");
     assert_eq!(entries(&base), Vec::<PathBuf>::new(), "after a failed bake");
 
-    let dir = density::scratch::ScratchDir::new(&st).expect("scratch dir");
+    let dir = ScratchDir::new(&st).expect("scratch dir");
     let path = dir.path().to_path_buf();
     std::fs::write(path.join("bucket"), b"hits").expect("write");
     let unwound = std::panic::catch_unwind(move || {
@@ -1065,4 +1074,55 @@ fn scratch_directory_is_removed() {
     assert!(!path.exists(), "after a panic");
     let _ = std::fs::remove_dir_all(&base);
     let _ = std::fs::remove_file(&file);
+}
+
+/// The in-memory hit store gives the bake of the hit file, bit for bit:
+/// both hold each surface side's records in traced order and phase 2 sums
+/// them in that order, whatever the order of the sides. The floor scene
+/// with a sphere (planar and curved surfaces), streamed in small chunks so
+/// that large surfaces are summed chunk by chunk.
+#[test]
+fn memory_and_disk_bakes_are_identical() {
+    let mut sc = floor_scene(0.2, 1.0);
+    let grey = sc.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.5)),
+    });
+    let m = scene::shapes::sphere(Vec3::new(0.6, 0.3, 0.0), 0.3, 12);
+    sc.add_mesh(
+        "ball",
+        &m.positions,
+        m.normals.as_deref(),
+        None,
+        &m.indices,
+        grey,
+        None,
+    );
+    let world = World::new(sc);
+    let st = Settings {
+        chunk_hits: 7_000,
+        ..settings(100_000, 21)
+    };
+    let disk = density::bake_with(&world, &st, Storage::Disk).expect("disk");
+    let memory = density::bake_with(&world, &st, Storage::Memory).expect("memory");
+    assert!(disk.stats.hits > 4 * 7_000);
+    assert_eq!(disk.w0.to_bits(), memory.w0.to_bits());
+    assert_eq!(disk.mesh.planar.len(), memory.mesh.planar.len());
+    for (a, b) in disk.mesh.planar.iter().zip(&memory.mesh.planar) {
+        assert_eq!(a.surface, b.surface);
+        assert_eq!(a.verts, b.verts);
+        assert_eq!(a.tris, b.tris);
+        assert_eq!(a.h, b.h);
+    }
+    assert!(!disk.mesh.curved.is_empty());
+    assert_eq!(disk.mesh.curved.len(), memory.mesh.curved.len());
+    for (a, b) in disk.mesh.curved.iter().zip(&memory.mesh.curved) {
+        assert_eq!((a.shape, a.back), (b.shape, b.back));
+        assert_eq!(a.h, b.h);
+    }
+    let keep = Settings {
+        keep_hits: Some(std::env::temp_dir().join("never-written.bin")),
+        ..st
+    };
+    let err = density::bake_with(&world, &keep, Storage::Memory).expect_err("nothing to keep");
+    assert!(err.to_string().contains("never-written.bin"), "{err}");
 }
