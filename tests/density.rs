@@ -544,7 +544,7 @@ fn decimation_invariants() {
 fn glb_loads_back_with_vertex_colours() {
     let world = World::new(furnace(0.5, 1.0, 8));
     let b = density::bake(&world, &settings(50_000, 1)).expect("bake");
-    let (lit, other) = kalos::bake::collect(&world.scene, &b);
+    let (lit, other) = b.baked_meshes(&world.scene);
     let bytes = kalos::bake::gltf::encode_glb(&lit, &other, b.w0);
     let (doc, buffers, _) = gltf::import_slice(&bytes).expect("valid glb");
     let mesh = doc.meshes().next().expect("a mesh");
@@ -942,7 +942,7 @@ fn baked_colours_use_the_texture_at_each_vertex() {
     };
     let world = World::new(sc);
     let b = density::bake(&world, &settings(200_000, 17)).expect("bake");
-    let (lit, _) = kalos::bake::collect(&world.scene, &b);
+    let (lit, _) = b.baked_meshes(&world.scene);
     let (mut dark, mut bright) = (0, 0);
     for ((q, h), l) in lit.positions.iter().zip(&lit.irradiance).zip(&lit.radiance) {
         let uv = Vec2::new((q.x + 1.0) / 2.0, (q.z + 1.0) / 2.0);

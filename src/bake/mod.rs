@@ -1,110 +1,11 @@
-//! Display-mesh export: the baked lighting of the density method as glTF
-//! binary (vertex colours) and as an irradiance PLY.
-//!
-//! The display mesh is world-space triangles with, at each vertex, the
-//! outgoing radiance L = R·H/π of the diffuse surface (plus L_e on the front
-//! of an emitter), R being the reflectance at that vertex (textures looked
-//! up through the mesh uvs) and, for a material with a diffuse part that is
-//! not Lambertian, R_d·Ĥ/π ([`crate::bsdf::DiffusePart::rd`]). Surfaces
-//! without a diffuse part (glass, metal...) carry no baked lighting: they go
-//! to a second glTF primitive with a plain PBR material, so that a viewer
-//! still shows the geometry.
+//! Display-mesh export: writers for the baked lighting a view-independent
+//! method produces (the density method's [`BakedMesh`], made by
+//! [`crate::methods::density::Bake::baked_meshes`]), as glTF binary with
+//! vertex colours and as an irradiance PLY. Nothing here computes
+//! lighting; [`gen`] writes the built-in scene generators' files.
 
 pub mod gen;
 pub mod gltf;
 pub mod ply;
 
-use std::f32::consts::PI;
-
-use glam::{Vec2, Vec3};
-
-use crate::methods::density::{surfaces::Kind, Bake};
-use crate::scene::{EmitterDesc, Scene};
-
-/// Triangles with per-vertex attributes, ready to write.
-#[derive(Clone, Debug, Default)]
-pub struct BakedMesh {
-    /// Positions (world).
-    pub positions: Vec<Vec3>,
-    /// Normals (the side the lighting is for).
-    pub normals: Vec<Vec3>,
-    /// Irradiance H, W/m².
-    pub irradiance: Vec<Vec3>,
-    /// Outgoing radiance R·H/π (+ L_e), W/(m²·sr).
-    pub radiance: Vec<Vec3>,
-    /// Triangles.
-    pub indices: Vec<[u32; 3]>,
-}
-
-impl BakedMesh {
-    fn push(&mut self, p: Vec3, n: Vec3, h: Vec3, l: Vec3) -> u32 {
-        self.positions.push(p);
-        self.normals.push(n);
-        self.irradiance.push(h);
-        self.radiance.push(l);
-        (self.positions.len() - 1) as u32
-    }
-}
-
-/// The lit mesh (diffuse surfaces, both sides where lit) and the unlit
-/// geometry of the other surfaces.
-pub fn collect(scene: &Scene, bake: &Bake) -> (BakedMesh, BakedMesh) {
-    let mut lit = BakedMesh::default();
-    let emitted = |shape: u32| {
-        let sh = &scene.shapes[shape as usize];
-        match sh.emitter.and_then(|e| scene.emitters.get(e as usize)) {
-            Some(EmitterDesc::Area { radiance, .. }) => *radiance,
-            _ => Vec3::ZERO,
-        }
-    };
-    for m in &bake.mesh.planar {
-        let back = m.surface.back;
-        let s = bake.surfaces.of(m.surface);
-        let n = if back { -s.normal } else { s.normal };
-        let le = if back { Vec3::ZERO } else { emitted(s.shape) };
-        let base = lit.positions.len() as u32;
-        let r = s.reflectance_at(scene, &m.verts);
-        for ((v, h), r) in m.verts.iter().zip(&m.h).zip(r) {
-            lit.push(s.to_world(*v), n, *h, r * *h / PI + le);
-        }
-        for t in &m.tris {
-            let t = t.map(|i| i + base);
-            lit.indices.push(if back { [t[0], t[2], t[1]] } else { t });
-        }
-    }
-    for m in &bake.mesh.curved {
-        let le = if m.back { Vec3::ZERO } else { emitted(m.shape) };
-        for (&t, h) in m.tris.iter().zip(&m.h) {
-            let s = &bake.surfaces.list[bake.surfaces.tri_surface[t as usize] as usize];
-            let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)];
-            let r = s.reflectance_at(scene, &corners.map(|(b1, b2)| Vec2::new(b1, b2)));
-            let mut idx = [0u32; 3];
-            for (k, (b1, b2)) in corners.into_iter().enumerate() {
-                let sp = scene.surface_point(t, b1, b2);
-                let n = if m.back { -sp.frame.n } else { sp.frame.n };
-                idx[k] = lit.push(sp.p, n, h[k], r[k] * h[k] / PI + le);
-            }
-            lit.indices.push(if m.back {
-                [idx[0], idx[2], idx[1]]
-            } else {
-                idx
-            });
-        }
-    }
-    let mut other = BakedMesh::default();
-    for s in &bake.surfaces.list {
-        if s.diffuse {
-            continue;
-        }
-        for &t in &s.tris {
-            let sp = scene.surface_point(t, 0.0, 0.0);
-            let mut idx = [0u32; 3];
-            for (k, p) in scene.tri_vertices(t).into_iter().enumerate() {
-                idx[k] = other.push(p, sp.ng, Vec3::ZERO, Vec3::ZERO);
-            }
-            other.indices.push(idx);
-        }
-    }
-    let _ = Kind::Planar;
-    (lit, other)
-}
+pub use crate::methods::density::BakedMesh;

@@ -45,6 +45,7 @@
 //! kalos bake scenes/cbox/cbox.xml -o cbox.glb --stats
 //! ```
 
+pub mod baked;
 pub mod decimate;
 pub mod hitfile;
 pub mod hits;
@@ -73,6 +74,8 @@ use hits::{HitSink, HitSource, MemoryWriter, HIT_BYTES};
 use mesh::DisplayMesh;
 use scratch::ScratchDir;
 use surfaces::Surfaces;
+
+pub use baked::BakedMesh;
 
 /// Settings of the density method (defaults inside the paper's ranges).
 #[derive(Clone, Debug)]
