@@ -15,7 +15,7 @@ use kalos::methods::density::mesh::PlanarMesh;
 use kalos::methods::density::scratch::ScratchDir;
 use kalos::methods::density::surfaces::SurfaceId;
 use kalos::methods::density::{self, decimate, kernel, pipeline, Settings, Storage};
-use kalos::methods::{Method, World};
+use kalos::methods::{Budget, Driver, Method, World};
 use kalos::metrics::{rel_mse, rel_mse_pair};
 use kalos::sampling::Pcg32;
 use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
@@ -38,14 +38,19 @@ fn settings(particles: u64, seed: u64) -> Settings {
     }
 }
 
-/// Renders with the density method: bake in pass 0, then `passes` view passes.
+/// Renders with the density method: the bake (prepare), then `passes` view
+/// passes.
 fn render(world: &World, s: Settings, passes: u64) -> (kalos::film::Image, density::BakeStats) {
     let mut m = density::Density::new(world, s);
+    let prepared = m.prepare(world).expect("bake");
     for p in 0..passes {
         m.step(world, p);
     }
-    assert!(m.error.is_none(), "bake failed: {:?}", m.error);
     let stats = m.bake().expect("baked").stats.clone();
+    assert_eq!(
+        prepared.rays, stats.rays,
+        "prepare counts the particle rays"
+    );
     (m.image(world), stats)
 }
 
@@ -1125,4 +1130,86 @@ fn memory_and_disk_bakes_are_identical() {
     };
     let err = density::bake_with(&world, &keep, Storage::Memory).expect_err("nothing to keep");
     assert!(err.to_string().contains("never-written.bin"), "{err}");
+}
+
+/// A driver for `passes` passes.
+fn driver(passes: u64) -> Driver<'static> {
+    Driver {
+        budget: Budget {
+            passes: Some(passes),
+            ..Default::default()
+        },
+        cancel: None,
+        reference: None,
+        log_every: 0.0,
+    }
+}
+
+/// A bake that cannot make its scratch directory fails the render: the
+/// driver returns the error (no black image), naming the directory and the
+/// reason. The directory is under a regular file, which fails even as
+/// root; the reason expected is the one the OS gives for the same path.
+#[test]
+fn failed_bake_is_the_render_error() {
+    let world = World::new(furnace(0.5, 1.0, 8));
+    let (base, file) = scratch_base("unwritable");
+    let bad = file.join("scratch");
+    let reason = std::fs::create_dir(bad.join("x"))
+        .expect_err("no directory under a regular file")
+        .to_string();
+    let st = Settings {
+        scratch: Some(bad.clone()),
+        ..settings(20_000, 3)
+    };
+    let mut m = density::Density::new(&world, st);
+    let err = match driver(2).run(&mut m, &world, |_| {}) {
+        Ok(_) => panic!("the render succeeded without a scratch directory"),
+        Err(e) => e.to_string(),
+    };
+    eprintln!("error: {err}");
+    assert!(err.contains(&bad.display().to_string()), "{err}");
+    assert!(err.contains(&reason), "{err}");
+    assert!(m.bake().is_none());
+    let _ = std::fs::remove_dir_all(&base);
+    let _ = std::fs::remove_file(&file);
+}
+
+/// `Density::new` traces nothing, and the scratch directory is gone after
+/// a render and after a render whose bake fails once it has written hits.
+#[test]
+fn scratch_directory_is_gone_after_a_render() {
+    let world = World::new(furnace(0.5, 1.0, 8));
+    let (base, file) = scratch_base("render");
+    let st = Settings {
+        scratch: Some(base.clone()),
+        ..settings(20_000, 3)
+    };
+    let mut m = density::Density::new(&world, st.clone());
+    assert!(m.bake().is_none(), "new does not bake");
+    assert_eq!(entries(&base), Vec::<PathBuf>::new(), "new writes nothing");
+    let r = driver(2).run(&mut m, &world, |_| {}).expect("render");
+    let baked = m.bake().expect("baked");
+    assert!(baked.stats.rays > 0 && r.rays > baked.stats.rays);
+    assert_eq!(entries(&base), Vec::<PathBuf>::new(), "after a render");
+
+    let keep = Settings {
+        keep_hits: Some(file.join("hits.bin")),
+        ..st
+    };
+    let mut m = density::Density::new(&world, keep);
+    let err = driver(2)
+        .run(&mut m, &world, |_| {})
+        .err()
+        .expect("the hit file cannot be kept under a regular file");
+    assert!(
+        err.to_string().contains(&file.display().to_string()),
+        "{err}"
+    );
+    assert_eq!(
+        entries(&base),
+        Vec::<PathBuf>::new(),
+        "after a failed render"
+    );
+    let _ = std::fs::remove_dir_all(&base);
+    let _ = std::fs::remove_file(&file);
 }

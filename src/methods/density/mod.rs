@@ -28,8 +28,12 @@
 //! approximation: for the coated models the baked colour uses the coat's
 //! mean transmittance T̄ in place of T(cos θo) (the view pass uses the exact
 //! one), and a purely glossy material (`roughconductor`, `phong` with
-//! kd = 0) has no view-independent part at all: it is ray-traced only. The bake happens in the first pass; every pass adds
-//! one jittered sample per pixel of the view pass.
+//! kd = 0) has no view-independent part at all: it is ray-traced only.
+//!
+//! The [`Density`] method bakes in [`Method::prepare`], inside the driver's
+//! clock with the particle rays counted (a failed bake is the render's
+//! error); every step then adds one jittered sample per pixel of the view
+//! pass.
 //!
 //! Colour: one RGB pass. Every particle carries RGB power (its luminaire's
 //! colour, tinted by every reflection), so the three channels of the estimate
@@ -355,32 +359,52 @@ fn trace_and_estimate<S: HitSink>(
     Ok(estimated)
 }
 
-/// The density method's progressive state: the bake, then the view pass.
+/// The density method's progressive state: the bake, made once by
+/// [`Method::prepare`], then one jittered sample per pixel of the view pass
+/// per step.
 pub struct Density {
     settings: Settings,
+    storage: Storage,
     bake: Option<Bake>,
-    /// The error of a failed bake (the image stays black).
-    pub error: Option<String>,
     film: Film,
     passes: u64,
 }
 
 impl Density {
-    /// A density method for `world`.
+    /// A density method for `world`, with the hit file on disk. Cheap: the
+    /// particles are traced by [`Method::prepare`].
     pub fn new(world: &World, settings: Settings) -> Self {
         Density {
             settings,
+            storage: Storage::Disk,
             bake: None,
-            error: None,
             film: Film::new(world.camera.width, world.camera.height),
             passes: 0,
         }
     }
 
-    /// The bake, once the first pass has run.
+    /// The same method with the hits kept in `storage`.
+    pub fn with_storage(mut self, storage: Storage) -> Self {
+        self.storage = storage;
+        self
+    }
+
+    /// The bake, once prepared.
     pub fn bake(&self) -> Option<&Bake> {
         self.bake.as_ref()
     }
+}
+
+/// `e` and its sources, joined by ": ", as one line.
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut line = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        line.push_str(": ");
+        line.push_str(&s.to_string());
+        source = s.source();
+    }
+    line
 }
 
 impl Method for Density {
@@ -388,24 +412,24 @@ impl Method for Density {
         "density"
     }
 
+    /// The bake: its particle rays are the rays of the setup, and a failed
+    /// bake (an unwritable scratch directory, a full disk) is the render's
+    /// error, with its reason.
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        let b = bake_with(world, &self.settings, self.storage)
+            .map_err(|e| MethodError(format!("density bake: {}", error_chain(&e))))?;
+        let rays = b.stats.rays;
+        self.bake = Some(b);
+        Ok(StepStats { rays })
+    }
+
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
-        let mut rays = 0;
-        if self.bake.is_none() && self.error.is_none() {
-            match bake(world, &self.settings) {
-                Ok(b) => {
-                    rays += b.stats.rays;
-                    self.bake = Some(b);
-                }
-                Err(e) => self.error = Some(e.to_string()),
-            }
-        }
         let Some(bk) = &self.bake else {
-            self.passes += 1;
-            return StepStats { rays };
+            panic!("Density::step before Density::prepare (the driver runs prepare first)");
         };
         let w = world.camera.width as usize;
         let seed = self.settings.seed;
-        rays += self
+        let rays = self
             .film
             .sum
             .par_chunks_mut(w)
