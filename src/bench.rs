@@ -1,6 +1,6 @@
-//! Ray-core measurements for `kalos bench`: a generated scene of a given
-//! triangle count, and incoherent closest-hit throughput. Benchmarks measure;
-//! nothing here is asserted by tests.
+//! Ray-core measurements for `kalos bench`: incoherent closest-hit
+//! throughput (the default scene is [`crate::scenegen::bench_scene`]).
+//! Benchmarks measure; nothing here is asserted by tests.
 
 use std::time::Instant;
 
@@ -10,107 +10,6 @@ use rayon::prelude::*;
 use crate::geometry::Ray;
 use crate::methods::World;
 use crate::sampling::{uniform_sphere, Pcg32};
-use crate::scene::{CameraDesc, Material, Scene, Texture};
-
-/// A generated scene of about `triangles` triangles: finely tessellated
-/// spheres (16 384 triangles each, like scanned or subdivided models) on a
-/// jittered grid inside a closed room, lit by a quad under the ceiling.
-/// Every ray from inside the room hits something, as in an interior.
-pub fn generated_scene(triangles: u64) -> Scene {
-    let mut scene = Scene::empty(format!("generated ({triangles} triangles)"));
-    let m = scene.add_material(Material::Diffuse {
-        reflectance: Texture::Constant(Vec3::splat(0.5)),
-    });
-    // each sphere: 2·rings·segments triangles
-    let (rings, segs) = (64u32, 128u32);
-    let per = 2 * rings as u64 * segs as u64;
-    let count = (triangles / per).max(1);
-    let mut rng = Pcg32::new(7, 0);
-    let mut pos = Vec::new();
-    let mut idx = Vec::new();
-    for r in 0..=rings {
-        let theta = std::f32::consts::PI * r as f32 / rings as f32;
-        for s in 0..=segs {
-            let phi = 2.0 * std::f32::consts::PI * s as f32 / segs as f32;
-            pos.push(Vec3::new(
-                theta.sin() * phi.cos(),
-                theta.cos(),
-                theta.sin() * phi.sin(),
-            ));
-        }
-    }
-    for r in 0..rings {
-        for s in 0..segs {
-            let a = r * (segs + 1) + s;
-            let b = a + segs + 1;
-            idx.push([a, b, a + 1]);
-            idx.push([a + 1, b, b + 1]);
-        }
-    }
-    let side = (count as f32).cbrt().ceil().max(1.0);
-    for i in 0..count {
-        let g = Vec3::new(
-            (i as f32 % side).floor(),
-            ((i as f32 / side) % side).floor(),
-            (i as f32 / (side * side)).floor(),
-        );
-        let jitter = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
-        let c = ((g + 0.5 + 0.3 * jitter) / side) * 2.0 - Vec3::ONE;
-        let radius = (0.35 / side) * (0.6 + 0.4 * rng.next_f32());
-        let p: Vec<Vec3> = pos.iter().map(|v| c + *v * radius).collect();
-        scene.add_mesh(format!("sphere{i}"), &p, Some(&pos), None, &idx, m, None);
-    }
-    // the room: a closed box around everything, normals inward
-    let r = 1.6f32;
-    let room = [
-        Vec3::new(-r, -r, -r),
-        Vec3::new(r, -r, -r),
-        Vec3::new(r, r, -r),
-        Vec3::new(-r, r, -r),
-        Vec3::new(-r, -r, r),
-        Vec3::new(r, -r, r),
-        Vec3::new(r, r, r),
-        Vec3::new(-r, r, r),
-    ];
-    let faces = [
-        [0, 1, 2],
-        [0, 2, 3],
-        [4, 6, 5],
-        [4, 7, 6],
-        [0, 4, 5],
-        [0, 5, 1],
-        [3, 2, 6],
-        [3, 6, 7],
-        [0, 3, 7],
-        [0, 7, 4],
-        [1, 5, 6],
-        [1, 6, 2],
-    ];
-    scene.add_mesh("room", &room, None, None, &faces, m, None);
-    let quad = [
-        Vec3::new(-0.5, 1.5, -0.5),
-        Vec3::new(0.5, 1.5, -0.5),
-        Vec3::new(0.5, 1.5, 0.5),
-        Vec3::new(-0.5, 1.5, 0.5),
-    ];
-    scene.add_mesh(
-        "light",
-        &quad,
-        None,
-        None,
-        &[[0, 1, 2], [0, 2, 3]],
-        m,
-        Some(Vec3::splat(5.0)),
-    );
-    scene.camera = CameraDesc {
-        to_world: crate::geometry::look_at(Vec3::new(0.0, 0.0, -4.0), Vec3::ZERO, Vec3::Y),
-        fov_x_deg: 40.0,
-        width: 256,
-        height: 256,
-        near_clip: 1e-2,
-    };
-    scene
-}
 
 /// Throughput of one measurement.
 #[derive(Clone, Copy, Debug)]

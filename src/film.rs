@@ -81,11 +81,6 @@ impl Film {
         }
     }
 
-    /// Clears all sums.
-    pub fn clear(&mut self) {
-        self.sum.iter_mut().for_each(|v| *v = DVec3::ZERO);
-    }
-
     /// The mean image `sum / n` of `n` samples (black when `n` is 0).
     pub fn mean(&self, n: u64) -> Image {
         self.to_image(if n == 0 { 0.0 } else { 1.0 / n as f64 })

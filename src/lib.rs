@@ -16,7 +16,10 @@ pub mod geometry;
 pub mod image_io;
 pub mod methods;
 pub mod metrics;
+#[cfg(feature = "cli")]
 pub mod plot;
+pub mod render;
 pub mod sampling;
 pub mod scene;
+pub mod scenegen;
 pub mod world;

@@ -334,3 +334,45 @@ mod tests {
         assert_eq!(fc.data[2], Vec3::new(1.0, 0.0, 1.0));
     }
 }
+
+/// The figures `kalos compare` reports for an image against a reference.
+#[derive(Clone, Copy, Debug)]
+pub struct Comparison {
+    /// relMSE, as defined in `refs/README.md`.
+    pub rel_mse: f64,
+    /// Root mean squared error.
+    pub rmse: f64,
+    /// Relative L1 error.
+    pub rel_l1: f64,
+    /// Channel means of the image.
+    pub means: DVec3,
+    /// Channel means of the reference.
+    pub reference_means: DVec3,
+}
+
+impl Comparison {
+    /// Compares `img` with `reference` (same size).
+    pub fn new(img: &Image, reference: &Image) -> Result<Self, MetricsError> {
+        Ok(Comparison {
+            rel_mse: rel_mse(img, reference)?,
+            rmse: rmse(img, reference)?,
+            rel_l1: rel_l1(img, reference)?,
+            means: channel_means(img),
+            reference_means: channel_means(reference),
+        })
+    }
+}
+
+impl std::fmt::Display for Comparison {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (mi, mr) = (self.means, self.reference_means);
+        writeln!(f, "relMSE  {:.6e}", self.rel_mse)?;
+        writeln!(f, "RMSE    {:.6e}", self.rmse)?;
+        writeln!(f, "relL1   {:.6e}", self.rel_l1)?;
+        write!(
+            f,
+            "means   image ({:.6}, {:.6}, {:.6})  reference ({:.6}, {:.6}, {:.6})",
+            mi.x, mi.y, mi.z, mr.x, mr.y, mr.z
+        )
+    }
+}

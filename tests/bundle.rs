@@ -1,9 +1,9 @@
 //! Tests of `--method bundle` (stochastic iteration with global ray bundles).
 //!
 //! Tolerances are derived, not tuned:
-//! - furnace and form factor: independent replicas (seeds or directions)
-//!   give a sample standard error; the bound is a Student-t / 4σ quantile of
-//!   it plus, for the furnace, the power-defect bias bound of eq. (18);
+//! - form factor: independent replicas (directions) give a sample standard
+//!   error; the bound is a 4σ quantile of it (the furnace, with the
+//!   power-defect bias bound of eq. (18), is in `tests/methods.rs`);
 //! - cbox and the glossy plane: see [`check_against`].
 
 mod common;
@@ -17,45 +17,13 @@ use kalos::geometry::look_at;
 use kalos::image_io::read_image;
 use kalos::methods::bundle::patches::Patches;
 use kalos::methods::bundle::visibility::{sweep, SweepInput, Visibility};
-use kalos::methods::Options;
+use kalos::methods::{bundle, MethodConfig};
 use kalos::metrics::{rel_mse, rel_mse_pair};
 use kalos::sampling::{uniform_sphere, Pcg32};
 use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// White furnace (a = 0.5, Le = 1: L = 2 everywhere). Eight seeds of 100
-/// iterations are independent replicas of the image mean; the bound is the
-/// two-sided 99.9 % Student-t quantile for 7 degrees of freedom (5.41) times
-/// their standard error, plus the power defect of eq. (18),
-/// |ΔP| ≤ (1/M) λ²/(1 − λ)² ‖Le‖ = 1/M for λ = a = 0.5.
-#[test]
-fn furnace() {
-    let scene = common::furnace(0.5, 1.0, 16);
-    let m = 100u64;
-    let means: Vec<f64> = (0..8)
-        .map(|seed| {
-            let o = Options {
-                seed,
-                patches: Some(600),
-                map_res: Some(256),
-                ..Default::default()
-            };
-            let (img, _) = common::render(&scene, "bundle", &o, m);
-            (0..3).map(|c| common::mean_and_se(&img, c).0).sum::<f64>() / 3.0
-        })
-        .collect();
-    let n = means.len() as f64;
-    let mean = means.iter().sum::<f64>() / n;
-    let var = means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    let tol = 5.41 * (var / n).sqrt() + 1.0 / m as f64;
-    eprintln!("furnace: mean {mean:.4} (expected 2), tolerance {tol:.4}, replicas {means:?}");
-    assert!(
-        (mean - 2.0).abs() <= tol,
-        "furnace mean {mean} vs 2 ± {tol}"
-    );
 }
 
 /// Two parallel unit squares, one above the other at distance 1.
@@ -235,14 +203,13 @@ fn painter_pairs_equal_zbuffer_on_cbox() {
 }
 
 fn render(scene: &Scene, seed: u64, patches: usize, map_res: u32, iters: u64) -> Image {
-    let o = Options {
-        seed,
-        patches: Some(patches),
+    let o = common::bundle(bundle::Settings {
+        patches,
         map_res: Some(map_res),
         discard: 10,
         ..Default::default()
-    };
-    common::render(scene, "bundle", &o, iters).0
+    });
+    common::render(scene, &o, seed, iters).0
 }
 
 /// Checks `bundle` against a reference with a bound built from its parts.
@@ -347,12 +314,8 @@ fn glossy_plane() -> Scene {
 #[test]
 fn glossy_plane_vs_path() {
     let scene = glossy_plane();
-    let po = |seed| Options {
-        seed,
-        ..Default::default()
-    };
-    let (p1, _) = common::render(&scene, "path", &po(11), 512);
-    let (p2, _) = common::render(&scene, "path", &po(12), 512);
+    let (p1, _) = common::render(&scene, &common::path(), 11, 512);
+    let (p2, _) = common::render(&scene, &common::path(), 12, 512);
     let v_ref = rel_mse_pair(&p1, &p2).expect("sizes") / 4.0;
     let reference = Image {
         width: p1.width,
@@ -440,12 +403,8 @@ fn tilted_floor() -> Scene {
 #[test]
 fn shading_normals_vs_path() {
     let scene = tilted_floor();
-    let po = |seed| Options {
-        seed,
-        ..Default::default()
-    };
-    let (p1, _) = common::render(&scene, "path", &po(21), 4096);
-    let (p2, _) = common::render(&scene, "path", &po(22), 4096);
+    let (p1, _) = common::render(&scene, &common::path(), 21, 4096);
+    let (p2, _) = common::render(&scene, &common::path(), 22, 4096);
     let n = p1.data.len() as f64;
     let mp = p1
         .data
@@ -462,21 +421,23 @@ fn shading_normals_vs_path() {
         .sum::<f64>()
         / (n * n))
         .sqrt();
-    let bo = |seed, patches| Options {
-        seed,
-        patches: Some(patches),
-        map_res: Some(128),
-        ..Default::default()
+    let bo = |patches| {
+        MethodConfig::Bundle(bundle::Settings {
+            patches,
+            map_res: Some(128),
+            ..Default::default()
+        })
     };
     let k = 8;
     let iters = 2000;
-    let mean_of =
-        |o: &Options| common::mean_and_se(&common::render(&scene, "bundle", o, iters).0, 0).0;
-    let means: Vec<f64> = (0..k).map(|seed| mean_of(&bo(seed, 200))).collect();
+    let mean_of = |o: &MethodConfig, seed| {
+        common::mean_and_se(&common::render(&scene, o, seed, iters).0, 0).0
+    };
+    let means: Vec<f64> = (0..k).map(|seed| mean_of(&bo(200), seed)).collect();
     let m = means.iter().sum::<f64>() / k as f64;
     let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k as f64 - 1.0);
     let se_b = (var / k as f64).sqrt();
-    let m2h = mean_of(&bo(0, 50));
+    let m2h = mean_of(&bo(50), 0);
     let disc = (m2h - means[0]).abs();
     let tol = 5.41 * (se_b * se_b + se_p * se_p).sqrt() + disc;
     eprintln!(

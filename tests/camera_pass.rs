@@ -19,7 +19,7 @@ mod common;
 use common::{block_stats, max_block_z, render, render_budget};
 use kalos::film::Image;
 use kalos::methods::camera_pass::CameraPass;
-use kalos::methods::{Budget, Options, World};
+use kalos::methods::{light, plb, Budget, Common, MethodConfig, World};
 use kalos::scene::{self, Scene};
 
 const Z_MAX: f64 = 4.5;
@@ -35,17 +35,28 @@ fn glass_mirror() -> Scene {
 }
 
 fn two_renders(scene: &Scene, method: &str, camera_pass: bool, rays: u64) -> (Image, Image) {
-    let run = |seed| {
-        let opts = Options {
-            seed,
+    let cfg = match method {
+        "path" => common::path(),
+        "light" => common::light(light::Settings {
             camera_pass,
             ..Default::default()
-        };
+        }),
+        "plb" => common::plb(plb::Settings {
+            camera_pass,
+            ..Default::default()
+        }),
+        other => panic!("no camera pass test for {other}"),
+    };
+    let run = |seed| {
         let budget = Budget {
             rays: Some(rays),
             ..Default::default()
         };
-        render_budget(scene, method, &opts, budget).0
+        let common = Common {
+            seed,
+            max_depth: None,
+        };
+        render_budget(scene, &cfg, &common, budget).0
     };
     (run(11), run(12))
 }
@@ -130,17 +141,16 @@ fn camera_pass_costs_nothing_on_cbox() {
     s.set_resolution(32, 32);
     let world = World::new(s.clone());
     assert!(!CameraPass::new(&world, true, 0, None).is_active());
-    let on = Options {
-        seed: 5,
+    let on = MethodConfig::Light(light::Settings {
         camera_pass: true,
         ..Default::default()
-    };
-    let off = Options {
+    });
+    let off = MethodConfig::Light(light::Settings {
         camera_pass: false,
-        ..on.clone()
-    };
-    let (a, ra) = render(&s, "light", &on, 4);
-    let (b, rb) = render(&s, "light", &off, 4);
+        ..Default::default()
+    });
+    let (a, ra) = render(&s, &on, 5, 4);
+    let (b, rb) = render(&s, &off, 5, 4);
     assert_eq!(ra, rb);
     assert_eq!(a, b);
 }

@@ -681,11 +681,7 @@ fn glossy_view_pass_agrees_with_path() {
         let world = World::new(sc.clone());
         let st = settings(300_000, 20 + i as u64);
         let (dimg, dstats) = render(&world, st, 64);
-        let opts = kalos::methods::Options {
-            seed: 30 + i as u64,
-            ..Default::default()
-        };
-        let (pimg, _) = common::render(&sc, "path", &opts, 256);
+        let (pimg, _) = common::render(&sc, &common::path(), 30 + i as u64, 256);
         let n_face = dstats.hits as f64 / 6.0; // the sky lights the six faces equally
         let diff = kalos::film::Image {
             width: dimg.width,

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use kalos::film::Image;
 use kalos::image_io::read_image;
-use kalos::methods::Options;
+use kalos::methods::{plb, MethodConfig};
 use kalos::metrics::{channel_means, rel_mse, rel_mse_pair};
 use kalos::scene::{self, Scene};
 
@@ -21,12 +21,10 @@ fn load(file: &str) -> Scene {
     scene::load(&root().join(file)).expect("scene loads")
 }
 
+/// Renders with `method`'s default settings.
 fn render(scene: &Scene, method: &str, seed: u64, passes: u64) -> Image {
-    let opts = Options {
-        seed,
-        ..Default::default()
-    };
-    common::render(scene, method, &opts, passes).0
+    let cfg = (kalos::methods::by_name(method).expect("method").default)();
+    common::render(scene, &cfg, seed, passes).0
 }
 
 /// Per-channel image means of several renders: their average and the
@@ -69,7 +67,7 @@ fn average(imgs: &[Image]) -> Image {
 /// weighted as one phase of history (see `src/methods/plb/mod.rs`), the
 /// expected error of the phase images falls geometrically, and the average
 /// of N phase images keeps a deficit of order 1/N. Measured with these runs
-/// (32 seeds at 1 pass, 16 at 8 passes, as here; BENCHMARKS-plb.md): about −0.6 % of
+/// (32 seeds at 1 pass, 16 at 8 passes, as here; BENCHMARKS.md): about −0.6 % of
 /// the red channel mean after 1 pass and under −0.1 % after 8 passes, green
 /// and blue smaller.
 ///
@@ -156,7 +154,7 @@ fn plb_cbox_converges_with_shrinking_startup_defect() {
 /// see above) is far below these tolerances.
 #[test]
 fn plb_agrees_with_light_on_two_rooms() {
-    agrees_with_light("scenes/two-rooms/scene.xml", None);
+    agrees_with_light("scenes/two-rooms/scene.xml", plb::Importance::Paper);
 }
 
 /// `--variant pooled` (the grid-pooled importance, not in the paper) is
@@ -164,20 +162,19 @@ fn plb_agrees_with_light_on_two_rooms() {
 /// every pixel is lit through the gap (its intended use).
 #[test]
 fn plb_pooled_agrees_with_light_on_hidden_gap() {
-    agrees_with_light("scenes/two-rooms/hidden-gap.xml", Some("pooled"));
+    agrees_with_light("scenes/two-rooms/hidden-gap.xml", plb::Importance::Pooled);
 }
 
 /// The check of `plb_agrees_with_light_on_two_rooms`, for a scene and a plb
 /// variant.
-fn agrees_with_light(file: &str, variant: Option<&str>) {
+fn agrees_with_light(file: &str, importance: plb::Importance) {
     let scene = load(file);
     let plb = |seed: u64| {
-        let opts = Options {
-            seed,
-            variant: variant.map(str::to_string),
+        let cfg = common::plb(plb::Settings {
+            importance,
             ..Default::default()
-        };
-        common::render(&scene, "plb", &opts, 40).0
+        });
+        common::render(&scene, &cfg, seed, 40).0
     };
     let p = [plb(1), plb(2)];
     let l = [
@@ -250,32 +247,29 @@ fn plb_is_deterministic_per_seed() {
     let a = render(&scene, "plb", 7, 1);
     let b = render(&scene, "plb", 7, 1);
     assert_eq!(a.data, b.data);
-    let opts = Options {
-        seed: 7,
-        lambda: Some(0.0),
-        phase_len: Some(100),
-        population: Some(50),
+    let opts = common::plb(plb::Settings {
+        lambda: 0.0,
+        phase_len: 100,
+        population: 50,
         ..Default::default()
-    };
-    let c = common::render(&scene, "plb", &opts, 1).0;
+    });
+    let c = common::render(&scene, &opts, 7, 1).0;
     assert_ne!(a.data, c.data);
-    let bad = Options {
-        phase_len: Some(0),
+    let bad = MethodConfig::Plb(plb::Settings {
+        phase_len: 0,
         ..Default::default()
-    };
-    let pooled = Options {
-        seed: 7,
-        variant: Some("pooled".into()),
+    });
+    let pooled = common::plb(plb::Settings {
+        importance: plb::Importance::Pooled,
         ..Default::default()
-    };
-    let d = common::render(&scene, "plb", &pooled, 1).0;
+    });
+    let d = common::render(&scene, &pooled, 7, 1).0;
     assert_ne!(a.data, d.data);
-    assert_eq!(d.data, common::render(&scene, "plb", &pooled, 1).0.data);
+    assert_eq!(d.data, common::render(&scene, &pooled, 7, 1).0.data);
     let world = kalos::methods::World::new(scene);
-    assert!(kalos::methods::create("plb", &world, &bad).is_err());
-    let unknown = Options {
-        variant: Some("nope".into()),
-        ..Default::default()
-    };
-    assert!(kalos::methods::create("plb", &world, &unknown).is_err());
+    let err = bad
+        .create(&world, &Default::default())
+        .err()
+        .expect("phase length 0 is refused");
+    assert!(err.to_string().contains("--phase-len"), "{err}");
 }

@@ -2,9 +2,8 @@
 //! method produces (the density method's [`BakedMesh`], made by
 //! [`crate::methods::density::Bake::baked_meshes`]), as glTF binary with
 //! vertex colours and as an irradiance PLY. Nothing here computes
-//! lighting; [`gen`] writes the built-in scene generators' files.
+//! lighting.
 
-pub mod gen;
 pub mod gltf;
 pub mod ply;
 

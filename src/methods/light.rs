@@ -40,7 +40,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::camera_pass::CameraPass;
-use super::{Method, MethodError, Options, StepStats, World};
+use super::{Method, MethodError, StepStats, World};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Frame, Ray};
@@ -50,6 +50,7 @@ use crate::scene::{luminance, Rgb, SurfacePoint};
 
 /// Which form of the method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Variant {
     /// Independent walks with Russian roulette on the albedo.
     Walk,
@@ -58,47 +59,65 @@ pub enum Variant {
 }
 
 /// Settings of the light tracer.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
-    /// Master seed.
+    /// Master seed (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Longest path in segments (None: unlimited).
+    /// Longest path in segments; None = unlimited (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub max_depth: Option<u32>,
-    /// Walk or iteration.
+    /// Independent walks with Russian roulette (walk), or the operator
+    /// sequence of eq. (11) averaged as in eq. (13) (iteration).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "walk"))]
     pub variant: Variant,
     /// Independent lanes (films and streams); fixed so that results do not
     /// depend on the thread count.
+    #[cfg_attr(feature = "cli", arg(skip = 8usize))]
     pub lanes: usize,
     /// Walks (or iteration steps) per pass; 0 means one per pixel.
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub paths_per_pass: u64,
-    /// Iteration variant: steps dropped at the start of each chain.
+    /// Iteration variant: steps dropped at the start of each chain (the
+    /// power-defect correction after eq. (18) of the 1999 paper).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub discard: u64,
-    /// Estimate what light paths cannot reach (delta surfaces seen by the
-    /// camera, the environment) from the camera ([`super::camera_pass`]).
+    /// The camera pass, which estimates from the camera what light paths
+    /// cannot reach (delta surfaces seen by the camera, the environment):
+    /// on, or off for the raw method.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     pub camera_pass: bool,
 }
 
-impl Settings {
-    /// Reads the shared options.
-    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
-        let variant = match o.variant.as_deref() {
-            None | Some("walk") => Variant::Walk,
-            Some("iteration") => Variant::Iteration,
-            Some(v) => {
-                return Err(MethodError(format!(
-                    "unknown variant '{v}' for method light; expected 'walk' or 'iteration'"
-                )))
-            }
-        };
-        Ok(Settings {
-            seed: o.seed,
-            max_depth: o.max_depth,
-            variant,
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            seed: 0,
+            max_depth: None,
+            variant: Variant::Walk,
             lanes: 8,
             paths_per_pass: 0,
-            discard: o.discard,
-            camera_pass: o.camera_pass,
-        })
+            discard: 0,
+            camera_pass: true,
+        }
+    }
+}
+
+impl Settings {
+    /// Rejects settings that cannot work.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        if self.discard > 0 && self.variant != Variant::Iteration {
+            return Err(MethodError(
+                "--discard applies to light's iteration variant only (--variant iteration): \
+                 independent walks have no start-up transient to drop"
+                    .into(),
+            ));
+        }
+        if self.lanes == 0 {
+            return Err(MethodError("light needs at least one lane".into()));
+        }
+        Ok(())
     }
 }
 

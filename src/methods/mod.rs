@@ -5,19 +5,27 @@
 //! work (one sample per pixel for `path`, a fixed batch of light paths for
 //! `light`...) and reports the rays it traced; [`Method::image`] is the
 //! current estimate. Methods never print and never touch files.
+//!
+//! Each method owns a typed `Settings` (with `Default` and `validate()`);
+//! the settings every method shares (seed, longest path) are [`Common`];
+//! [`MethodConfig`] is one method with its settings, and [`all`] is the
+//! table of methods that the command line and the tests iterate
+//! (Tungsten's integrator factory). A new method is a new folder, one
+//! variant of [`MethodConfig`] and one row of [`all`].
 
 pub mod bundle;
 pub mod camera_pass;
+#[cfg(feature = "cli")]
+pub mod cli;
 pub mod density;
+mod driver;
 pub mod light;
 pub mod path;
 pub mod plb;
 
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
+pub use driver::{Budget, Driver, LogRow, Progress, RenderResult};
 
 use crate::film::Image;
-use crate::metrics;
 pub use crate::world::World;
 
 /// What one step did.
@@ -53,273 +61,239 @@ pub trait Method: Send {
     }
 }
 
-/// Settings shared by the methods; each method reads what it needs.
-#[derive(Clone, Debug)]
-pub struct Options {
-    /// Master seed.
-    pub seed: u64,
-    /// Longest path, in segments (Mitsuba's `max_depth`); None = unlimited.
-    pub max_depth: Option<u32>,
-    /// Method variant (`light`: `walk` or `iteration`).
-    pub variant: Option<String>,
-    /// Light tracing / iteration: number of first passes to discard (the
-    /// power-defect correction after eq. (18) of the 1999 paper).
-    pub discard: u64,
-    /// Light-based methods: run the camera pass for delta surfaces seen by
-    /// the camera and the environment (on by default).
-    pub camera_pass: bool,
-    /// `bundle`: target number of patches.
-    pub patches: Option<usize>,
-    /// `bundle`: target patch edge length (overrides `patches`).
-    pub patch_edge: Option<f32>,
-    /// `bundle`: sequence of global directions (random, halton, hammersley, frac).
-    pub sequence: Option<String>,
-    /// `bundle`: visibility-map resolution.
-    pub map_res: Option<u32>,
-    /// `bundle`: image estimate (phong, gouraud).
-    pub bundle_image: Option<String>,
-    /// `bundle`: visibility algorithm (painter, zbuffer).
-    pub visibility: Option<String>,
-    /// `plb`: λ of `ComputeImportance` (None: the method's default).
-    pub lambda: Option<f32>,
-    /// `plb`: steps per phase (None: the method's default).
-    pub phase_len: Option<u32>,
-    /// `plb`: population cap after each purge (None: the method's default).
-    pub population: Option<usize>,
-    /// Density estimation: particles per run (None: the method's default).
-    pub particles: Option<u64>,
-    /// Density estimation: kernel width factor C1.
-    pub c1: Option<f32>,
-    /// Density estimation: grid spacing factor C2.
-    pub c2: Option<f32>,
-    /// Density estimation: decimation error bound ε.
-    pub epsilon: Option<f32>,
-}
-
-impl Default for Options {
-    fn default() -> Self {
-        Options {
-            seed: 0,
-            max_depth: None,
-            variant: None,
-            discard: 0,
-            camera_pass: true,
-            patches: None,
-            patch_edge: None,
-            sequence: None,
-            map_res: None,
-            bundle_image: None,
-            visibility: None,
-            lambda: None,
-            phase_len: None,
-            population: None,
-            particles: None,
-            c1: None,
-            c2: None,
-            epsilon: None,
-        }
-    }
-}
-
-/// An error in the method's settings.
+/// An error in a method's settings, or a failure of its setup.
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
 pub struct MethodError(pub String);
 
-/// The names of the methods, in the order `--help` shows them.
-pub const METHODS: &[&str] = &["path", "light", "plb", "bundle", "density"];
-
-/// The method table: name → constructor (Tungsten's integrator factory).
-pub fn create(name: &str, world: &World, opts: &Options) -> Result<Box<dyn Method>, MethodError> {
-    match name {
-        "path" => Ok(Box::new(path::PathTracer::new(
-            world,
-            path::Settings::from_options(opts)?,
-        ))),
-        "light" => Ok(Box::new(light::LightTracer::new(
-            world,
-            light::Settings::from_options(opts)?,
-        ))),
-        "bundle" => Ok(Box::new(bundle::Bundle::new(
-            world,
-            bundle::Settings::from_options(opts)?,
-        ))),
-        "plb" => Ok(Box::new(plb::Plb::new(
-            world,
-            plb::Settings::from_options(opts)?,
-        ))),
-        "density" => Ok(Box::new(density::Density::new(
-            world,
-            density::Settings::from_options(opts)?,
-        ))),
-        other => Err(MethodError(format!(
-            "unknown method '{other}'; known methods: {}",
-            METHODS.join(", ")
-        ))),
-    }
+/// Settings every method shares.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Common {
+    /// Master seed: with the same seed a method gives the same image
+    /// whatever the thread count.
+    pub seed: u64,
+    /// Longest path in segments, Mitsuba's `max_depth`: 1 shows only the
+    /// emitters seen directly, 2 adds direct light; None = unlimited. A
+    /// method that cannot honour it refuses it (see [`MethodInfo::max_depth`]).
+    pub max_depth: Option<u32>,
 }
 
-/// When to stop. Several limits may be set; the first reached stops.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Budget {
-    /// Samples per pixel (passes, for methods whose pass is one spp).
-    pub spp: Option<f64>,
-    /// Wall time in seconds.
-    pub time: Option<f64>,
-    /// Rays traced.
-    pub rays: Option<u64>,
-    /// Number of passes.
-    pub passes: Option<u64>,
+/// One method with its settings.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MethodConfig {
+    /// The reference path tracer.
+    Path(path::Settings),
+    /// Light tracing, the single-ray stochastic iteration.
+    Light(light::Settings),
+    /// Progressive light path building.
+    Plb(plb::Settings),
+    /// Stochastic iteration with global ray bundles.
+    Bundle(bundle::Settings),
+    /// Density estimation.
+    Density(density::Settings),
 }
 
-/// A row of the convergence log.
-#[derive(Clone, Copy, Debug)]
-pub struct LogRow {
-    /// Seconds since the start.
-    pub time_s: f64,
-    /// Rays traced so far.
-    pub rays: u64,
-    /// Samples per pixel so far.
-    pub spp: f64,
-    /// relMSE against the reference, when one was given.
-    pub rel_mse: Option<f64>,
-}
-
-/// Progress reported to the caller after every pass.
-#[derive(Clone, Copy, Debug)]
-pub struct Progress {
-    /// Passes done.
-    pub passes: u64,
-    /// Rays so far.
-    pub rays: u64,
-    /// Seconds so far.
-    pub elapsed: f64,
-    /// Fraction of the budget used, in [0, 1].
-    pub fraction: f64,
-}
-
-/// The outcome of a render.
-pub struct RenderResult {
-    /// The final estimate.
-    pub image: Image,
-    /// Rays traced.
-    pub rays: u64,
-    /// Passes run.
-    pub passes: u64,
-    /// Samples per pixel (or equivalent).
-    pub spp: f64,
-    /// Wall time in seconds.
-    pub seconds: f64,
-    /// True when the render was interrupted.
-    pub interrupted: bool,
-    /// The convergence log.
-    pub log: Vec<LogRow>,
-}
-
-/// Runs a method until its budget is spent or `cancel` is set (Ctrl-C).
-/// With a reference, records the relMSE every `log_every` seconds (and at the
-/// end); the time spent computing the error is not counted as render time.
-pub struct Driver<'a> {
-    /// The budget.
-    pub budget: Budget,
-    /// Set from another thread to stop after the current pass.
-    pub cancel: Option<&'a AtomicBool>,
-    /// Reference image for the convergence log.
-    pub reference: Option<&'a Image>,
-    /// Seconds between log rows (0 disables intermediate rows).
-    pub log_every: f64,
-}
-
-impl Driver<'_> {
-    /// Runs `method`; `on_progress` is called after every pass.
-    pub fn run(
-        &self,
-        method: &mut dyn Method,
-        world: &World,
-        mut on_progress: impl FnMut(&Progress),
-    ) -> Result<RenderResult, MethodError> {
-        let start = Instant::now();
-        let mut excluded = 0.0f64; // time spent on logging, not rendering
-                                   // Setup runs inside the clock and its rays count toward the budget
-        let mut rays = method.prepare(world)?.rays;
-        let mut pass = 0u64;
-        let mut log = Vec::new();
-        let mut next_log = self.log_every;
-        let mut interrupted = false;
-        let budget = self.budget;
-        let unlimited = budget.spp.is_none()
-            && budget.time.is_none()
-            && budget.rays.is_none()
-            && budget.passes.is_none();
-        loop {
-            let elapsed = start.elapsed().as_secs_f64() - excluded;
-            let mut fraction: f64 = 0.0;
-            if let Some(s) = budget.spp {
-                fraction = fraction.max(method.spp() / s);
-            }
-            if let Some(t) = budget.time {
-                fraction = fraction.max(elapsed / t);
-            }
-            if let Some(r) = budget.rays {
-                fraction = fraction.max(rays as f64 / r as f64);
-            }
-            if let Some(p) = budget.passes {
-                fraction = fraction.max(pass as f64 / p as f64);
-            }
-            if unlimited && pass >= 1 {
-                fraction = 1.0;
-            }
-            on_progress(&Progress {
-                passes: pass,
-                rays,
-                elapsed,
-                fraction: fraction.min(1.0),
-            });
-            if fraction >= 1.0 {
-                break;
-            }
-            if self.cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
-                interrupted = true;
-                break;
-            }
-            let stats = method.step(world, pass);
-            rays += stats.rays;
-            pass += 1;
-            if let Some(r) = self.reference {
-                let now = start.elapsed().as_secs_f64() - excluded;
-                if self.log_every > 0.0 && now >= next_log {
-                    let t0 = Instant::now();
-                    let e = metrics::rel_mse(&method.image(world), r).ok();
-                    log.push(LogRow {
-                        time_s: now,
-                        rays,
-                        spp: method.spp(),
-                        rel_mse: e,
-                    });
-                    next_log = now + self.log_every;
-                    excluded += t0.elapsed().as_secs_f64();
-                }
-            }
+impl MethodConfig {
+    /// The method's name on the command line.
+    pub fn name(&self) -> &'static str {
+        match self {
+            MethodConfig::Path(_) => "path",
+            MethodConfig::Light(_) => "light",
+            MethodConfig::Plb(_) => "plb",
+            MethodConfig::Bundle(_) => "bundle",
+            MethodConfig::Density(_) => "density",
         }
-        let seconds = start.elapsed().as_secs_f64() - excluded;
-        let image = method.image(world);
-        let rel_mse = self
-            .reference
-            .and_then(|r| metrics::rel_mse(&image, r).ok());
-        log.push(LogRow {
-            time_s: seconds,
-            rays,
-            spp: method.spp(),
-            rel_mse,
-        });
-        Ok(RenderResult {
-            image,
-            rays,
-            passes: pass,
-            spp: method.spp(),
-            seconds,
-            interrupted,
-            log,
+    }
+
+    /// The method's row of the table.
+    pub fn info(&self) -> &'static MethodInfo {
+        by_name(self.name()).expect("every MethodConfig variant has a row in all()")
+    }
+
+    /// Rejects settings that cannot work, naming the flag.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        match self {
+            MethodConfig::Path(s) => s.validate(),
+            MethodConfig::Light(s) => s.validate(),
+            MethodConfig::Plb(s) => s.validate(),
+            MethodConfig::Bundle(s) => s.validate(),
+            MethodConfig::Density(s) => s.validate(),
+        }
+    }
+
+    /// Validates the settings together with the shared ones: a method that
+    /// cannot honour `--max-depth` refuses it.
+    pub fn check(&self, common: &Common) -> Result<(), MethodError> {
+        if common.max_depth.is_some() && !self.info().max_depth {
+            return Err(MethodError(format!(
+                "method '{}' cannot honour --max-depth: {}",
+                self.name(),
+                self.info().max_depth_note
+            )));
+        }
+        if common.max_depth == Some(0) {
+            return Err(MethodError(
+                "--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)"
+                    .into(),
+            ));
+        }
+        self.validate()
+    }
+
+    /// Checks the settings with `common` and builds the method. Cheap:
+    /// the work that needs the world runs in [`Method::prepare`].
+    pub fn create(&self, world: &World, common: &Common) -> Result<Box<dyn Method>, MethodError> {
+        self.check(common)?;
+        let (seed, max_depth) = (common.seed, common.max_depth);
+        Ok(match self.clone() {
+            MethodConfig::Path(s) => Box::new(path::PathTracer::new(
+                world,
+                path::Settings {
+                    seed,
+                    max_depth,
+                    ..s
+                },
+            )),
+            MethodConfig::Light(s) => Box::new(light::LightTracer::new(
+                world,
+                light::Settings {
+                    seed,
+                    max_depth,
+                    ..s
+                },
+            )),
+            MethodConfig::Plb(s) => Box::new(plb::Plb::new(
+                world,
+                plb::Settings {
+                    seed,
+                    max_depth,
+                    ..s
+                },
+            )),
+            MethodConfig::Bundle(s) => {
+                Box::new(bundle::Bundle::new(world, bundle::Settings { seed, ..s }))
+            }
+            MethodConfig::Density(s) => Box::new(density::Density::new(
+                world,
+                density::Settings {
+                    seed,
+                    max_depth,
+                    ..s
+                },
+            )),
         })
     }
+}
+
+/// A row of the method table.
+pub struct MethodInfo {
+    /// The name on the command line.
+    pub name: &'static str,
+    /// One line for `--help`.
+    pub about: &'static str,
+    /// Whether the method honours [`Common::max_depth`].
+    pub max_depth: bool,
+    /// Why not, when it does not.
+    pub max_depth_note: &'static str,
+    /// The method with its default settings.
+    pub default: fn() -> MethodConfig,
+    /// Adds the method's own flags to a command line.
+    #[cfg(feature = "cli")]
+    pub args: fn(clap::Command) -> clap::Command,
+    /// Reads the method's settings back from parsed flags.
+    #[cfg(feature = "cli")]
+    pub from_args: fn(&clap::ArgMatches) -> Result<MethodConfig, clap::Error>,
+}
+
+/// The command-line half of a row: `args` and `from_args` for a method
+/// whose settings type is `$settings`, wrapped by `$variant`.
+#[cfg(feature = "cli")]
+macro_rules! cli_row {
+    ($settings:ty, $variant:path) => {
+        (
+            <$settings as clap::Args>::augment_args,
+            |m: &clap::ArgMatches| {
+                <$settings as clap::FromArgMatches>::from_arg_matches(m).map($variant)
+            },
+        )
+    };
+}
+
+static ALL: [MethodInfo; 5] = [
+    MethodInfo {
+        name: "path",
+        about: "reference path tracer: next-event estimation, MIS, Russian roulette",
+        max_depth: true,
+        max_depth_note: "",
+        default: || MethodConfig::Path(path::Settings::default()),
+        #[cfg(feature = "cli")]
+        args: cli_row!(path::Settings, MethodConfig::Path).0,
+        #[cfg(feature = "cli")]
+        from_args: cli_row!(path::Settings, MethodConfig::Path).1,
+    },
+    MethodInfo {
+        name: "light",
+        about: "light tracing, the single-ray stochastic iteration (1999 paper, §4)",
+        max_depth: true,
+        max_depth_note: "",
+        default: || MethodConfig::Light(light::Settings::default()),
+        #[cfg(feature = "cli")]
+        args: cli_row!(light::Settings, MethodConfig::Light).0,
+        #[cfg(feature = "cli")]
+        from_args: cli_row!(light::Settings, MethodConfig::Light).1,
+    },
+    MethodInfo {
+        name: "plb",
+        about: "progressive light path building: a self-correcting population of photon hits",
+        max_depth: true,
+        max_depth_note: "",
+        default: || MethodConfig::Plb(plb::Settings::default()),
+        #[cfg(feature = "cli")]
+        args: cli_row!(plb::Settings, MethodConfig::Plb).0,
+        #[cfg(feature = "cli")]
+        from_args: cli_row!(plb::Settings, MethodConfig::Plb).1,
+    },
+    MethodInfo {
+        name: "bundle",
+        about: "stochastic iteration with global ray bundles and painter's visibility maps",
+        max_depth: false,
+        max_depth_note: "stochastic iteration transfers each patch's whole current radiance, \
+            in which light of every bounce count is mixed, so no path length can be limited",
+        default: || MethodConfig::Bundle(bundle::Settings::default()),
+        #[cfg(feature = "cli")]
+        args: cli_row!(bundle::Settings, MethodConfig::Bundle).0,
+        #[cfg(feature = "cli")]
+        from_args: cli_row!(bundle::Settings, MethodConfig::Bundle).1,
+    },
+    MethodInfo {
+        name: "density",
+        about: "density estimation: particle tracing, kernel estimate, decimated display mesh",
+        max_depth: true,
+        max_depth_note: "",
+        default: || MethodConfig::Density(density::Settings::default()),
+        #[cfg(feature = "cli")]
+        args: cli_row!(density::Settings, MethodConfig::Density).0,
+        #[cfg(feature = "cli")]
+        from_args: cli_row!(density::Settings, MethodConfig::Density).1,
+    },
+];
+
+/// The table of methods, in the order `--help` shows them.
+pub fn all() -> &'static [MethodInfo] {
+    &ALL
+}
+
+/// The row of the method called `name`.
+pub fn by_name(name: &str) -> Result<&'static MethodInfo, MethodError> {
+    ALL.iter().find(|m| m.name == name).ok_or_else(|| {
+        MethodError(format!(
+            "unknown method '{name}'; known methods: {}",
+            names().join(", ")
+        ))
+    })
+}
+
+/// The names of the methods, in the order of [`all`].
+pub fn names() -> Vec<&'static str> {
+    ALL.iter().map(|m| m.name).collect()
 }

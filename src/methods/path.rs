@@ -11,7 +11,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::{Method, MethodError, Options, StepStats, World};
+use super::{Method, MethodError, StepStats, World};
 use crate::bsdf::Mode;
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Frame, Ray};
@@ -19,25 +19,41 @@ use crate::sampling::{power_heuristic, Pcg32};
 use crate::scene::Rgb;
 
 /// Settings of the path tracer.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
-    /// Master seed.
+    /// Master seed (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Longest path in segments; None = unlimited.
+    /// Longest path in segments; None = unlimited (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub max_depth: Option<u32>,
-    /// Depth from which Russian roulette may stop a path.
+    /// Depth from which Russian roulette may stop a path (Mitsuba's default
+    /// 5, so that noise compares like for like).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 5))]
     pub rr_depth: u32,
 }
 
-impl Settings {
-    /// Reads the shared options.
-    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
-        Ok(Settings {
-            seed: o.seed,
-            max_depth: o.max_depth,
-            // Mitsuba's default, so that noise compares like for like
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            seed: 0,
+            max_depth: None,
             rr_depth: 5,
-        })
+        }
+    }
+}
+
+impl Settings {
+    /// Rejects settings that cannot work.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        if self.rr_depth == 0 {
+            return Err(MethodError(
+                "--rr-depth must be at least 1 (the depth from which Russian roulette may stop a path)"
+                    .into(),
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -5,13 +5,13 @@
 //! [`gltf`], [`obj`], [`ply`]); nothing else in the crate reads files.
 
 pub mod builtin;
-pub mod gen;
 pub mod gltf;
 pub mod material;
 pub mod mitsuba;
 pub mod obj;
 pub mod ply;
 pub mod shapes;
+pub mod summary;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -21,6 +21,7 @@ use glam::{Mat4, Vec2, Vec3};
 use crate::geometry::Frame;
 pub use material::{Material, MicrofacetKind, TexImage, Texture};
 pub use shapes::MeshData;
+pub use summary::Summary;
 
 /// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
 /// `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a camera is synthesised)

@@ -10,10 +10,15 @@
 //! | [`cube`] | `[-1,1]³`, flat faces, outward normals | `[0,1]²` on each face |
 //! | [`disk`] | unit disk at z = 0, normal +z | `(r, φ/2π)` |
 //! | [`sphere`] | unit sphere (then `center`, `radius`), outward | `(φ/2π, θ/π)` |
+//!
+//! [`LatLong`] is the crate's one sphere tessellation, shared with the
+//! generated scenes of [`crate::scenegen`].
 
 use std::f32::consts::{PI, TAU};
 
 use glam::{Mat3, Mat4, Vec2, Vec3};
+
+use crate::geometry;
 
 /// Segments around the rim of a tessellated disk: the polygon's area is
 /// `π·sin(2π/n)/(2π/n)`, within 0.04 % of π for n = 128.
@@ -197,66 +202,216 @@ pub fn disk(segments: u32) -> MeshData {
     }
 }
 
-/// Mitsuba's `sphere` (unit sphere, then `center` and `radius`), as a
-/// latitude–longitude mesh of `rings` rings and `2·rings` segments with
-/// smooth (exact) normals, in object space.
-pub fn sphere(center: Vec3, radius: f32, rings: u32) -> MeshData {
-    let rings = rings.max(2);
-    let segs = 2 * rings;
-    let cols = segs + 1;
-    let mut positions = Vec::with_capacity(((rings + 1) * cols) as usize);
-    let mut normals = Vec::with_capacity(positions.capacity());
-    let mut uvs = Vec::with_capacity(positions.capacity());
-    for i in 0..=rings {
-        let theta = PI * i as f32 / rings as f32;
-        for j in 0..cols {
-            let phi = TAU * j as f32 / segs as f32;
-            let n = Vec3::new(
-                theta.sin() * phi.cos(),
-                theta.sin() * phi.sin(),
-                theta.cos(),
-            );
-            positions.push(center + n * radius.abs());
-            normals.push(n);
-            uvs.push(Vec2::new(j as f32 / segs as f32, i as f32 / rings as f32));
+/// The axis through the poles of a [`LatLong`] sphere.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pole {
+    /// +z, Mitsuba's `sphere`: the unit direction is
+    /// (sin θ cos φ, sin θ sin φ, cos θ).
+    Z,
+    /// +y, for the generated scenes (whose up is +y): the same direction
+    /// with y and z exchanged, (sin θ cos φ, cos θ, sin θ sin φ).
+    Y,
+}
+
+/// Which diagonal cuts each quad (i, j), (i, j+1), (i+1, j), (i+1, j+1) of
+/// the latitude–longitude grid, i counting rings and j segments.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Diagonal {
+    /// From (i, j) to (i+1, j+1): Mitsuba's `sphere`.
+    Main,
+    /// From (i, j+1) to (i+1, j): the generated scenes.
+    Anti,
+}
+
+/// A latitude–longitude tessellation of a sphere, the one sphere
+/// tessellation of the crate: Mitsuba's `sphere` shape ([`sphere`]), the
+/// spheres of the generated scenes ([`crate::scenegen`]) and of the bench
+/// scene all come from [`LatLong::mesh`].
+///
+/// Vertex (i, j) sits at θ = π·i/rings from the pole and φ = 2π·j/segments
+/// with segments = 2·rings, rows i = 0..=rings. The options below differ
+/// between the users only because each one's output (scene files on disk,
+/// the bench scene's triangle count, rendered images) is fixed.
+#[derive(Clone, Copy, Debug)]
+pub struct LatLong {
+    /// Rings in θ; there are twice as many segments in φ.
+    pub rings: u32,
+    /// The polar axis.
+    pub pole: Pole,
+    /// How each grid quad is cut into two triangles.
+    pub diagonal: Diagonal,
+    /// Repeat the φ = 0 column at φ = 2π, so that the seam has its own uvs
+    /// (u = 1); without it the last segment wraps around to column 0 and
+    /// the uvs jump there.
+    pub seam: bool,
+    /// Keep the triangles of the first and last rings that have two
+    /// vertices on a pole (zero area up to rounding), so that there are
+    /// exactly 2·rings·segments triangles.
+    pub pole_triangles: bool,
+}
+
+impl LatLong {
+    /// Mitsuba's `sphere`: pole +z, main diagonal, a seam, no pole triangles.
+    pub fn mitsuba(rings: u32) -> Self {
+        LatLong {
+            rings,
+            pole: Pole::Z,
+            diagonal: Diagonal::Main,
+            seam: true,
+            pole_triangles: false,
         }
     }
-    // ∂p/∂θ × ∂p/∂φ points outward, so (i,j) → (i+1,j) → (i+1,j+1) is
-    // counter-clockwise seen from outside.
-    let mut indices = Vec::with_capacity((2 * rings * segs) as usize);
-    for i in 0..rings {
-        for j in 0..segs {
-            let a = i * cols + j;
-            let b = (i + 1) * cols + j;
-            let c = b + 1;
-            let d = a + 1;
-            if i + 1 < rings {
-                indices.push([a, b, c]);
-            }
-            if i > 0 {
-                indices.push([a, c, d]);
+
+    /// The sphere of `radius` (its absolute value) around `center`: smooth
+    /// (exact) normals, uvs (φ/2π, θ/π), triangles counter-clockwise seen
+    /// from outside.
+    pub fn mesh(&self, center: Vec3, radius: f32) -> MeshData {
+        let rings = self.rings;
+        let segs = 2 * rings;
+        let cols = if self.seam { segs + 1 } else { segs };
+        let count = ((rings + 1) * cols) as usize;
+        let mut positions = Vec::with_capacity(count);
+        let mut normals = Vec::with_capacity(count);
+        let mut uvs = Vec::with_capacity(count);
+        for i in 0..=rings {
+            let theta = PI * i as f32 / rings as f32;
+            for j in 0..cols {
+                let phi = TAU * j as f32 / segs as f32;
+                let (x, y, z) = (
+                    theta.sin() * phi.cos(),
+                    theta.sin() * phi.sin(),
+                    theta.cos(),
+                );
+                let n = match self.pole {
+                    Pole::Z => Vec3::new(x, y, z),
+                    Pole::Y => Vec3::new(x, z, y),
+                };
+                positions.push(center + n * radius.abs());
+                normals.push(n);
+                uvs.push(Vec2::new(j as f32 / segs as f32, i as f32 / rings as f32));
             }
         }
-    }
-    MeshData {
-        positions,
-        normals: Some(normals),
-        uvs: Some(uvs),
-        indices,
+
+        // Cut each quad along the chosen diagonal. Around +z, ∂p/∂θ × ∂p/∂φ
+        // points outward, so a triangle that steps in θ before φ is
+        // counter-clockwise seen from outside; exchanging y and z mirrors the
+        // sphere, which reverses that. The triangle on the (i, j)–(i+1, j)
+        // edge comes first; `north`/`south` say which one has two vertices
+        // on a pole in the first/last ring.
+        let id = |i: u32, j: u32| i * cols + j % cols;
+        let mut indices = Vec::with_capacity((2 * rings * segs) as usize);
+        for i in 0..rings {
+            for j in 0..segs {
+                let (p00, p01) = (id(i, j), id(i, j + 1));
+                let (p10, p11) = (id(i + 1, j), id(i + 1, j + 1));
+                let (first, second, first_at_north) = match self.diagonal {
+                    Diagonal::Main => ([p00, p10, p11], [p00, p11, p01], false),
+                    Diagonal::Anti => ([p00, p10, p01], [p01, p10, p11], true),
+                };
+                let north = i == 0 && !self.pole_triangles;
+                let south = i + 1 == rings && !self.pole_triangles;
+                let (skip_first, skip_second) = if first_at_north {
+                    (north, south)
+                } else {
+                    (south, north)
+                };
+                for (mut t, skip) in [(first, skip_first), (second, skip_second)] {
+                    if skip {
+                        continue;
+                    }
+                    if self.pole == Pole::Y {
+                        t.swap(1, 2);
+                    }
+                    indices.push(t);
+                }
+            }
+        }
+        MeshData {
+            positions,
+            normals: Some(normals),
+            uvs: Some(uvs),
+            indices,
+        }
     }
 }
 
-/// Mitsuba's `lookat` transform: camera (or object) space with +z along the
-/// view direction, +y up and +x to the left; `None` when `up` is parallel to
-/// the view direction or `target` equals `origin`.
+/// Mitsuba's `sphere` (unit sphere, then `center` and `radius`), as a
+/// latitude–longitude mesh of `rings` rings and `2·rings` segments with
+/// smooth (exact) normals, in object space: [`LatLong::mitsuba`].
+pub fn sphere(center: Vec3, radius: f32, rings: u32) -> MeshData {
+    LatLong::mitsuba(rings.max(2)).mesh(center, radius)
+}
+
+/// Mitsuba's `lookat` transform, [`geometry::look_at`], or `None` when `up`
+/// is parallel to the view direction or `target` equals `origin` (where
+/// that one falls back to an arbitrary axis): a loader reports those as
+/// errors in the scene file.
 pub fn look_at(origin: Vec3, target: Vec3, up: Vec3) -> Option<Mat4> {
     let dir = (target - origin).try_normalize()?;
-    let left = up.cross(dir).try_normalize()?;
-    let new_up = dir.cross(left);
-    Some(Mat4::from_cols(
-        left.extend(0.0),
-        new_up.extend(0.0),
-        dir.extend(0.0),
-        origin.extend(1.0),
-    ))
+    up.cross(dir).try_normalize()?;
+    Some(geometry::look_at(origin, target, up))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every variant of the sphere: the triangle count its options promise,
+    /// non-degenerate triangles wound outward, vertices on the sphere.
+    #[test]
+    fn lat_long_counts_and_winding() {
+        let (c, r, rings) = (Vec3::new(0.5, -1.0, 2.0), 0.75, 6);
+        let segs = 2 * rings;
+        for pole in [Pole::Z, Pole::Y] {
+            for diagonal in [Diagonal::Main, Diagonal::Anti] {
+                for seam in [false, true] {
+                    for pole_triangles in [false, true] {
+                        let s = LatLong {
+                            rings,
+                            pole,
+                            diagonal,
+                            seam,
+                            pole_triangles,
+                        };
+                        let m = s.mesh(c, r);
+                        let cols = segs + seam as u32;
+                        assert_eq!(m.positions.len() as u32, (rings + 1) * cols);
+                        let tris = 2 * rings * segs - if pole_triangles { 0 } else { 2 * segs };
+                        assert_eq!(m.indices.len() as u32, tris, "{s:?}");
+                        for p in &m.positions {
+                            assert!(((*p - c).length() - r).abs() < 1e-5);
+                        }
+                        for t in &m.indices {
+                            let [a, b, d] = t.map(|i| m.positions[i as usize]);
+                            let n = (b - a).cross(d - a);
+                            if n.length() > 1e-6 {
+                                assert!(n.dot((a + b + d) / 3.0 - c) > 0.0, "{s:?} {t:?}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Mitsuba's sphere has its pole on +z, the generated scenes' on +y.
+    #[test]
+    fn lat_long_poles() {
+        let mut s = LatLong::mitsuba(4);
+        assert_eq!(s.mesh(Vec3::ZERO, 1.0).positions[0], Vec3::Z);
+        s.pole = Pole::Y;
+        assert_eq!(s.mesh(Vec3::ZERO, 1.0).positions[0], Vec3::Y);
+    }
+
+    /// A degenerate lookat is `None`; otherwise the matrix is geometry's.
+    #[test]
+    fn look_at_reports_degenerate_input() {
+        assert!(look_at(Vec3::ONE, Vec3::ONE, Vec3::Y).is_none());
+        assert!(look_at(Vec3::ZERO, Vec3::Y, Vec3::Y).is_none());
+        let (o, t) = (Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.0, 0.5, -1.0));
+        assert_eq!(
+            look_at(o, t, Vec3::Y),
+            Some(geometry::look_at(o, t, Vec3::Y))
+        );
+    }
 }

@@ -4,7 +4,8 @@
 use glam::Vec3;
 use kalos::film::Image;
 use kalos::geometry::look_at;
-use kalos::methods::{self, Budget, Driver, Options, World};
+use kalos::methods::{bundle, density, light, path, plb, Budget, Common, MethodConfig, World};
+use kalos::render::Render;
 use kalos::scene::{CameraDesc, Material, Scene, Texture};
 
 /// The white furnace: the inside of a closed cube, every face diffuse with
@@ -63,12 +64,15 @@ pub fn furnace(a: f32, le: f32, res: u32) -> Scene {
     s
 }
 
-/// Renders `scene` with `method` for `passes` passes.
-pub fn render(scene: &Scene, method: &str, opts: &Options, passes: u64) -> (Image, u64) {
+/// Renders `scene` with `method` and master seed `seed` for `passes` passes.
+pub fn render(scene: &Scene, method: &MethodConfig, seed: u64, passes: u64) -> (Image, u64) {
     render_budget(
         scene,
         method,
-        opts,
+        &Common {
+            seed,
+            max_depth: None,
+        },
         Budget {
             passes: Some(passes),
             ..Default::default()
@@ -76,18 +80,47 @@ pub fn render(scene: &Scene, method: &str, opts: &Options, passes: u64) -> (Imag
     )
 }
 
-/// Renders `scene` with `method` until `budget` is spent.
-pub fn render_budget(scene: &Scene, method: &str, opts: &Options, budget: Budget) -> (Image, u64) {
+/// Renders `scene` with `method` and the shared settings `common` until
+/// `budget` is spent.
+pub fn render_budget(
+    scene: &Scene,
+    method: &MethodConfig,
+    common: &Common,
+    budget: Budget,
+) -> (Image, u64) {
     let world = World::new(scene.clone());
-    let mut m = methods::create(method, &world, opts).expect("method");
-    let driver = Driver {
-        budget,
-        cancel: None,
-        reference: None,
-        log_every: 0.0,
-    };
-    let r = driver.run(m.as_mut(), &world, |_| {}).expect("render");
+    let r = Render::new(&world)
+        .method(method.clone())
+        .common(common.clone())
+        .budget(budget)
+        .run(|_| {})
+        .expect("render");
     (r.image, r.rays)
+}
+
+/// `path` with its defaults.
+pub fn path() -> MethodConfig {
+    MethodConfig::Path(path::Settings::default())
+}
+
+/// `light` with `s`.
+pub fn light(s: light::Settings) -> MethodConfig {
+    MethodConfig::Light(s)
+}
+
+/// `plb` with `s`.
+pub fn plb(s: plb::Settings) -> MethodConfig {
+    MethodConfig::Plb(s)
+}
+
+/// `bundle` with `s`.
+pub fn bundle(s: bundle::Settings) -> MethodConfig {
+    MethodConfig::Bundle(s)
+}
+
+/// `density` with `s`.
+pub fn density(s: density::Settings) -> MethodConfig {
+    MethodConfig::Density(s)
 }
 
 /// Mean and standard error of the mean of one channel over all pixels

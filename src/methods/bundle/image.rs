@@ -39,6 +39,7 @@ const MAX_DELTA: u32 = 8;
 
 /// Which image estimate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum ImageMode {
     /// Per-pixel BRDF (the default).
     Phong,

@@ -40,7 +40,7 @@ use std::time::Instant;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-use super::{Method, MethodError, Options, StepStats, World};
+use super::{Method, MethodError, StepStats, World};
 use crate::film::Image;
 use crate::scene::Rgb;
 use image::{ImageMode, View};
@@ -49,31 +49,77 @@ use sequence::{Directions, Sequence};
 use visibility::{SweepInput, Visibility};
 
 /// Settings of the ray-bundle iteration.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
-    /// Master seed.
+    /// Master seed (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Target number of patches (used when `edge` is None).
+    /// Target number of patches (used when `edge` is not given).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 5_000))]
     pub patches: usize,
     /// Target patch edge length in scene units (overrides `patches`).
+    #[cfg_attr(feature = "cli", arg(long = "patch-edge"))]
     pub edge: Option<f32>,
-    /// Visibility-map resolution across the scene's bounding sphere; None
-    /// picks 8R/h (four pixels per patch edge), clamped to 1024..=4096.
-    /// (The floor of 1024 came from cbox images that looked too dark at
-    /// smaller maps; that was the painter's one-layer depth repair, not the
-    /// resolution: see `visibility::painter_band`.)
+    /// Visibility-map resolution across the scene's bounding sphere; when
+    /// not given, 8R/h (four pixels per patch edge), clamped to 1024..=4096.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub map_res: Option<u32>,
     /// The sequence of global directions.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "random"))]
     pub sequence: Sequence,
-    /// Phong or Gouraud image estimate.
+    /// Phong (per-pixel BRDF) or Gouraud (per-patch radiance interpolated
+    /// over the vertices) image estimate.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long = "bundle-image", value_enum, default_value = "phong")
+    )]
     pub image: ImageMode,
-    /// Painter's algorithm or z-buffer.
+    /// Painter's algorithm (§6) or z-buffer depth peeling.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "painter"))]
     pub visibility: Visibility,
     /// Iterations left out of the image average (power defect, eq. (18)).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub discard: u64,
-    /// Sub-pixel patches by pixel-centre roulette (true, the default) or by
-    /// single-pixel roulette (see [`visibility`]).
+    /// Sub-pixel patches in the painter's map: kept by pixel-centre
+    /// roulette (centre) or by single-pixel roulette (single); see
+    /// [`visibility`].
+    #[cfg_attr(feature = "cli", arg(long = "subpixel", value_name = "centre|single", default_value = "centre", value_parser = subpixel_rule, action = clap::ArgAction::Set))]
     pub centre_rr: bool,
+}
+
+/// Parses `--subpixel`: true for pixel-centre roulette.
+#[cfg(feature = "cli")]
+fn subpixel_rule(s: &str) -> Result<bool, String> {
+    match s {
+        "centre" | "center" => Ok(true),
+        "single" => Ok(false),
+        _ => Err(format!("expected centre or single, got '{s}'")),
+    }
+}
+
+impl Settings {
+    /// Rejects settings that cannot work.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        if self.patches == 0 {
+            return Err(MethodError("--patches must be at least 1".into()));
+        }
+        if let Some(e) = self.edge {
+            if !(e.is_finite() && e > 0.0) {
+                return Err(MethodError(format!(
+                    "--patch-edge must be a positive length, got {e}"
+                )));
+            }
+        }
+        if let Some(r) = self.map_res {
+            if !(8..=16384).contains(&r) {
+                return Err(MethodError(format!(
+                    "--map-res must be in 8..=16384, got {r}"
+                )));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Default for Settings {
@@ -89,73 +135,6 @@ impl Default for Settings {
             discard: 0,
             centre_rr: true,
         }
-    }
-}
-
-impl Settings {
-    /// Reads the shared options.
-    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
-        let mut s = Settings {
-            seed: o.seed,
-            discard: o.discard,
-            ..Default::default()
-        };
-        if let Some(n) = o.patches {
-            if n == 0 {
-                return Err(MethodError("--patches must be at least 1".into()));
-            }
-            s.patches = n;
-        }
-        if let Some(e) = o.patch_edge {
-            if !(e.is_finite() && e > 0.0) {
-                return Err(MethodError(format!(
-                    "--patch-edge must be a positive length, got {e}"
-                )));
-            }
-            s.edge = Some(e);
-        }
-        if let Some(r) = o.map_res {
-            if !(8..=16384).contains(&r) {
-                return Err(MethodError(format!(
-                    "--map-res must be in 8..=16384, got {r}"
-                )));
-            }
-            s.map_res = Some(r);
-        }
-        if let Some(q) = &o.sequence {
-            s.sequence = Sequence::parse(q).ok_or_else(|| {
-                MethodError(format!(
-                    "unknown sequence '{q}'; expected random, halton, hammersley or frac"
-                ))
-            })?;
-        }
-        if let Some(m) = &o.bundle_image {
-            s.image = match m.as_str() {
-                "phong" => ImageMode::Phong,
-                "gouraud" => ImageMode::Gouraud,
-                _ => {
-                    return Err(MethodError(format!(
-                        "unknown --bundle-image '{m}'; expected phong or gouraud"
-                    )))
-                }
-            };
-        }
-        if let Some(v) = &o.visibility {
-            s.visibility = match v.as_str() {
-                "painter" => Visibility::Painter,
-                "painter-rr" => {
-                    s.centre_rr = false;
-                    Visibility::Painter
-                }
-                "zbuffer" => Visibility::ZBuffer,
-                _ => {
-                    return Err(MethodError(format!(
-                        "unknown --visibility '{v}'; expected painter, painter-rr or zbuffer"
-                    )))
-                }
-            };
-        }
-        Ok(s)
     }
 }
 

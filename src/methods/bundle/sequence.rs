@@ -25,6 +25,7 @@ pub const HAMMERSLEY_N: u64 = 4096;
 
 /// Which sequence generates the directions.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Sequence {
     /// Pseudo-random (PCG32); the default.
     Random,
@@ -34,19 +35,6 @@ pub enum Sequence {
     Hammersley,
     /// The fractional-part sequence of §6.1.
     Frac,
-}
-
-impl Sequence {
-    /// Parses a command-line name.
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "random" => Some(Sequence::Random),
-            "halton" => Some(Sequence::Halton),
-            "hammersley" => Some(Sequence::Hammersley),
-            "frac" => Some(Sequence::Frac),
-            _ => None,
-        }
-    }
 }
 
 /// Radical inverse of `i` in base `b`.

@@ -72,10 +72,12 @@ pub const BANDS: usize = 8;
 
 /// How visibility is resolved.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Visibility {
     /// Sorting plus scan conversion into an id buffer (§6).
     Painter,
     /// Depth peeling with a z-buffer.
+    #[cfg_attr(feature = "cli", value(name = "zbuffer"))]
     ZBuffer,
 }
 

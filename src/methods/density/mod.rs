@@ -66,7 +66,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::{Method, MethodError, Options, StepStats, World};
+use super::{Method, MethodError, StepStats, World};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
@@ -82,35 +82,60 @@ use surfaces::Surfaces;
 pub use baked::BakedMesh;
 
 /// Settings of the density method (defaults inside the paper's ranges).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
-    /// Master seed.
+    /// Master seed (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Longest particle path in segments (None: unlimited).
+    /// Longest path in segments, as for every method (set from
+    /// [`super::Common`]); None = unlimited.
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub max_depth: Option<u32>,
-    /// Particles n (per channel run with `per_channel`).
+    /// Particles n traced (per channel run with `per_channel`); accepts 4M.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "4M", value_parser = super::cli::parse_count))]
     pub particles: u64,
     /// Kernel width factor C1 of h = C1·√(A/n); the paper found 10–40 useful.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 20.0))]
     pub c1: f32,
-    /// Grid spacing factor C2; the paper: C1/10 to C1/2.
+    /// Grid spacing factor C2 of the over-mesh; the paper: C1/10 to C1/2.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 8.0))]
     pub c2: f32,
     /// Error bound ε of the decimation, in Stevens brightness units.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.01))]
     pub epsilon: f32,
-    /// Decimate the over-mesh (phase 3).
+    /// Decimate the over-mesh (phase 3); `--no-decimate` skips it.
+    #[cfg_attr(feature = "cli", arg(long = "no-decimate", action = clap::ArgAction::SetFalse))]
     pub decimate: bool,
-    /// The paper's three per-channel runs instead of one RGB pass.
+    /// One RGB particle pass (rgb), or the paper's three per-channel runs
+    /// (per-channel).
+    #[cfg_attr(feature = "cli", arg(long = "variant", value_name = "rgb|per-channel", default_value = "rgb", value_parser = channels, action = clap::ArgAction::Set))]
     pub per_channel: bool,
     /// Cap on over-mesh vertices per surface.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1 << 20, value_parser = super::cli::parse_usize))]
     pub max_verts: usize,
-    /// Where the hit file goes (default: a fresh directory under the
-    /// system's temporary directory, removed after the bake).
+    /// Directory for the hit file's buckets (default: a fresh directory
+    /// under the system's temporary directory, removed after the bake).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub scratch: Option<PathBuf>,
     /// Keep the hit file at this path instead of deleting it.
+    #[cfg_attr(feature = "cli", arg(long = "hits"))]
     pub keep_hits: Option<PathBuf>,
     /// Most hit records held in memory at once, in phase 2 (a surface with
     /// more hits is streamed in chunks of this size) and in the bucket sort
-    /// of phase 1.
+    /// of phase 1; accepts 2M.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1 << 21, value_parser = super::cli::parse_usize))]
     pub chunk_hits: usize,
+}
+
+/// Parses `--variant`: true for the paper's per-channel runs.
+#[cfg(feature = "cli")]
+fn channels(s: &str) -> Result<bool, String> {
+    match s {
+        "rgb" => Ok(false),
+        "per-channel" => Ok(true),
+        _ => Err(format!("expected rgb or per-channel, got '{s}'")),
+    }
 }
 
 impl Default for Settings {
@@ -133,29 +158,9 @@ impl Default for Settings {
 }
 
 impl Settings {
-    /// Reads the shared options.
-    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
-        let d = Settings::default();
-        let s = Settings {
-            seed: o.seed,
-            max_depth: o.max_depth,
-            particles: o.particles.unwrap_or(d.particles),
-            c1: o.c1.unwrap_or(d.c1),
-            c2: o.c2.unwrap_or(d.c2),
-            epsilon: o.epsilon.unwrap_or(d.epsilon),
-            per_channel: match o.variant.as_deref() {
-                None | Some("rgb") => false,
-                Some("per-channel") => true,
-                Some(v) => {
-                    return Err(MethodError(format!(
-                        "unknown variant '{v}' for method density; expected 'rgb' or 'per-channel'"
-                    )))
-                }
-            },
-            ..d
-        };
-        s.check()?;
-        Ok(s)
+    /// Rejects settings that cannot work.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        self.check()
     }
 
     /// Rejects settings that cannot work.

@@ -79,43 +79,65 @@ use rayon::prelude::*;
 
 use super::camera_pass::CameraPass;
 use super::light::{connect_emission, connect_to_camera, scatter, shade};
-use super::{Method, MethodError, Options, StepStats, World};
+use super::{Method, MethodError, StepStats, World};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb, SurfacePoint};
 
 /// Settings of progressive light path building.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
-    /// Master seed.
+    /// Master seed (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Longest path in segments (None: unlimited).
+    /// Longest path in segments; None = unlimited (set from [`super::Common`]).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub max_depth: Option<u32>,
     /// λ: weight of the children's measured image impact, eq. (8), against
     /// the potential impact, eq. (9), in `ComputeImportance`.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub lambda: f32,
     /// Steps per phase (the paper: 400).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 400))]
     pub phase_len: u32,
     /// Population cap: the expected number of hits that survive a purge.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1000))]
     pub population: usize,
     /// Independent lanes (populations, films, streams); fixed so that
     /// results do not depend on the thread count.
+    #[cfg_attr(feature = "cli", arg(skip = 8usize))]
     pub lanes: usize,
     /// Steps per pass over all lanes; 0 means about one per pixel (rounded
     /// up to whole phases).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub steps_per_pass: u64,
     /// Phases dropped from the average at the start of each lane.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub discard: u64,
-    /// Estimate what light paths cannot reach (delta surfaces seen by the
-    /// camera, the environment) from the camera ([`super::camera_pass`]).
+    /// The camera pass, which estimates from the camera what light paths
+    /// cannot reach (delta surfaces seen by the camera, the environment):
+    /// on, or off for the raw method.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     pub camera_pass: bool,
-    /// How a hit's importance is found.
+    /// How a hit's importance is found: the paper's rule (§3.1, eqs. 8–9),
+    /// or pooled over a grid of measured image impact (our extension).
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long = "variant",
+            value_name = "VARIANT",
+            value_enum,
+            default_value = "paper"
+        )
+    )]
     pub importance: Importance,
 }
 
 /// The hit-selection rule.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Importance {
     /// §3.1 as the paper gives it: potential impact (eq. (9)) plus λ times
     /// the children's measured impact (eq. (8)).
@@ -145,43 +167,24 @@ impl Default for Settings {
 }
 
 impl Settings {
-    /// Reads the shared options; unset fields keep their defaults.
-    pub fn from_options(o: &Options) -> Result<Self, MethodError> {
-        let d = Settings::default();
-        let importance = match o.variant.as_deref() {
-            None | Some("paper") => Importance::Paper,
-            Some("pooled") => Importance::Pooled,
-            Some(v) => {
-                return Err(MethodError(format!(
-                    "unknown variant '{v}' for method plb; expected 'paper' or 'pooled'"
-                )))
-            }
-        };
-        let lambda = o.lambda.unwrap_or(d.lambda);
-        if !(lambda.is_finite() && lambda >= 0.0) {
+    /// Rejects settings that cannot work.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        if !(self.lambda.is_finite() && self.lambda >= 0.0) {
             return Err(MethodError(format!(
-                "--lambda must be a finite number ≥ 0, got {lambda}"
+                "--lambda must be a finite number ≥ 0, got {}",
+                self.lambda
             )));
         }
-        let phase_len = o.phase_len.unwrap_or(d.phase_len);
-        if phase_len == 0 {
+        if self.phase_len == 0 {
             return Err(MethodError("--phase-len must be at least 1".into()));
         }
-        let population = o.population.unwrap_or(d.population);
-        if population == 0 {
+        if self.population == 0 {
             return Err(MethodError("--population must be at least 1".into()));
         }
-        Ok(Settings {
-            seed: o.seed,
-            max_depth: o.max_depth,
-            lambda,
-            phase_len,
-            population,
-            discard: o.discard,
-            camera_pass: o.camera_pass,
-            importance,
-            ..d
-        })
+        if self.lanes == 0 {
+            return Err(MethodError("plb needs at least one lane".into()));
+        }
+        Ok(())
     }
 }
 

@@ -1,88 +1,21 @@
-//! Scene generators: `big-room`, a furnished room of about 150k triangles
-//! (after Fig. 6 of the density-estimation paper: tables, chairs, shelves
-//! full of books, a lattice of ceiling lights), written as Mitsuba 3 XML
-//! with OBJ meshes so that Mitsuba renders it too.
+//! `big-room`: a furnished room of about 150k triangles (after Fig. 6 of the
+//! density-estimation paper: tables, chairs, shelves full of books, a
+//! lattice of ceiling lights), its furniture jittered by a seed.
 
 use std::fmt::Write as _;
-use std::io::Write as _;
-use std::path::Path;
 
 use glam::Vec3;
 
-use crate::image_io::{write_atomic, ImageIoError};
+use super::mesh::Mesh;
+use super::SceneFiles;
 use crate::sampling::Pcg32;
 
-#[derive(Default)]
-struct Obj {
-    v: Vec<Vec3>,
-    f: Vec<[u32; 3]>,
-}
-
-impl Obj {
-    /// An axis-aligned box, faces outward.
-    fn cuboid(&mut self, lo: Vec3, hi: Vec3) {
-        let b = self.v.len() as u32;
-        for i in 0..8 {
-            self.v.push(Vec3::new(
-                if i & 1 == 0 { lo.x } else { hi.x },
-                if i & 2 == 0 { lo.y } else { hi.y },
-                if i & 4 == 0 { lo.z } else { hi.z },
-            ));
-        }
-        // quads counter-clockwise seen from outside
-        let q = [
-            [0, 2, 3, 1], // z = lo
-            [4, 5, 7, 6], // z = hi
-            [0, 1, 5, 4], // y = lo
-            [2, 6, 7, 3], // y = hi
-            [0, 4, 6, 2], // x = lo
-            [1, 3, 7, 5], // x = hi
-        ];
-        for f in q {
-            self.f.push([b + f[0], b + f[1], b + f[2]]);
-            self.f.push([b + f[0], b + f[2], b + f[3]]);
-        }
-    }
-
-    fn quad(&mut self, p: [Vec3; 4]) {
-        let b = self.v.len() as u32;
-        self.v.extend_from_slice(&p);
-        self.f.push([b, b + 1, b + 2]);
-        self.f.push([b, b + 2, b + 3]);
-    }
-
-    fn text(&self) -> String {
-        let mut s = String::with_capacity(self.v.len() * 30 + self.f.len() * 20);
-        for v in &self.v {
-            let _ = writeln!(s, "v {} {} {}", v.x, v.y, v.z);
-        }
-        for f in &self.f {
-            let _ = writeln!(s, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1);
-        }
-        s
-    }
-}
-
-fn write(path: &Path, text: &str) -> Result<(), ImageIoError> {
-    write_atomic(path, |w| {
-        w.write_all(text.as_bytes()).map_err(|e| ImageIoError::Io {
-            path: path.to_path_buf(),
-            source: e,
-        })
-    })
-}
-
-/// Writes `big-room` into `dir` (scene.xml and meshes/*.obj); returns the
-/// triangle count.
-pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
-    let io = |e| ImageIoError::Io {
-        path: dir.to_path_buf(),
-        source: e,
-    };
-    std::fs::create_dir_all(dir.join("meshes")).map_err(io)?;
+/// The scene: `meshes/*.obj` and `scene.xml`, the furniture laid out by
+/// `seed`.
+pub(super) fn build(seed: u64) -> SceneFiles {
     let mut rng = Pcg32::keyed(&[seed, 0xB16_0000]);
     let (w, h, d) = (16.0f32, 3.0f32, 12.0f32);
-    let mut room = Obj::default();
+    let mut room = Mesh::default();
     // inward-facing floor, ceiling and walls
     room.quad([
         Vec3::new(0.0, 0.0, 0.0),
@@ -90,14 +23,14 @@ pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
         Vec3::new(w, 0.0, d),
         Vec3::new(w, 0.0, 0.0),
     ]);
-    let mut ceiling = Obj::default();
+    let mut ceiling = Mesh::default();
     ceiling.quad([
         Vec3::new(0.0, h, 0.0),
         Vec3::new(w, h, 0.0),
         Vec3::new(w, h, d),
         Vec3::new(0.0, h, d),
     ]);
-    let mut walls = Obj::default();
+    let mut walls = Mesh::default();
     walls.quad([
         Vec3::new(0.0, 0.0, 0.0),
         Vec3::new(w, 0.0, 0.0),
@@ -123,10 +56,10 @@ pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
         Vec3::new(w, h, 0.0),
     ]);
 
-    let mut wood = Obj::default();
-    let mut chairs = Obj::default();
-    let mut shelves = Obj::default();
-    let mut books = [Obj::default(), Obj::default(), Obj::default()];
+    let mut wood = Mesh::default();
+    let mut chairs = Mesh::default();
+    let mut shelves = Mesh::default();
+    let mut books = [Mesh::default(), Mesh::default(), Mesh::default()];
 
     // Tables with four chairs each, on a grid in the middle of the room
     for i in 0..6 {
@@ -175,10 +108,10 @@ pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
     // mapped to the room by `map`.
     let shelf = |a0: f32,
                  map: &dyn Fn(f32, f32, f32) -> Vec3,
-                 shelves: &mut Obj,
-                 books: &mut [Obj; 3],
+                 shelves: &mut Mesh,
+                 books: &mut [Mesh; 3],
                  rng: &mut Pcg32| {
-        let put = |o: &mut Obj, lo: Vec3, hi: Vec3| {
+        let put = |o: &mut Mesh, lo: Vec3, hi: Vec3| {
             let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
             o.cuboid(p.min(q), p.max(q));
         };
@@ -256,22 +189,24 @@ pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
         );
     }
 
-    let parts: [(&str, &Obj, &str); 9] = [
-        ("floor", &room, "floor"),
-        ("ceiling", &ceiling, "white"),
-        ("walls", &walls, "white"),
-        ("wood", &wood, "wood"),
-        ("chairs", &chairs, "dark"),
-        ("shelves", &shelves, "white"),
-        ("books-red", &books[0], "red"),
-        ("books-green", &books[1], "green"),
-        ("books-blue", &books[2], "blue"),
+    let [red, green, blue] = books;
+    let parts: [(&str, Mesh, &str); 9] = [
+        ("floor", room, "floor"),
+        ("ceiling", ceiling, "white"),
+        ("walls", walls, "white"),
+        ("wood", wood, "wood"),
+        ("chairs", chairs, "dark"),
+        ("shelves", shelves, "white"),
+        ("books-red", red, "red"),
+        ("books-green", green, "green"),
+        ("books-blue", blue, "blue"),
     ];
     let mut tris = 0;
     let mut shapes = String::new();
-    for (name, obj, mat) in parts {
-        write(&dir.join(format!("meshes/{name}.obj")), &obj.text())?;
-        tris += obj.f.len();
+    let mut meshes = Vec::new();
+    for (name, mesh, mat) in parts {
+        tris += mesh.indices.len();
+        meshes.push((format!("meshes/{name}.obj"), mesh));
         let _ = writeln!(
             shapes,
             "    <shape type=\"obj\" id=\"mesh-{name}\">\n        <string name=\"filename\" value=\"meshes/{name}.obj\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <ref id=\"{mat}\"/>\n    </shape>"
@@ -315,6 +250,5 @@ pub fn big_room(dir: &Path, seed: u64) -> Result<usize, ImageIoError> {
 {shapes}</scene>
 "#
     );
-    write(&dir.join("scene.xml"), &xml)?;
-    Ok(tris)
+    SceneFiles { meshes, xml }
 }

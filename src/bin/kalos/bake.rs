@@ -1,0 +1,143 @@
+//! `kalos bake`: view-independent lighting by density estimation, written
+//! as a glTF binary display mesh (and optionally an irradiance PLY).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use clap::Args;
+
+use kalos::methods::{density, World};
+
+use crate::{extension, load_scene, say, set_threads};
+
+/// The flags of `kalos bake`.
+#[derive(Args)]
+pub struct BakeArgs {
+    /// Scene file; omit (or say `builtin`) for the built-in Cornell box.
+    scene: Option<PathBuf>,
+    /// Output display mesh (.glb).
+    #[arg(short, long, default_value = "out.glb")]
+    output: PathBuf,
+    /// Also write the irradiance mesh as PLY.
+    #[arg(long)]
+    ply: Option<PathBuf>,
+    /// Random seed: the same seed gives the same hit file whatever --threads.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Longest path in segments (Mitsuba's max_depth: 2 = direct light
+    /// only); default unlimited.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Print particles, hits, bytes per hit, time per phase, peak memory,
+    /// triangles before and after decimation.
+    #[arg(long)]
+    stats: bool,
+    /// The density method's settings.
+    #[command(flatten)]
+    density: density::Settings,
+}
+
+/// Peak resident memory of this process (VmHWM), in bytes, when known.
+fn peak_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = text.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Runs `kalos bake`.
+pub fn run(a: BakeArgs) -> Result<()> {
+    let ext = extension(&a.output);
+    if ext != "glb" {
+        bail!("output '{}' must end in .glb", a.output.display());
+    }
+    let s = density::Settings {
+        seed: a.seed,
+        max_depth: a.max_depth,
+        ..a.density.clone()
+    };
+    s.validate()?;
+    if a.max_depth == Some(0) {
+        bail!("--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)");
+    }
+    set_threads(a.threads)?;
+    let t0 = Instant::now();
+    let world = World::new(load_scene(a.scene.as_deref())?);
+    let load_s = t0.elapsed().as_secs_f64();
+    if world.lights.is_empty() {
+        bail!("the scene has no emitters: nothing to bake");
+    }
+    let b = density::bake(&world, &s)?;
+    let t1 = Instant::now();
+    let (lit, other) = b.baked_meshes(&world.scene);
+    kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0)?;
+    if let Some(p) = &a.ply {
+        kalos::bake::ply::write_ply(p, &lit)?;
+    }
+    let write_s = t1.elapsed().as_secs_f64();
+    let st = &b.stats;
+    say!(
+        "{}: {} triangles ({} before decimation), white point {:.4e} W/(m²·sr)",
+        a.output.display(),
+        st.tris_after,
+        st.tris_before,
+        b.w0
+    );
+    if a.stats {
+        let total = st.t_trace + st.t_estimate + st.t_decimate;
+        let pct = |t: f64| if total > 0.0 { 100.0 * t / total } else { 0.0 };
+        say!("particles        {}", st.particles);
+        say!("hits             {}", st.hits);
+        say!("bytes per hit    {}", st.bytes_per_hit);
+        say!("hit file         {:.1} MB", st.hit_file_bytes as f64 / 1e6);
+        say!("surfaces         {}", st.surfaces);
+        say!("load + BVH       {load_s:.2} s");
+        say!(
+            "phase 1 trace    {:.2} s ({:.0}%)",
+            st.t_trace,
+            pct(st.t_trace)
+        );
+        say!(
+            "phase 2 estimate {:.2} s ({:.0}%)",
+            st.t_estimate,
+            pct(st.t_estimate)
+        );
+        say!(
+            "phase 3 decimate {:.2} s ({:.0}%)",
+            st.t_decimate,
+            pct(st.t_decimate)
+        );
+        say!("write            {write_s:.2} s");
+        say!("triangles before {}", st.tris_before);
+        say!(
+            "triangles after  {} ({:.1}% removed)",
+            st.tris_after,
+            if st.tris_before > 0 {
+                100.0 * (1.0 - st.tris_after as f64 / st.tris_before as f64)
+            } else {
+                0.0
+            }
+        );
+        say!(
+            "brightness error max {:.4}, mean {:.4} (epsilon {})",
+            st.max_brightness_error,
+            st.mean_brightness_error,
+            s.epsilon
+        );
+        say!(
+            "hits in memory   {} at most in phase 2, {} in the bucket sort (chunk {})",
+            st.max_hits_in_memory,
+            st.max_sort_records,
+            s.chunk_hits
+        );
+        match peak_memory() {
+            Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),
+            None => say!("peak memory      unknown"),
+        }
+    }
+    Ok(())
+}

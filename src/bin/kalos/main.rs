@@ -1,0 +1,315 @@
+//! The `kalos` command line: parses arguments, shows progress and writes
+//! files. Everything else lives in the library.
+
+mod bake;
+mod render;
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use kalos::image_io::{self, PngOptions, Tonemap};
+use kalos::methods::{self, World};
+use kalos::metrics;
+use kalos::plot::{self, PlotOptions, XAxis};
+use kalos::scene::{self, Scene};
+
+/// `println!` that ends the process quietly when stdout is closed (as in
+/// `kalos compare a b | head -1`) instead of panicking. Output files are
+/// always written before anything is printed.
+#[macro_export]
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if writeln!(std::io::stdout(), $($t)*).is_err() {
+            std::process::exit(0);
+        }
+    }};
+}
+
+#[derive(Parser)]
+#[command(
+    name = "kalos",
+    version,
+    about = "Global illumination renderer and light baker"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene (Mitsuba XML, OBJ, PLY, glTF) to EXR, PFM or PNG;
+    /// `kalos render --method NAME --help` lists a method's settings.
+    #[command(disable_help_flag = true)]
+    Render {
+        /// The render's flags, parsed for the chosen method.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
+        args: Vec<OsString>,
+    },
+    /// Compare an image with a reference: relMSE, RMSE, channel means.
+    Compare(CompareArgs),
+    /// Print what a scene holds: triangles, emitters, materials, bounds.
+    Info {
+        /// Scene file (omit for the built-in Cornell box).
+        scene: Option<PathBuf>,
+    },
+    /// Plot convergence logs (CSV from `render --log`): error against time.
+    Plot(PlotArgs),
+    /// Measure the ray core's throughput (Mrays/s), one thread and all.
+    Bench(BenchArgs),
+    /// Bake view-independent lighting by density estimation into a glTF
+    /// binary display mesh (vertex colours), optionally an irradiance PLY.
+    Bake(Box<bake::BakeArgs>),
+    /// Write a generated scene (sphereflake, teapot-room, terrain, big-room)
+    /// as Mitsuba XML plus OBJ meshes.
+    Gen {
+        /// Scene name.
+        #[arg(value_parser = clap::builder::PossibleValuesParser::new(GEN_SCENES))]
+        name: String,
+        /// Output directory.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// big-room: seed of the furniture layout.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+/// The scenes `kalos gen` writes.
+const GEN_SCENES: &[&str] = kalos::scenegen::NAMES;
+
+#[derive(Clone, Copy, ValueEnum)]
+enum TonemapArg {
+    Clamp,
+    Reinhard,
+    Aces,
+}
+
+impl From<TonemapArg> for Tonemap {
+    fn from(t: TonemapArg) -> Tonemap {
+        match t {
+            TonemapArg::Clamp => Tonemap::Clamp,
+            TonemapArg::Reinhard => Tonemap::Reinhard,
+            TonemapArg::Aces => Tonemap::Aces,
+        }
+    }
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    /// The image to judge.
+    image: PathBuf,
+    /// The reference.
+    reference: PathBuf,
+    /// Write a false-colour relative-error image (PNG).
+    #[arg(long)]
+    error_image: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct PlotArgs {
+    /// Convergence logs (CSV), one curve each; label=FILE sets the legend.
+    #[arg(required = true)]
+    logs: Vec<String>,
+    /// Output PNG.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// What the x axis shows.
+    #[arg(long, value_enum, default_value = "time")]
+    x: XArg,
+    /// Plot title.
+    #[arg(long, default_value = "")]
+    title: String,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum XArg {
+    Time,
+    Rays,
+    Spp,
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Scene to trace (omit for a generated scene of about 1 M triangles).
+    scene: Option<PathBuf>,
+    /// Rays per measurement.
+    #[arg(long, default_value_t = 4_000_000)]
+    rays: u64,
+    /// Triangles in the generated scene.
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+}
+
+fn parse_res(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WxH such as 512x512, got '{s}'"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad width in '{s}'"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad height in '{s}'"))?;
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(format!("resolution out of range (1..16384): '{s}'"));
+    }
+    Ok((w, h))
+}
+
+fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    match path {
+        None => Ok(scene::builtin::cornell_box()?),
+        Some(p) if p.as_os_str() == "builtin" => Ok(scene::builtin::cornell_box()?),
+        Some(p) => {
+            let s = scene::load(p)?;
+            for w in &s.warnings {
+                eprintln!("warning: {w}");
+            }
+            Ok(s)
+        }
+    }
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let r = match cli.command {
+        Command::Render { args } => render::parse(args).and_then(|(a, m)| render::run(a, m)),
+        Command::Compare(a) => compare(a),
+        Command::Info { scene } => info(scene.as_deref()),
+        Command::Plot(a) => plot_cmd(a),
+        Command::Bench(a) => bench(a),
+        Command::Bake(a) => bake::run(*a),
+        Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
+    };
+    if let Err(e) = r {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+/// The lower-case extension of `path` ("" when it has none).
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default()
+}
+
+/// Sizes the global thread pool when `--threads` is given.
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(t) = threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t.max(1))
+            .build_global()
+            .context("setting the thread count")?;
+    }
+    Ok(())
+}
+
+fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
+    let mut text = String::from("time_s,rays,spp,rel_mse\n");
+    for r in rows {
+        text += &format!(
+            "{:.4},{},{:.3},{}\n",
+            r.time_s,
+            r.rays,
+            r.spp,
+            r.rel_mse.map(|e| format!("{e:.6e}")).unwrap_or_default()
+        );
+    }
+    // atomic: a temporary file beside the target, then a rename
+    let tmp = path.with_extension(format!("csv.tmp-{}", std::process::id()));
+    std::fs::write(&tmp, text.as_bytes())
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+fn compare(a: CompareArgs) -> Result<()> {
+    let img = image_io::read_image(&a.image)?;
+    let r = image_io::read_image(&a.reference)?;
+    say!("{}", metrics::Comparison::new(&img, &r)?);
+    if let Some(out) = &a.error_image {
+        let e = metrics::false_color_error(&img, &r)?;
+        image_io::write_image(out, &e, &PngOptions::default())?;
+        say!("error image written to {}", out.display());
+    }
+    Ok(())
+}
+
+fn info(path: Option<&Path>) -> Result<()> {
+    let s = load_scene(path)?;
+    say!("{}", scene::Summary(&s));
+    Ok(())
+}
+
+fn plot_cmd(a: PlotArgs) -> Result<()> {
+    let x = match a.x {
+        XArg::Time => XAxis::TimeSeconds,
+        XArg::Rays => XAxis::Rays,
+        XArg::Spp => XAxis::Spp,
+    };
+    let mut series = Vec::new();
+    for spec in &a.logs {
+        let (label, file) = match spec.split_once('=') {
+            Some((l, f)) => (l.to_string(), f.to_string()),
+            None => (
+                Path::new(spec)
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| spec.clone()),
+                spec.clone(),
+            ),
+        };
+        series.push(plot::series_from_csv(Path::new(&file), &label, x)?);
+    }
+    let mut opts = PlotOptions::for_axis(x);
+    opts.title = a.title;
+    plot::plot_convergence(&series, &a.output, &opts)?;
+    say!("plot written to {}", a.output.display());
+    Ok(())
+}
+
+fn bench(a: BenchArgs) -> Result<()> {
+    let scene = match &a.scene {
+        Some(p) => load_scene(Some(p))?,
+        None => kalos::scenegen::bench_scene(a.triangles),
+    };
+    say!(
+        "scene: {} ({} triangles)",
+        scene.source,
+        scene.triangles.len()
+    );
+    let t = Instant::now();
+    let world = World::new(scene);
+    say!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
+    let one = kalos::bench::incoherent_closest_hits(&world, a.rays, 1);
+    let all_threads = rayon::current_num_threads();
+    let all = kalos::bench::incoherent_closest_hits(&world, a.rays, all_threads);
+    say!(
+        "incoherent closest hits, 1 thread:  {:.2} Mrays/s ({} hits of {} rays)",
+        one.mrays_per_s,
+        one.hits,
+        one.rays
+    );
+    say!(
+        "incoherent closest hits, {all_threads} threads: {:.2} Mrays/s (ratio {:.2}x)",
+        all.mrays_per_s,
+        all.mrays_per_s / one.mrays_per_s
+    );
+    Ok(())
+}
+
+fn gen_cmd(what: &str, output: &Path, seed: u64) -> Result<()> {
+    let xml = kalos::scenegen::generate(what, output, seed)?;
+    say!("wrote {}", xml.display());
+    Ok(())
+}

@@ -1,0 +1,269 @@
+//! `kalos render`: the command line is built for the chosen method, so that
+//! `--help` lists only its settings and a flag of another method is an error
+//! that names both.
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::error::{ContextKind, ContextValue, ErrorKind};
+use clap::{Args, Command, FromArgMatches};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use kalos::image_io::{self, PngOptions};
+use kalos::methods::{self, cli as mcli, Budget, Common, World};
+use kalos::metrics;
+use kalos::render::Render;
+
+use crate::{extension, load_scene, parse_res, set_threads, write_log, TonemapArg};
+
+/// The flags every method shares.
+#[derive(Args)]
+pub struct RenderArgs {
+    /// Scene file (Mitsuba XML, OBJ, PLY, glTF); omit (or say `builtin`)
+    /// for the built-in Cornell box.
+    scene: Option<PathBuf>,
+    /// Output image (.exr, .pfm or .png).
+    #[arg(short, long, default_value = "out.exr")]
+    output: PathBuf,
+    /// Samples per pixel (light paths per pixel for the light-based
+    /// methods). Default 16 when no budget is given.
+    #[arg(long)]
+    spp: Option<f64>,
+    /// Time budget in seconds.
+    #[arg(long)]
+    time: Option<f64>,
+    /// Ray budget (closest-hit and shadow rays together); accepts 30M, 2G.
+    #[arg(long, value_parser = mcli::parse_count)]
+    rays: Option<u64>,
+    /// Random seed: the same seed gives the same image whatever --threads.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Override the film resolution, WxH.
+    #[arg(long, value_parser = parse_res)]
+    res: Option<(u32, u32)>,
+    /// Longest path in segments (Mitsuba's max_depth: 1 = emitters seen
+    /// directly, 2 = direct light); default unlimited.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Reference image, for the convergence log and the final error.
+    #[arg(long = "ref")]
+    reference: Option<PathBuf>,
+    /// Write a convergence log (time_s,rays,spp,rel_mse) to this CSV file.
+    #[arg(long)]
+    log: Option<PathBuf>,
+    /// Seconds between convergence-log rows.
+    #[arg(long, default_value_t = 1.0)]
+    log_every: f64,
+    /// PNG exposure in stops.
+    #[arg(long, default_value_t = 0.0)]
+    exposure: f32,
+    /// PNG tone mapping.
+    #[arg(long, value_enum, default_value = "clamp")]
+    tonemap: TonemapArg,
+    /// No progress bar.
+    #[arg(short, long)]
+    quiet: bool,
+    /// Check the arguments and the method's settings, then exit without
+    /// loading the scene or rendering (to vet a job before it is queued).
+    #[arg(long)]
+    dry_run: bool,
+}
+
+/// The `render` command for `method`: the shared flags, `--method`, and the
+/// method's own settings.
+fn command(method: &str) -> Result<Command> {
+    let info = methods::by_name(method)?;
+    let mut others = String::from("Other methods have other settings; see them with:");
+    for m in methods::all() {
+        others += &format!("\n  kalos render --method {} --help", m.name);
+    }
+    let cmd = Command::new("render")
+        .bin_name("kalos render")
+        .allow_negative_numbers(true)
+        .after_help(others);
+    let cmd = RenderArgs::augment_args(cmd).arg(mcli::method_arg());
+    // a one-time string for the life of the process
+    let heading: &'static str = Box::leak(format!("Settings of '{}'", info.name).into_boxed_str());
+    let cmd = cmd.next_help_heading(heading);
+    // the settings type's own doc would otherwise be the command's about
+    Ok((info.args)(cmd).about(format!(
+        "Render a scene with method '{}': {}",
+        info.name, info.about
+    )))
+}
+
+/// Parses `args` (what follows `kalos render`) for the method they name.
+pub fn parse(args: Vec<OsString>) -> Result<(RenderArgs, methods::MethodConfig)> {
+    let method = mcli::scan_method(&args).unwrap_or_else(|| "path".to_string());
+    if methods::by_name(&method).is_err() {
+        // let clap report the bad value with the list of methods
+        let err = command("path")?
+            .try_get_matches_from(std::iter::once(OsString::from("render")).chain(args.clone()))
+            .err();
+        if let Some(e) = err {
+            e.exit();
+        }
+    }
+    let matches = match command(&method)?
+        .try_get_matches_from(std::iter::once(OsString::from("render")).chain(args))
+    {
+        Ok(m) => m,
+        Err(e) => {
+            if e.kind() == ErrorKind::UnknownArgument {
+                if let Some(ContextValue::String(flag)) = e.get(ContextKind::InvalidArg) {
+                    if let Some(msg) = mcli::foreign_flag_message(&method, flag) {
+                        eprintln!("error: {msg}");
+                        std::process::exit(2);
+                    }
+                }
+            }
+            e.exit()
+        }
+    };
+    let a = RenderArgs::from_arg_matches(&matches)
+        .map_err(|e| e.exit())
+        .unwrap();
+    let info = methods::by_name(&method)?;
+    let cfg = (info.from_args)(&matches).map_err(|e| e.exit()).unwrap();
+    Ok((a, cfg))
+}
+
+/// Runs `kalos render`.
+pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
+    // Check what can be checked before spending any time.
+    let ext = extension(&a.output);
+    if !matches!(ext.as_str(), "exr" | "pfm" | "png") {
+        bail!(
+            "output '{}' must end in .exr, .pfm or .png",
+            a.output.display()
+        );
+    }
+    let common = Common {
+        seed: a.seed,
+        max_depth: a.max_depth,
+    };
+    cfg.check(&common)?;
+    if a.dry_run {
+        crate::say!("{}: arguments accepted", cfg.name());
+        return Ok(());
+    }
+    set_threads(a.threads)?;
+    let t0 = Instant::now();
+    let mut scene = load_scene(a.scene.as_deref())?;
+    if let Some((w, h)) = a.res {
+        scene.set_resolution(w, h);
+    }
+    let reference = match &a.reference {
+        Some(p) => {
+            let r = image_io::read_image(p)?;
+            if (r.width, r.height) != (scene.camera.width, scene.camera.height) {
+                bail!(
+                    "reference {} is {}x{} but the render is {}x{}",
+                    p.display(),
+                    r.width,
+                    r.height,
+                    scene.camera.width,
+                    scene.camera.height
+                );
+            }
+            Some(r)
+        }
+        None => None,
+    };
+    let world = World::new(scene);
+    let load_s = t0.elapsed().as_secs_f64();
+    if world.lights.is_empty() {
+        eprintln!("warning: the scene has no emitters; the image will be black");
+    }
+    let mut budget = Budget {
+        spp: a.spp,
+        time: a.time,
+        rays: a.rays,
+        passes: None,
+    };
+    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
+        budget.spp = Some(16.0);
+    }
+
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        // A second Ctrl-C while saving is left to the default handler.
+        let _ = ctrlc::set_handler(move || {
+            if c.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let bar = if a.quiet {
+        ProgressBar::hidden()
+    } else {
+        let b = ProgressBar::new(1000);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg} (ETA {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        b
+    };
+    let mut render = Render::new(&world)
+        .method(cfg)
+        .common(common)
+        .budget(budget)
+        .cancel(&cancel);
+    if let Some(r) = &reference {
+        render = render.reference(r, if a.log.is_some() { a.log_every } else { 0.0 });
+    }
+    let result = render.run(|p| {
+        bar.set_position((p.fraction * 1000.0) as u64);
+        let mrays = if p.elapsed > 0.0 {
+            p.rays as f64 / p.elapsed / 1e6
+        } else {
+            0.0
+        };
+        bar.set_message(format!("{} passes, {:.2} Mrays/s", p.passes, mrays));
+    });
+    bar.finish_and_clear();
+    let result = result.context("rendering")?;
+
+    let png = PngOptions {
+        exposure: a.exposure,
+        tonemap: a.tonemap.into(),
+    };
+    image_io::write_image(&a.output, &result.image, &png)?;
+    if let Some(log) = &a.log {
+        write_log(log, &result.log)?;
+    }
+    let mut line = format!(
+        "{}: {} {}x{}, {:.1} spp, {} passes, {:.2} s (+{:.2} s load/build), {:.1} M rays, {:.2} Mrays/s",
+        a.output.display(),
+        result.method,
+        result.image.width,
+        result.image.height,
+        result.spp,
+        result.passes,
+        result.seconds,
+        load_s,
+        result.rays as f64 / 1e6,
+        result.rays as f64 / result.seconds.max(1e-9) / 1e6
+    );
+    if let Some(r) = &reference {
+        line += &format!(", relMSE {:.4e}", metrics::rel_mse(&result.image, r)?);
+    }
+    if result.interrupted {
+        line += " (interrupted: saved what was rendered)";
+    }
+    crate::say!("{line}");
+    if let Some(r) = &result.report {
+        crate::say!("{r}");
+    }
+    Ok(())
+}

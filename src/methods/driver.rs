@@ -1,0 +1,181 @@
+//! The driver: runs a method until its budget is spent or it is cancelled,
+//! with progress callbacks and a convergence log.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use super::{Method, MethodError, World};
+use crate::film::Image;
+use crate::metrics;
+
+/// When to stop. Several limits may be set; the first reached stops.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Budget {
+    /// Samples per pixel (passes, for methods whose pass is one spp).
+    pub spp: Option<f64>,
+    /// Wall time in seconds.
+    pub time: Option<f64>,
+    /// Rays traced.
+    pub rays: Option<u64>,
+    /// Number of passes.
+    pub passes: Option<u64>,
+}
+
+/// A row of the convergence log.
+#[derive(Clone, Copy, Debug)]
+pub struct LogRow {
+    /// Seconds since the start.
+    pub time_s: f64,
+    /// Rays traced so far.
+    pub rays: u64,
+    /// Samples per pixel so far.
+    pub spp: f64,
+    /// relMSE against the reference, when one was given.
+    pub rel_mse: Option<f64>,
+}
+
+/// Progress reported to the caller after every pass.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Passes done.
+    pub passes: u64,
+    /// Rays so far.
+    pub rays: u64,
+    /// Seconds so far.
+    pub elapsed: f64,
+    /// Fraction of the budget used, in [0, 1].
+    pub fraction: f64,
+}
+
+/// The outcome of a render.
+pub struct RenderResult {
+    /// The method's name.
+    pub method: &'static str,
+    /// The final estimate.
+    pub image: Image,
+    /// Rays traced.
+    pub rays: u64,
+    /// Passes run.
+    pub passes: u64,
+    /// Samples per pixel (or equivalent).
+    pub spp: f64,
+    /// Wall time in seconds.
+    pub seconds: f64,
+    /// True when the render was interrupted.
+    pub interrupted: bool,
+    /// The convergence log.
+    pub log: Vec<LogRow>,
+    /// The method's own statistics (phase timings, memory), when it keeps
+    /// any ([`Method::report`]).
+    pub report: Option<String>,
+}
+
+/// Runs a method until its budget is spent or `cancel` is set (Ctrl-C).
+/// With a reference, records the relMSE every `log_every` seconds (and at the
+/// end); the time spent computing the error is not counted as render time.
+pub struct Driver<'a> {
+    /// The budget.
+    pub budget: Budget,
+    /// Set from another thread to stop after the current pass.
+    pub cancel: Option<&'a AtomicBool>,
+    /// Reference image for the convergence log.
+    pub reference: Option<&'a Image>,
+    /// Seconds between log rows (0 disables intermediate rows).
+    pub log_every: f64,
+}
+
+impl Driver<'_> {
+    /// Runs `method`; `on_progress` is called after every pass.
+    pub fn run(
+        &self,
+        method: &mut dyn Method,
+        world: &World,
+        mut on_progress: impl FnMut(&Progress),
+    ) -> Result<RenderResult, MethodError> {
+        let start = Instant::now();
+        let mut excluded = 0.0f64; // time spent on logging, not rendering
+                                   // Setup runs inside the clock and its rays count toward the budget
+        let mut rays = method.prepare(world)?.rays;
+        let mut pass = 0u64;
+        let mut log = Vec::new();
+        let mut next_log = self.log_every;
+        let mut interrupted = false;
+        let budget = self.budget;
+        let unlimited = budget.spp.is_none()
+            && budget.time.is_none()
+            && budget.rays.is_none()
+            && budget.passes.is_none();
+        loop {
+            let elapsed = start.elapsed().as_secs_f64() - excluded;
+            let mut fraction: f64 = 0.0;
+            if let Some(s) = budget.spp {
+                fraction = fraction.max(method.spp() / s);
+            }
+            if let Some(t) = budget.time {
+                fraction = fraction.max(elapsed / t);
+            }
+            if let Some(r) = budget.rays {
+                fraction = fraction.max(rays as f64 / r as f64);
+            }
+            if let Some(p) = budget.passes {
+                fraction = fraction.max(pass as f64 / p as f64);
+            }
+            if unlimited && pass >= 1 {
+                fraction = 1.0;
+            }
+            on_progress(&Progress {
+                passes: pass,
+                rays,
+                elapsed,
+                fraction: fraction.min(1.0),
+            });
+            if fraction >= 1.0 {
+                break;
+            }
+            if self.cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                interrupted = true;
+                break;
+            }
+            let stats = method.step(world, pass);
+            rays += stats.rays;
+            pass += 1;
+            if let Some(r) = self.reference {
+                let now = start.elapsed().as_secs_f64() - excluded;
+                if self.log_every > 0.0 && now >= next_log {
+                    let t0 = Instant::now();
+                    let e = metrics::rel_mse(&method.image(world), r).ok();
+                    log.push(LogRow {
+                        time_s: now,
+                        rays,
+                        spp: method.spp(),
+                        rel_mse: e,
+                    });
+                    next_log = now + self.log_every;
+                    excluded += t0.elapsed().as_secs_f64();
+                }
+            }
+        }
+        let seconds = start.elapsed().as_secs_f64() - excluded;
+        let image = method.image(world);
+        let rel_mse = self
+            .reference
+            .and_then(|r| metrics::rel_mse(&image, r).ok());
+        log.push(LogRow {
+            time_s: seconds,
+            rays,
+            spp: method.spp(),
+            rel_mse,
+        });
+        Ok(RenderResult {
+            method: method.name(),
+            report: method.report(),
+            image,
+            rays,
+            passes: pass,
+            spp: method.spp(),
+            seconds,
+            interrupted,
+            log,
+        })
+    }
+}

@@ -1,0 +1,204 @@
+//! Generated scenes: `kalos gen NAME -o DIR` writes one as Mitsuba 3 XML
+//! plus OBJ meshes (so that Mitsuba renders it too), and `kalos bench`
+//! traces one built in memory.
+//!
+//! Written by [`generate`] (the names are [`NAMES`]):
+//!
+//! - `sphereflake`: a golden Phong sphere-flake of 91 spheres (about 57k
+//!   triangles) on a grey floor, under two area lights (Fig. 9 of the
+//!   stochastic-iteration paper);
+//! - `teapot-room`: a room with a glossy metallic teapot (Fig. 8). The teapot
+//!   is a procedural approximation (a lathed body and lid, a tapered tube
+//!   spout and a half-torus handle), not the Utah Bezier data;
+//! - `terrain`: a fractal terrain (value-noise octaves), wavy water, a
+//!   glowing moon and a constant sky (Fig. 11);
+//! - `big-room`: a furnished room of about 150k triangles (after Fig. 6 of
+//!   the density-estimation paper: tables, chairs, shelves full of books, a
+//!   lattice of ceiling lights); the only one whose layout depends on the
+//!   seed.
+//!
+//! Built in memory by [`bench_scene`]: finely tessellated spheres on a
+//! jittered grid inside a closed room, for the ray-core throughput of
+//! `kalos bench` ([`crate::bench`]).
+//!
+//! A scene to write is built in memory first, then written file by file, each
+//! atomically (a temporary file beside the target, renamed over it), the
+//! meshes before the `scene.xml` that names them.
+
+mod bench;
+mod big_room;
+mod mesh;
+mod sphereflake;
+mod teapot_room;
+mod terrain;
+mod xml;
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use crate::image_io::{write_atomic, ImageIoError};
+
+pub use bench::bench_scene;
+use mesh::Mesh;
+
+/// The scenes [`generate`] writes.
+pub const NAMES: &[&str] = &["sphereflake", "teapot-room", "terrain", "big-room"];
+
+/// Why a scene could not be generated.
+#[derive(Debug, thiserror::Error)]
+pub enum GenError {
+    /// The name is none of [`NAMES`].
+    #[error("unknown scene '{name}' (known: {known})", known = NAMES.join(", "))]
+    UnknownScene {
+        /// The name asked for.
+        name: String,
+    },
+    /// A directory of the output could not be created.
+    #[error("{path}: cannot create the directory", path = .path.display())]
+    CreateDir {
+        /// The directory.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file could not be written; `path` keeps its previous content.
+    #[error("{path}: cannot write the generated file", path = .path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What failed: creating, writing or renaming the temporary file.
+        #[source]
+        source: ImageIoError,
+    },
+}
+
+/// Writes scene `name` (one of [`NAMES`]) into `dir`: `scene.xml` and the
+/// OBJ meshes it names, creating the directories it needs. `seed` picks
+/// the random layout of a scene that has one (`big-room`); the others are
+/// fixed. Returns the path of the XML file.
+pub fn generate(name: &str, dir: &Path, seed: u64) -> Result<PathBuf, GenError> {
+    let files = match name {
+        "sphereflake" => sphereflake::build(),
+        "teapot-room" => teapot_room::build(),
+        "terrain" => terrain::build(),
+        "big-room" => big_room::build(seed),
+        other => {
+            return Err(GenError::UnknownScene {
+                name: other.to_string(),
+            })
+        }
+    };
+    files.write(dir)
+}
+
+/// A generated scene in memory: its meshes, each with the path (relative
+/// to the scene's directory) of its OBJ file, and the XML that names them.
+struct SceneFiles {
+    meshes: Vec<(String, Mesh)>,
+    xml: String,
+}
+
+impl SceneFiles {
+    /// Writes the meshes, then `scene.xml`; returns the path of the latter.
+    fn write(&self, dir: &Path) -> Result<PathBuf, GenError> {
+        for (file, mesh) in &self.meshes {
+            write_file(&dir.join(file), &mesh.obj_text())?;
+        }
+        let path = dir.join("scene.xml");
+        write_file(&path, &self.xml)?;
+        Ok(path)
+    }
+}
+
+/// Writes `text` to `path` atomically, creating its directory first.
+fn write_file(path: &Path, text: &str) -> Result<(), GenError> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|source| GenError::CreateDir {
+            path: parent.to_path_buf(),
+            source,
+        })?;
+    }
+    write_atomic(path, |w| {
+        w.write_all(text.as_bytes())
+            .map_err(|source| ImageIoError::Io {
+                path: path.to_path_buf(),
+                source,
+            })
+    })
+    .map_err(|source| GenError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fresh directory under the system temp dir.
+    fn scratch(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("kalos-scenegen-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn unknown_name_is_an_error_and_writes_nothing() {
+        let dir = scratch("unknown");
+        let e = generate("teapot", &dir, 1).unwrap_err();
+        assert!(matches!(e, GenError::UnknownScene { .. }));
+        assert!(e.to_string().contains("sphereflake"), "{e}");
+        assert!(!dir.exists());
+    }
+
+    #[test]
+    fn writes_the_meshes_and_the_xml_and_no_temporaries() {
+        let dir = scratch("sphereflake");
+        let xml = generate("sphereflake", &dir, 1).unwrap();
+        assert_eq!(xml, dir.join("scene.xml"));
+        let mut names: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["flake.obj", "floor.obj", "scene.xml"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_file_in_the_way_is_an_error_naming_it() {
+        let dir = scratch("blocked");
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("file");
+        std::fs::write(&file, "").unwrap();
+        let e = generate("terrain", &file.join("out"), 1).unwrap_err();
+        assert!(matches!(e, GenError::CreateDir { .. }), "{e}");
+        assert!(e.to_string().contains("file"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_failed_write_names_the_file_and_leaves_no_temporary() {
+        let dir = scratch("xml-is-a-dir");
+        std::fs::create_dir_all(dir.join("scene.xml")).unwrap();
+        let e = generate("sphereflake", &dir, 1).unwrap_err();
+        match &e {
+            GenError::Write { path, .. } => assert_eq!(path, &dir.join("scene.xml")),
+            other => panic!("{other}"),
+        }
+        let leftovers = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .unwrap()
+                    .file_name()
+                    .to_string_lossy()
+                    .contains(".tmp-")
+            })
+            .count();
+        assert_eq!(leftovers, 0);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

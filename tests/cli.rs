@@ -1,0 +1,192 @@
+//! The command line as a user meets it: each method's help lists only its
+//! own settings, a flag of another method is an error naming both, a method
+//! that cannot honour `--max-depth` says so, and a failed setup exits
+//! non-zero with the reason.
+
+use std::process::{Command, Output};
+
+fn kalos(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kalos"))
+        .args(args)
+        .output()
+        .expect("kalos runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn a_flag_of_another_method_is_an_error_naming_both() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("x.pfm");
+    let out = out.to_str().expect("utf-8 path");
+    for (method, flag, owner) in [
+        ("path", "--lambda", "plb"),
+        ("path", "--discard", "light"),
+        ("light", "--patches", "bundle"),
+        ("bundle", "--c1", "density"),
+        ("density", "--population", "plb"),
+    ] {
+        let o = kalos(&[
+            "render", "--method", method, flag, "3", "--res", "8x8", "--spp", "1", "-o", out,
+        ]);
+        assert!(!o.status.success(), "{method} {flag} was accepted");
+        let e = stderr(&o);
+        assert!(
+            e.contains(flag) && e.contains(&format!("'{method}'")) && e.contains(owner),
+            "{method} {flag}: {e}"
+        );
+    }
+    assert!(!dir.path().join("x.pfm").exists(), "nothing is rendered");
+}
+
+#[test]
+fn each_method_help_lists_only_its_own_flags() {
+    // every method's own flags, complete: a flag listed for another method
+    // and not for this one must not show in this one's help
+    let own: [(&str, &[&str]); 5] = [
+        ("path", &["--rr-depth"]),
+        ("light", &["--variant", "--discard", "--camera-pass"]),
+        (
+            "plb",
+            &[
+                "--lambda",
+                "--phase-len",
+                "--population",
+                "--discard",
+                "--camera-pass",
+                "--variant",
+            ],
+        ),
+        (
+            "bundle",
+            &[
+                "--patches",
+                "--patch-edge",
+                "--map-res",
+                "--sequence",
+                "--bundle-image",
+                "--visibility",
+                "--discard",
+                "--subpixel",
+            ],
+        ),
+        (
+            "density",
+            &[
+                "--particles",
+                "--c1",
+                "--c2",
+                "--epsilon",
+                "--no-decimate",
+                "--variant",
+                "--max-verts",
+                "--scratch",
+                "--hits",
+                "--chunk-hits",
+            ],
+        ),
+    ];
+    for (method, flags) in own {
+        let o = kalos(&["render", "--method", method, "--help"]);
+        assert!(o.status.success(), "{method} --help failed");
+        let help = stdout(&o);
+        for f in flags {
+            assert!(help.contains(f), "{method} --help lacks {f}");
+        }
+        for (other, oflags) in own {
+            if other == method {
+                continue;
+            }
+            for f in oflags.iter().filter(|f| !flags.contains(f)) {
+                assert!(
+                    !help.contains(&format!("{f} ")),
+                    "{method} --help shows {other}'s {f}"
+                );
+            }
+        }
+        // the shared flags are there for every method
+        for f in ["--spp", "--seed", "--max-depth", "--output"] {
+            assert!(help.contains(f), "{method} --help lacks {f}");
+        }
+    }
+}
+
+#[test]
+fn a_method_that_cannot_honour_max_depth_says_so() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("x.pfm");
+    let o = kalos(&[
+        "render",
+        "--method",
+        "bundle",
+        "--max-depth",
+        "2",
+        "--res",
+        "8x8",
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("bundle") && e.contains("--max-depth"), "{e}");
+}
+
+#[test]
+fn bad_values_are_refused_before_rendering() {
+    for (method, flag, value) in [
+        ("plb", "--lambda", "-1"),
+        ("plb", "--phase-len", "0"),
+        ("bundle", "--patches", "0"),
+        ("density", "--c1", "0"),
+        ("light", "--variant", "nope"),
+        ("light", "--camera-pass", "maybe"),
+    ] {
+        let o = kalos(&["render", "--method", method, flag, value, "-o", "x.pfm"]);
+        assert!(!o.status.success(), "{method} {flag} {value} was accepted");
+        assert!(stderr(&o).contains(flag), "{}", stderr(&o));
+    }
+    // --discard is for light's iteration form only
+    let o = kalos(&[
+        "render",
+        "--method",
+        "light",
+        "--discard",
+        "5",
+        "-o",
+        "x.pfm",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("iteration"), "{}", stderr(&o));
+}
+
+#[test]
+fn a_method_renders_with_its_own_flags() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("plb.pfm");
+    let o = kalos(&[
+        "render",
+        "--method=plb",
+        "--lambda",
+        "2",
+        "--variant",
+        "pooled",
+        "--camera-pass",
+        "off",
+        "--res",
+        "16x16",
+        "--spp",
+        "1",
+        "-q",
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.exists());
+    assert!(stdout(&o).contains("plb"));
+}
