@@ -84,7 +84,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let material = world.scene.material_of(&sp);
         let bsdf = material.bsdf(sp.uv);
         let (frame, ng) =
-            kalos::methods::path::orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
+            kalos::transport::orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
         let wo = frame.to_local(wo_world);
         if !shown {
             shown = true;

@@ -1,6 +1,7 @@
 //! Where light tracing spends its work on a two-room scene: light paths are
-//! traced as `light` traces them (Russian roulette on the albedo, a camera
-//! connection at every vertex), and their vertices are split by room
+//! traced as `light` traces them ([`kalos::transport::light_walk`]: Russian
+//! roulette on the albedo, a camera connection at every non-delta vertex,
+//! made in the walk's hook), and their vertices are split by room
 //! (x < 0: the light's room, x > 0: the camera's room). Prints, per room,
 //! the vertices, the camera connections that reached the film, and the
 //! image energy (luminance) those connections carry. Used for the plb
@@ -10,11 +11,12 @@
 //! cargo run --release --example two_rooms_paths -- scenes/two-rooms/scene.xml [PATHS]
 //! ```
 
-use kalos::geometry::{offset_point, Ray};
-use kalos::methods::light::{connect_to_camera, scatter, shade};
+use std::ops::ControlFlow;
+
 use kalos::methods::World;
 use kalos::sampling::Pcg32;
 use kalos::scene::luminance;
+use kalos::transport::{connect_to_camera, light_walk, Spectrum};
 
 /// Tallies of one room.
 #[derive(Default)]
@@ -41,37 +43,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ) else {
             continue;
         };
-        let mut ray = es.ray();
-        let mut phi = es.phi;
-        loop {
-            rays += 1;
-            let Some(hit) = world.accel.intersect(&ray) else {
-                break;
-            };
-            let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-            let wo = -ray.d;
-            let (bsdf, frame, ng) = shade(&world, &sp, wo);
-            let room = &mut rooms[usize::from(sp.p.x > 0.0)];
-            room.vertices += 1;
-            if let Some((_, c)) =
-                connect_to_camera(&world, &sp, &frame, ng, wo, &bsdf, phi, &mut rays)
-            {
-                room.connected += 1;
-                room.energy += luminance(c) as f64;
-            }
-            let a = bsdf
-                .albedo(frame.to_local(wo))
-                .max_element()
-                .clamp(0.0, 0.99);
-            if rng.next_f32() >= a {
-                break;
-            }
-            let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo, &mut rng) else {
-                break;
-            };
-            phi = phi * w / a;
-            ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
-        }
+        let mut connection_rays = 0;
+        rays += light_walk(
+            &world,
+            es.ray(),
+            es.phi,
+            Spectrum::Rgb,
+            None,
+            &mut rng,
+            |e| {
+                let v = e.vertex;
+                let room = &mut rooms[usize::from(v.sp.p.x > 0.0)];
+                room.vertices += 1;
+                if v.bsdf.has_smooth() {
+                    if let Some((_, c)) = connect_to_camera(&world, v, e.beta, &mut connection_rays)
+                    {
+                        room.connected += 1;
+                        room.energy += luminance(c) as f64;
+                    }
+                }
+                ControlFlow::Continue(())
+            },
+        );
+        rays += connection_rays;
     }
     let v: u64 = rooms.iter().map(|r| r.vertices).sum();
     let e: f64 = rooms.iter().map(|r| r.energy).sum();

@@ -22,4 +22,5 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod scenegen;
+pub mod transport;
 pub mod world;

@@ -18,9 +18,9 @@ mod common;
 
 use common::{block_stats, max_block_z, render, render_budget};
 use kalos::film::Image;
-use kalos::methods::camera_pass::CameraPass;
 use kalos::methods::{light, plb, Budget, Common, MethodConfig, World};
 use kalos::scene::{self, Scene};
+use kalos::transport::camera_pass::CameraPass;
 
 const Z_MAX: f64 = 4.5;
 

@@ -23,8 +23,10 @@
 //!   in radiance mode transmitted `f` carries 1/η², η being the relative index
 //!   of the side entered by the path over the side it leaves (radiance is
 //!   compressed into the denser medium); in importance mode it does not. The
-//!   shading-normal correction of importance transport is the integrator's
-//!   job ([`shading_normal_correction`]).
+//!   shading-normal correction of importance transport
+//!   ([`shading_normal_correction`]) is applied where light paths scatter
+//!   and meet the camera ([`crate::transport::scatter`],
+//!   [`crate::transport::connect_to_camera`]).
 //!
 //! The models reproduce Mitsuba 3's plugins of the same names (same
 //! parameters, same Fresnel and microfacet terms, same lobe-selection
@@ -178,8 +180,27 @@ pub enum Bsdf {
 /// the denominator vanishes (a grazing direction the path cannot continue).
 #[inline]
 pub fn shading_normal_correction(wo_world: Vec3, wi_world: Vec3, ng: Vec3, ns: Vec3) -> f32 {
+    shading_normal_correction_over(wo_world, wi_world, ng, ns, wi_world.dot(ns).abs())
+}
+
+/// [`shading_normal_correction`] with its |wi·ns| replaced by `d`:
+/// |wo·ns| |wi·ng| / (|wo·ng| d), and the same guard (0 when the
+/// denominator vanishes). This is the one place where the correction is
+/// written. A light path multiplies the correction by the cosine |wi·ns| of
+/// the adjoint BSDF, which cancels the denominator's: scattering passes
+/// d = pdf (the weight f |wi·ns| / pdf, corrected, is f times this), and a
+/// camera connection d = 1, so that the cosine is never multiplied in and
+/// divided out again.
+#[inline]
+pub fn shading_normal_correction_over(
+    wo_world: Vec3,
+    wi_world: Vec3,
+    ng: Vec3,
+    ns: Vec3,
+    d: f32,
+) -> f32 {
     let num = wo_world.dot(ns).abs() * wi_world.dot(ng).abs();
-    let den = wo_world.dot(ng).abs() * wi_world.dot(ns).abs();
+    let den = wo_world.dot(ng).abs() * d;
     if den > 0.0 && num.is_finite() {
         num / den
     } else {
@@ -935,6 +956,30 @@ mod tests {
         let wi = Vec3::new(-0.5, 0.2, 0.4).normalize();
         assert!((shading_normal_correction(wo, wi, n, n) - 1.0).abs() < 1e-6);
         assert_eq!(shading_normal_correction(Vec3::X, wi, n, n), 0.0);
+    }
+
+    /// The forms the light paths use agree with the correction: times
+    /// |wi·ns| / d, up to rounding, with shading normals that differ from
+    /// the geometric one; and the guard holds for them too.
+    #[test]
+    fn shading_normal_correction_over_is_the_correction_times_cosine_over_d() {
+        let ng = Vec3::Z;
+        let ns = Vec3::new(0.2, -0.1, 0.95).normalize();
+        let wo = Vec3::new(0.3, 0.1, 0.9).normalize();
+        let wi = Vec3::new(-0.5, 0.2, 0.4).normalize();
+        let c = shading_normal_correction(wo, wi, ng, ns);
+        assert!((c - 1.0).abs() > 1e-3, "normals too close to test: {c}");
+        let cos = wi.dot(ns).abs();
+        for d in [1.0f32, 0.37, 2.5] {
+            let over = shading_normal_correction_over(wo, wi, ng, ns, d);
+            assert!((over - c * cos / d).abs() < 1e-6 * over, "d {d}: {over}");
+        }
+        assert_eq!(shading_normal_correction_over(wo, wi, ng, ns, cos), c);
+        assert_eq!(
+            shading_normal_correction_over(Vec3::X, wi, ng, ng, 1.0),
+            0.0
+        );
+        assert_eq!(shading_normal_correction_over(wo, wi, ng, ns, 0.0), 0.0);
     }
 
     #[test]

@@ -24,9 +24,9 @@
 //! Limit of the raw method: a delta surface (mirror, smooth glass) seen
 //! directly by the camera cannot be reached by a camera connection, so it
 //! stays black, as in other light tracers (caustics on diffuse surfaces do
-//! appear). By default the camera pass ([`super::camera_pass`]) estimates
-//! exactly that part of path space from the camera; `--camera-pass off`
-//! shows the raw method.
+//! appear). By default the camera pass ([`crate::transport::camera_pass`])
+//! estimates exactly that part of path space from the camera;
+//! `--camera-pass off` shows the raw method.
 //!
 //! Parallelism: a fixed number of lanes, each with its own film and random
 //! stream keyed by (seed, pass, lane); lanes are merged in order, so a seed
@@ -36,17 +36,19 @@
 //! kalos render scenes/cbox/cbox.xml --method light --time 10 -o l.exr
 //! ```
 
-use glam::{Vec2, Vec3};
+use std::ops::ControlFlow;
+
 use rayon::prelude::*;
 
-use super::camera_pass::CameraPass;
 use super::{Method, MethodError, StepStats, World};
-use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
-use crate::geometry::{offset_point, Frame, Ray};
-use crate::methods::path::orient;
+use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
-use crate::scene::{luminance, Rgb, SurfacePoint};
+use crate::scene::{luminance, Rgb};
+use crate::transport::camera_pass::CameraPass;
+use crate::transport::{
+    connect_emission, connect_to_camera, follow_delta_chain, light_walk, scatter, Landing, Spectrum,
+};
 
 /// Which form of the method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -128,20 +130,10 @@ struct Chain {
     steps: u64,
     /// Steps that were accumulated into the film.
     counted: u64,
-    /// The point that received the last transfer, if the last ray hit one.
-    last: Option<Transfer>,
-}
-
-/// The single point of T*_n L_{n−1}: where the power landed and how much.
-#[derive(Clone, Debug)]
-struct Transfer {
-    sp: SurfacePoint,
-    /// Direction back toward where the power came from (world).
-    wo: Vec3,
-    /// RGB power transferred to the point.
-    phi: Rgb,
-    /// Segments of the walk so far.
-    depth: u32,
+    /// The single point of T*_n L_{n−1}, which received the last transfer
+    /// (if the last ray hit one): the vertex, seen from where the power came
+    /// from, the power, and the segments of the walk so far.
+    last: Option<Landing>,
 }
 
 /// The light tracer's progressive state.
@@ -187,6 +179,12 @@ impl LightTracer {
 impl Method for LightTracer {
     fn name(&self) -> &'static str {
         "light"
+    }
+
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        Ok(StepStats {
+            rays: self.camera_pass.prepare(world),
+        })
     }
 
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
@@ -237,126 +235,9 @@ impl Method for LightTracer {
     }
 }
 
-/// Connects a non-delta surface vertex to the camera, in importance mode:
-/// returns the film position and Φ · f(ω_in → ω_eye) · cos θ · g(x), with
-/// the shading-normal correction |wo·ns||wi·ng| / (|wo·ng||wi·ns|) (Veach's
-/// adjoint BSDF for shading normals). Adds to `rays` the visibility ray it
-/// traces (none when the point is off the film or the BSDF gives nothing).
-#[inline]
-#[allow(clippy::too_many_arguments)]
-pub fn connect_to_camera(
-    world: &World,
-    sp: &SurfacePoint,
-    frame: &Frame,
-    ng: Vec3,
-    wo_world: Vec3,
-    bsdf: &Bsdf,
-    phi: Rgb,
-    rays: &mut u64,
-) -> Option<(Vec2, Rgb)> {
-    let cam = world.camera.position();
-    let (pix, g) = world.camera.project(sp.p)?;
-    let d = cam - sp.p;
-    let dist = d.length();
-    let wc = d / dist;
-    let wi = frame.to_local(wc);
-    let wo = frame.to_local(wo_world);
-    let cos_g = wc.dot(ng);
-    // the connection must leave on the side the BSDF says it does
-    if cos_g * wi.z <= 0.0 {
-        return None;
-    }
-    let f = bsdf.eval(wo, wi, Mode::Importance);
-    if f == Rgb::ZERO {
-        return None;
-    }
-    let wo_ng = wo_world.dot(ng).abs();
-    if wo_ng <= 0.0 {
-        return None;
-    }
-    let c = phi * f * (cos_g.abs() * wo.z.abs() / wo_ng * g);
-    if !c.is_finite() || c == Rgb::ZERO {
-        return None;
-    }
-    *rays += 1;
-    if world.accel.occluded(offset_point(sp.p, ng, wc), cam) {
-        return None;
-    }
-    Some((pix, c))
-}
-
-/// Connects an emission vertex to the camera (diffuse emitters: the
-/// directional profile is 1 on the front side): splats `phi_pos` · cos θ ·
-/// g(x) when the segment is clear; returns the rays traced (0 or 1).
-#[inline]
-pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
-    let Some((pix, g)) = world.camera.project(p) else {
-        return 0;
-    };
-    let d = world.camera.position() - p;
-    let cos = d.dot(n) / d.length();
-    if cos <= 0.0 {
-        return 0;
-    }
-    if !world
-        .accel
-        .occluded(offset_point(p, n, d), world.camera.position())
-    {
-        film.splat(pix.x, pix.y, phi_pos * (cos * g));
-    }
-    1
-}
-
-/// Scalar albedo for Russian roulette: the largest channel, capped below 1 so
-/// that every walk ends.
-#[inline]
-fn rr_albedo(bsdf: &Bsdf, wo: Vec3) -> f32 {
-    bsdf.albedo(wo).max_element().clamp(0.0, 0.99)
-}
-
-/// Scatters at a hit: the shading frame oriented for the material, the
-/// BSDF, and the local outgoing direction.
-#[inline]
-pub fn shade(world: &World, sp: &SurfacePoint, wo_world: Vec3) -> (Bsdf, Frame, Vec3) {
-    let material = world.scene.material_of(sp);
-    let bsdf = material.bsdf(sp.uv);
-    let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
-    (bsdf, frame, ng)
-}
-
-/// Samples the next direction of a light path in importance mode; returns
-/// the world direction and the throughput factor f·|cos|/pdf with the
-/// shading-normal correction.
-#[inline]
-pub fn scatter(
-    bsdf: &Bsdf,
-    frame: &Frame,
-    ng: Vec3,
-    wo_world: Vec3,
-    rng: &mut Pcg32,
-) -> Option<(Vec3, Rgb)> {
-    let wo = frame.to_local(wo_world);
-    let uc = rng.next_f32();
-    let u = rng.next_2d();
-    let s = bsdf.sample(wo, uc, u, Mode::Importance)?;
-    let wi_world = frame.to_world(s.wi);
-    let wi_ng = wi_world.dot(ng);
-    let wo_ng = wo_world.dot(ng);
-    if wi_ng * s.wi.z <= 0.0 || wo_ng * wo.z <= 0.0 || s.pdf <= 0.0 || wo_ng == 0.0 {
-        return None;
-    }
-    // f |wi·ns| / pdf, times |wo·ns||wi·ng| / (|wo·ng||wi·ns|)
-    let w = s.f * (wo.z.abs() * wi_ng.abs() / (wo_ng.abs() * s.pdf));
-    if !w.is_finite() {
-        return None;
-    }
-    Some((wi_world, w))
-}
-
-/// One light-tracing walk; returns the rays traced.
+/// One light-tracing walk ([`light_walk`]), connected to the camera at its
+/// emission vertex and at every non-delta vertex; returns the rays traced.
 fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> u64 {
-    let max_depth = s.max_depth.unwrap_or(u32::MAX);
-    let mut rays = 0;
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
     let Some(es) = world
         .lights
@@ -364,50 +245,29 @@ fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> 
     else {
         return 0;
     };
+    let mut rays = 0;
     // Emitter points connect to the camera directly
     if !es.is_env {
         rays += connect_emission(world, es.p, es.n, es.phi_pos, film);
     }
-    let mut beta = es.phi;
-    let mut ray = es.ray();
-    let mut depth = 1u32;
-    loop {
-        rays += 1;
-        let Some(hit) = world.accel.intersect(&ray) else {
-            break;
-        };
-        let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-        let wo_world = -ray.d;
-        let (bsdf, frame, ng) = shade(world, &sp, wo_world);
-
-        // Connect to the camera at every non-delta vertex
-        if bsdf.has_smooth() && depth < max_depth {
-            if let Some((pix, c)) =
-                connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, beta, &mut rays)
-            {
-                film.splat(pix.x, pix.y, c);
+    let walk = light_walk(
+        world,
+        es.ray(),
+        es.phi,
+        Spectrum::Rgb,
+        s.max_depth,
+        rng,
+        |e| {
+            // Connect to the camera at every non-delta vertex
+            if e.vertex.bsdf.has_smooth() {
+                if let Some((pix, c)) = connect_to_camera(world, e.vertex, e.beta, &mut rays) {
+                    film.splat(pix.x, pix.y, c);
+                }
             }
-        }
-        if depth + 1 >= max_depth {
-            break;
-        }
-
-        // Terminate the walk with Russian roulette on the albedo
-        let a = rr_albedo(&bsdf, frame.to_local(wo_world));
-        if rng.next_f32() >= a {
-            break;
-        }
-        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
-            break;
-        };
-        beta *= w / a;
-        if beta == Rgb::ZERO {
-            break;
-        }
-        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
-        depth += 1;
-    }
-    rays
+            ControlFlow::Continue(())
+        },
+    );
+    rays + walk
 }
 
 /// One step of the operator sequence of eq. (11): estimates M(Le) with its
@@ -446,32 +306,40 @@ fn iterate(
     let last = chain.last.take();
     let mut start = None;
     if let Some(t) = &last {
-        let (bsdf, frame, ng) = shade(world, &t.sp, t.wo);
-        let a = bsdf
-            .albedo(frame.to_local(t.wo))
-            .max_element()
-            .clamp(0.0, 1.0);
-        let reflected = a * luminance(t.phi);
-        let p_point = reflected / (phi_e + reflected);
-        if t.depth < max_depth.saturating_sub(1) && p_point > 0.0 && rng.next_f32() < p_point {
-            start = Some((t, p_point, bsdf, frame, ng));
-        } else if p_point > 0.0 {
-            // selected the lights with probability 1 − p_point
-            return rays + emit_and_transfer(world, rng, target, chain, 1.0 - p_point);
+        // A point whose next transfer could not reach the eye within
+        // max_depth (it would land at depth + 1 and join the eye at depth +
+        // 2) has no power left to transfer: L_{n−1} is then the lights' alone
+        if t.depth < max_depth.saturating_sub(1) {
+            let a = t
+                .vertex
+                .bsdf
+                .albedo(t.vertex.wo_local)
+                .max_element()
+                .clamp(0.0, 1.0);
+            let reflected = a * luminance(t.phi);
+            let p_point = reflected / (phi_e + reflected);
+            if p_point > 0.0 && rng.next_f32() < p_point {
+                start = Some((t, p_point));
+            } else if p_point > 0.0 {
+                // selected the lights with probability 1 − p_point
+                return rays + emit_and_transfer(world, s, rng, target, chain, 1.0 - p_point);
+            }
         }
     }
-    let Some((t, p_point, bsdf, frame, ng)) = start else {
-        return rays + emit_and_transfer(world, rng, target, chain, 1.0);
+    let Some((t, p_point)) = start else {
+        return rays + emit_and_transfer(world, s, rng, target, chain, 1.0);
     };
 
     // Reflect the point's power into a direction sampled from f cos
-    let Some((wi, w)) = scatter(&bsdf, &frame, ng, t.wo, rng) else {
+    let Some((wi, w)) = scatter(&t.vertex, rng) else {
         return rays;
     };
     let phi = t.phi * w / p_point;
+    let sp = &t.vertex.sp;
     rays + transfer(
         world,
-        Ray::new(offset_point(t.sp.p, t.sp.ng, wi), wi),
+        s,
+        Ray::new(offset_point(sp.p, sp.ng, wi), wi),
         phi,
         t.depth + 1,
         rng,
@@ -483,6 +351,7 @@ fn iterate(
 /// Starts a new ray from the lights, carrying Φ_e/prob.
 fn emit_and_transfer(
     world: &World,
+    s: &Settings,
     rng: &mut Pcg32,
     film: &mut Film,
     chain: &mut Chain,
@@ -496,51 +365,37 @@ fn emit_and_transfer(
         return 0;
     };
     let ray = es.ray();
-    transfer(world, ray, es.phi / prob, 1, rng, film, chain)
+    transfer(world, s, ray, es.phi / prob, 1, rng, film, chain)
 }
 
 /// Sends power `phi` along `ray`; the hit point becomes T*_n L_{n−1}, and is
 /// measured through a camera connection. Delta surfaces cannot be measured
-/// and pass the power on at once: the operator over a delta chain is one
-/// transfer to the first non-delta point.
+/// and pass the power on at once ([`follow_delta_chain`]): the operator over
+/// a delta chain is one transfer to the first non-delta point. A point
+/// reached by more segments than `max_depth` allows before the eye is
+/// neither measured nor kept.
+#[allow(clippy::too_many_arguments)]
 fn transfer(
     world: &World,
-    mut ray: Ray,
-    mut phi: Rgb,
-    mut depth: u32,
+    s: &Settings,
+    ray: Ray,
+    phi: Rgb,
+    depth: u32,
     rng: &mut Pcg32,
     film: &mut Film,
     chain: &mut Chain,
 ) -> u64 {
     let mut rays = 0;
-    loop {
-        rays += 1;
-        let Some(hit) = world.accel.intersect(&ray) else {
-            return rays;
-        };
-        let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-        let wo_world = -ray.d;
-        let (bsdf, frame, ng) = shade(world, &sp, wo_world);
-        if bsdf.has_smooth() || depth > 1000 {
-            if let Some((pix, c)) =
-                connect_to_camera(world, &sp, &frame, ng, wo_world, &bsdf, phi, &mut rays)
-            {
-                film.splat(pix.x, pix.y, c);
-            }
-            chain.last = Some(Transfer {
-                sp,
-                wo: wo_world,
-                phi,
-                depth,
-            });
-            return rays;
-        }
-        // a purely specular surface: follow the delta chain
-        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
-            return rays;
-        };
-        phi *= w;
-        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
-        depth += 1;
+    let Some(landing) = follow_delta_chain(world, ray, phi, depth, rng, &mut rays) else {
+        return rays;
+    };
+    // A light path of `depth` segments joined to the eye has depth + 1
+    if landing.depth >= s.max_depth.unwrap_or(u32::MAX) {
+        return rays;
     }
+    if let Some((pix, c)) = connect_to_camera(world, &landing.vertex, landing.phi, &mut rays) {
+        film.splat(pix.x, pix.y, c);
+    }
+    chain.last = Some(landing);
+    rays
 }

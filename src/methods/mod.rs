@@ -14,7 +14,6 @@
 //! variant of [`MethodConfig`] and one row of [`all`].
 
 pub mod bundle;
-pub mod camera_pass;
 #[cfg(feature = "cli")]
 pub mod cli;
 pub mod density;

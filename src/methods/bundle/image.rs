@@ -26,10 +26,10 @@ use super::patches::Patches;
 use super::transfer;
 use crate::bsdf::Mode;
 use crate::geometry::{offset_point, Ray};
-use crate::methods::path::orient;
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::transport::orient;
 
 /// Sub-pixel positions per pixel.
 pub const SAMPLES: usize = 4;

@@ -153,12 +153,19 @@ pub struct Timings {
     pub image: f64,
 }
 
-/// The iteration's state.
-pub struct Bundle {
-    settings: Settings,
+/// What [`Method::prepare`] builds once: the patches, the preprocessed
+/// view and the visibility-map resolution.
+struct Setup {
     patches: Patches,
     view: View,
     res: u32,
+}
+
+/// The iteration's state.
+pub struct Bundle {
+    settings: Settings,
+    /// None until prepared.
+    setup: Option<Setup>,
     dirs: Directions,
     /// Current direction ω_m.
     d: Vec3,
@@ -172,9 +179,33 @@ pub struct Bundle {
 }
 
 impl Bundle {
-    /// Tessellates the scene and precomputes the view.
+    /// The iteration for `world`, not yet prepared: the patches and the
+    /// view are built by [`Method::prepare`].
     pub fn new(world: &World, settings: Settings) -> Self {
+        let npix = world.camera.width as usize * world.camera.height as usize;
+        let dirs = Directions::new(settings.sequence, settings.seed);
+        Bundle {
+            setup: None,
+            dirs,
+            d: Vec3::Z,
+            l_plus: Vec::new(),
+            l_minus: Vec::new(),
+            sum: vec![DVec3::ZERO; npix],
+            iter: 0,
+            counted: 0,
+            timings: Timings::default(),
+            settings,
+        }
+    }
+
+    /// Tessellates the scene and precomputes the view (tracing its camera
+    /// rays), once; returns the rays traced.
+    fn build(&mut self, world: &World) -> u64 {
+        if self.setup.is_some() {
+            return 0;
+        }
         let t0 = Instant::now();
+        let settings = &self.settings;
         let edge = settings
             .edge
             .unwrap_or_else(|| patches::edge_for_count(&world.scene, settings.patches));
@@ -185,36 +216,23 @@ impl Bundle {
             (r.min(4096.0) as u32).max(1024)
         });
         let view = View::new(world, &patches, settings.seed);
+        let rays = view.rays;
         let n = patches.len();
-        let npix = world.camera.width as usize * world.camera.height as usize;
-        let dirs = Directions::new(settings.sequence, settings.seed);
-        Bundle {
-            patches,
-            view,
-            res,
-            dirs,
-            d: Vec3::Z,
-            l_plus: vec![Rgb::ZERO; n],
-            l_minus: vec![Rgb::ZERO; n],
-            sum: vec![DVec3::ZERO; npix],
-            iter: 0,
-            counted: 0,
-            timings: Timings {
-                setup: t0.elapsed().as_secs_f64(),
-                ..Default::default()
-            },
-            settings,
-        }
+        self.l_plus = vec![Rgb::ZERO; n];
+        self.l_minus = vec![Rgb::ZERO; n];
+        self.setup = Some(Setup { patches, view, res });
+        self.timings.setup = t0.elapsed().as_secs_f64();
+        rays
     }
 
-    /// The patches.
-    pub fn patches(&self) -> &Patches {
-        &self.patches
+    /// The patches, once prepared.
+    pub fn patches(&self) -> Option<&Patches> {
+        self.setup.as_ref().map(|s| &s.patches)
     }
 
-    /// The visibility-map resolution in use.
-    pub fn map_res(&self) -> u32 {
-        self.res
+    /// The visibility-map resolution in use, once prepared.
+    pub fn map_res(&self) -> Option<u32> {
+        self.setup.as_ref().map(|s| s.res)
     }
 
     /// Time per phase so far.
@@ -249,29 +267,37 @@ impl Method for Bundle {
         "bundle"
     }
 
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        Ok(StepStats {
+            rays: self.build(world),
+        })
+    }
+
     fn step(&mut self, world: &World, _pass: u64) -> StepStats {
         let seed = self.settings.seed;
-        let mut rays = 0;
+        // The setup, if the caller skipped prepare (its rays count here)
+        let mut rays = self.build(world);
+        let setup = self.setup.as_ref().expect("built above");
+        let patches = &setup.patches;
         if self.iter == 0 {
             // ω_1 and L[i] = L_i^e(±ω_1)
-            rays += self.view.rays;
             self.d = self.dirs.next_dir();
             let d = self.d;
-            self.l_plus = self.patches.p.par_iter().map(|p| p.le(d)).collect();
-            self.l_minus = self.patches.p.par_iter().map(|p| p.le(-d)).collect();
+            self.l_plus = patches.p.par_iter().map(|p| p.le(d)).collect();
+            self.l_minus = patches.p.par_iter().map(|p| p.le(-d)).collect();
         }
         let d = self.d;
 
         // Transfer along ±ω_m through the visibility map
         let inc = visibility::sweep(
-            &self.patches,
+            patches,
             &SweepInput {
                 d,
                 l_plus: &self.l_plus,
                 l_minus: &self.l_minus,
                 sky_plus: world.lights.le_env(-d),
                 sky_minus: world.lights.le_env(d),
-                res: self.res,
+                res: setup.res,
                 center: world.lights.center,
                 radius: world.lights.radius,
                 keys: [seed, self.iter],
@@ -286,9 +312,9 @@ impl Method for Bundle {
         // Image estimate, averaged over the kept iterations
         let t = Instant::now();
         if self.iter >= self.settings.discard {
-            self.view.accumulate(
+            setup.view.accumulate(
                 world,
-                &self.patches,
+                patches,
                 self.settings.image,
                 d,
                 &inc.e_plus,
@@ -303,8 +329,7 @@ impl Method for Bundle {
         // New direction ω_{m+1}; reflect what arrived into ±ω_{m+1}
         let t = Instant::now();
         let dn = self.dirs.next_dir();
-        let (lp, lm): (Vec<Rgb>, Vec<Rgb>) = self
-            .patches
+        let (lp, lm): (Vec<Rgb>, Vec<Rgb>) = patches
             .p
             .par_iter()
             .enumerate()
@@ -342,6 +367,7 @@ impl Method for Bundle {
     }
 
     fn report(&self) -> Option<String> {
+        let setup = self.setup.as_ref()?;
         let t = self.timings;
         let it = self.iter.max(1) as f64 * 1e-3;
         let (state, transient) = Bundle::bytes_per_patch();
@@ -349,9 +375,9 @@ impl Method for Bundle {
             "bundle: {} patches (edge {:.4}), map {}², {} iterations; setup {:.2} s; \
              per iteration: sort {:.2} ms, scan {:.2} ms, transfer {:.2} ms, image {:.2} ms; \
              memory per patch {} B state + {} B transient",
-            self.patches.len(),
-            self.patches.edge,
-            self.res,
+            setup.patches.len(),
+            setup.patches.edge,
+            setup.res,
             self.iter,
             t.setup,
             t.sort / it,

@@ -21,6 +21,8 @@
 
 use std::f32::consts::PI;
 
+use std::ops::ControlFlow;
+
 use rayon::prelude::*;
 
 use super::hitfile::HitFileError;
@@ -28,11 +30,10 @@ use super::hits::{encode_rgb9e5, to_fixed, Hit, HitSink};
 use super::surfaces::{Kind, SurfaceId, Surfaces};
 
 use crate::geometry::{offset_point, Frame, Ray};
-use crate::methods::light::scatter;
-use crate::methods::path::orient;
 use crate::methods::World;
 use crate::sampling::{cosine_hemisphere, uniform_triangle, Distribution1D, Pcg32};
 use crate::scene::{luminance, EmitterDesc, Rgb};
+use crate::transport::{light_walk, Spectrum};
 
 /// Particles per chunk (one random stream each).
 pub const CHUNK: u64 = 1 << 14;
@@ -238,7 +239,7 @@ pub fn trace(
     Ok(stats)
 }
 
-/// One particle's walk; returns the rays traced.
+/// One particle's walk ([`light_walk`]); returns the rays traced.
 #[allow(clippy::too_many_arguments)]
 fn trace_one(
     world: &World,
@@ -251,8 +252,7 @@ fn trace_one(
     hits: &mut Vec<Hit>,
 ) -> u64 {
     let scene = &world.scene;
-    let max_depth = max_depth.unwrap_or(u32::MAX);
-    let (mut ray, mut beta) = match &lum.kind {
+    let (ray, beta) = match &lum.kind {
         LuminaireKind::Area { tris, dist, .. } => {
             // Emission: a triangle by area, a uniform point, a cosine direction
             let (i, _, _) = dist.sample(rng.next_f64());
@@ -279,32 +279,28 @@ fn trace_one(
             (es.ray(), beta)
         }
     };
-    let mut rays = 0;
-    let mut depth = 1u32;
-    loop {
-        rays += 1;
-        let Some(hit) = world.accel.intersect(&ray) else {
-            break;
-        };
-        let sp = scene.surface_point(hit.tri, hit.b1, hit.b2);
-        let wo_world = -ray.d;
-        let material = scene.material_of(&sp);
-        let bsdf = material.bsdf(sp.uv);
-        let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
-        let wo = frame.to_local(wo_world);
-
+    let spectrum = match channel {
+        Channel::Rgb => Spectrum::Rgb,
+        Channel::Single(k) => Spectrum::Channel(k),
+    };
+    // The walk records a hit only while its light path is shorter than
+    // `max_depth`: the view pass adds the segment to the eye (Mitsuba's
+    // convention, as in light tracing)
+    light_walk(world, ray, beta, spectrum, max_depth, rng, |e| {
         // Record the hit on a surface with a diffuse part (the side the
         // particle came from), its power times the coat's transmittance
         // T(cos θ) for a coated model (1 otherwise), so that the estimate is
         // the Ĥ of [`crate::bsdf::DiffusePart`]
+        let (v, hit) = (e.vertex, e.hit);
         let sid = surfaces.tri_surface[hit.tri as usize];
         let s = &surfaces.list[sid as usize];
+        let wo = v.wo_local;
         if s.diffuse && wo.z > 0.0 {
-            let t = bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z));
-            let back = wo_world.dot(sp.ng) < 0.0;
+            let t = v.bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z));
+            let back = v.wo.dot(v.sp.ng) < 0.0;
             let (u, v) = match s.kind {
                 Kind::Planar => {
-                    let c = s.to_chart(sp.p) / s.size;
+                    let c = s.to_chart(v.sp.p) / s.size;
                     (c.x, c.y)
                 }
                 Kind::Curved => (hit.b1, hit.b2),
@@ -313,37 +309,9 @@ fn trace_one(
                 surface: SurfaceId { index: sid, back },
                 u: to_fixed(u),
                 v: to_fixed(v),
-                rgb: encode_rgb9e5(beta * t),
+                rgb: encode_rgb9e5(e.beta * t),
             });
         }
-        if depth + 1 > max_depth {
-            break;
-        }
-
-        // Absorb with Russian roulette on the albedo, else reflect/transmit
-        let alb = bsdf.albedo(wo);
-        let a = match channel {
-            Channel::Rgb => alb.max_element(),
-            Channel::Single(k) => alb[k],
-        }
-        .clamp(0.0, 0.99);
-        if rng.next_f32() >= a {
-            break;
-        }
-        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo_world, rng) else {
-            break;
-        };
-        beta *= w / a;
-        if let Channel::Single(k) = channel {
-            let keep = beta[k];
-            beta = Rgb::ZERO;
-            beta[k] = keep;
-        }
-        if beta.max_element() <= 0.0 || !beta.is_finite() {
-            break;
-        }
-        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
-        depth += 1;
-    }
-    rays
+        ControlFlow::Continue(())
+    })
 }

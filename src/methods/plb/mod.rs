@@ -51,7 +51,8 @@
 //!   power instead of tracing it again.
 //! - Delta surfaces (mirrors, smooth glass) cannot be measured nor hold a
 //!   useful hit: a ray passes through delta chains to the first non-delta
-//!   point, as in `light --variant iteration`.
+//!   point, as in `light --variant iteration`
+//!   ([`crate::transport::follow_delta_chain`]).
 //!
 //! `--variant pooled` (our extension, not in the paper; the default is the
 //! paper's `ComputeImportance`): eq. (9) has no visibility in it, and
@@ -77,13 +78,15 @@
 use glam::Vec2;
 use rayon::prelude::*;
 
-use super::camera_pass::CameraPass;
-use super::light::{connect_emission, connect_to_camera, scatter, shade};
 use super::{Method, MethodError, StepStats, World};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb, SurfacePoint};
+use crate::transport::camera_pass::CameraPass;
+use crate::transport::{
+    connect_emission, connect_to_camera, follow_delta_chain, scatter, Landing, Vertex,
+};
 
 /// Settings of progressive light path building.
 #[derive(Clone, Debug, PartialEq)]
@@ -520,6 +523,12 @@ impl Method for Plb {
         "plb"
     }
 
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        Ok(StepStats {
+            rays: self.camera_pass.prepare(world),
+        })
+    }
+
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
         let n = self.steps_per_lane();
         let s = &self.settings;
@@ -600,8 +609,8 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
         let h = &lane.hits[i];
         let s_i = (1.0 - p_light) * h.s / w_hits;
         if s_i > 0.0 {
-            let (bsdf, frame, ng) = shade(world, &h.sp, h.wo);
-            if let Some((wi, w)) = scatter(&bsdf, &frame, ng, h.wo, rng) {
+            let v = Vertex::new(world, h.sp, h.wo);
+            if let Some((wi, w)) = scatter(&v, rng) {
                 let phi = h.phi * w * (lane.sigma / s_i) as f32;
                 let ray = Ray::new(offset_point(h.sp.p, h.sp.ng, wi), wi);
                 shot = Some((ray, phi, i as u32, h.depth + 1));
@@ -646,81 +655,72 @@ fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64
     rays
 }
 
-/// Sends stored power `phi` along `ray`, through delta chains, and appends
-/// the first non-delta hit with its camera connection. Returns the rays.
+/// Sends stored power `phi` along `ray`, through delta chains
+/// ([`follow_delta_chain`]), and appends the first non-delta hit with its
+/// camera connection. Returns the rays.
 #[allow(clippy::too_many_arguments)]
 fn trace(
     world: &World,
-    mut ray: Ray,
-    mut phi: Rgb,
+    ray: Ray,
+    phi: Rgb,
     parent: u32,
-    mut depth: u32,
+    depth: u32,
     max_depth: u32,
     rng: &mut Pcg32,
     lane: &mut Lane,
 ) -> u64 {
     let mut rays = 0;
-    loop {
-        rays += 1;
-        let Some(hit) = world.accel.intersect(&ray) else {
-            return rays;
-        };
-        let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-        let wo = -ray.d;
-        let (bsdf, frame, ng) = shade(world, &sp, wo);
-        if bsdf.has_smooth() || depth > 1000 {
-            // The hit's image contribution, eq. (8), made once (deterministic)
-            let mut contrib = Rgb::ZERO;
-            let mut pix = Vec2::ZERO;
-            if depth < max_depth && bsdf.has_smooth() {
-                if let Some((p, c)) =
-                    connect_to_camera(world, &sp, &frame, ng, wo, &bsdf, phi, &mut rays)
-                {
-                    contrib = c;
-                    pix = p;
-                }
-            }
-            // The potential impact, eq. (9): Φ a g*(x), g* = f²/(|x − eye|² 4π S_p)
-            let a = bsdf.albedo(frame.to_local(wo));
-            let out_lum = luminance(phi * a).max(0.0);
-            let r2 = (sp.p - world.camera.position()).length_squared().max(1e-12);
-            let g_star = world.camera.pixels_per_area() / (r2 * 4.0 * std::f32::consts::PI);
-            let spawn = out_lum > 0.0 && depth.saturating_add(1) < max_depth && out_lum.is_finite();
-            if !(phi.is_finite() && out_lum.is_finite()) {
-                return rays;
-            }
-            let (cell, s) = match &lane.grid {
-                Some(g) => {
-                    let cell = g.cell(sp.p);
-                    (cell, out_lum as f64 * g.weight(cell))
-                }
-                None => (0, (out_lum * g_star) as f64),
-            };
-            lane.push(Hit {
-                sp,
-                wo,
-                phi,
-                out_lum,
-                g_star,
-                contrib,
-                pix,
-                nchild: 0,
-                s,
-                parent,
-                depth,
-                spawn,
-                cell,
-            });
-            return rays;
+    let Some(Landing {
+        vertex: v,
+        phi,
+        depth,
+    }) = follow_delta_chain(world, ray, phi, depth, rng, &mut rays)
+    else {
+        return rays;
+    };
+
+    // The hit's image contribution, eq. (8), made once (deterministic)
+    let mut contrib = Rgb::ZERO;
+    let mut pix = Vec2::ZERO;
+    if depth < max_depth && v.bsdf.has_smooth() {
+        if let Some((p, c)) = connect_to_camera(world, &v, phi, &mut rays) {
+            contrib = c;
+            pix = p;
         }
-        // A purely specular surface: follow the delta chain
-        let Some((wi, w)) = scatter(&bsdf, &frame, ng, wo, rng) else {
-            return rays;
-        };
-        phi *= w;
-        ray = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
-        depth += 1;
     }
+    // The potential impact, eq. (9): Φ a g*(x), g* = f²/(|x − eye|² 4π S_p)
+    let sp = v.sp;
+    let a = v.bsdf.albedo(v.wo_local);
+    let out_lum = luminance(phi * a).max(0.0);
+    let r2 = (sp.p - world.camera.position()).length_squared().max(1e-12);
+    let g_star = world.camera.pixels_per_area() / (r2 * 4.0 * std::f32::consts::PI);
+    let spawn = out_lum > 0.0 && depth.saturating_add(1) < max_depth && out_lum.is_finite();
+    if !(phi.is_finite() && out_lum.is_finite()) {
+        return rays;
+    }
+    let (cell, s) = match &lane.grid {
+        Some(g) => {
+            let cell = g.cell(sp.p);
+            (cell, out_lum as f64 * g.weight(cell))
+        }
+        None => (0, (out_lum * g_star) as f64),
+    };
+    lane.push(Hit {
+        sp,
+        wo: v.wo,
+        phi,
+        out_lum,
+        g_star,
+        contrib,
+        pix,
+        nchild: 0,
+        s,
+        parent,
+        depth,
+        spawn,
+        cell,
+    });
+    rays
 }
 
 /// The end of a phase (§5): the image estimate, `ComputeImportance`, and the

@@ -16,7 +16,7 @@
 //!   only delta samples (a non-delta sample contributes nothing here: that
 //!   part belongs to the light-based method), follows the ray onward with the
 //!   path tracer's estimator (delta chains, then next-event estimation with
-//!   MIS and further bounces), [`super::path::radiance_from`].
+//!   MIS and further bounces), [`super::radiance_from`].
 //!
 //! The two parts are disjoint and cover everything, so nothing is counted
 //! twice: the light-based method never splats a path whose x₁ scatters
@@ -25,42 +25,52 @@
 //! adds emission at x₁.
 //!
 //! Budget. Scenes with neither delta lobes nor an environment need no camera
-//! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass of
-//! 4×4 stratified primary rays per pixel marks the pixels whose first hit has
-//! a delta lobe or that see the environment; marked pixels get one camera
-//! sample per pass, and the others, so that a sliver the pre-pass missed
-//! still converges, one with probability 1/16 (weighted by 16). The effort
-//! thus follows the fraction of pixels whose first hit is delta, as the
-//! light-based method gives about one light path per pixel per pass.
+//! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass
+//! ([`CameraPass::prepare`], run by the methods' `prepare`, so inside the
+//! driver's clock and with its rays counted) of up to 4×4 stratified primary
+//! rays per pixel marks the pixels whose first hit has a delta lobe or that
+//! see the environment; marked pixels get one camera sample per pass, and
+//! the others, so that a sliver the pre-pass missed still converges, one
+//! with probability 1/16 (weighted by 16). The effort thus follows the
+//! fraction of pixels whose first hit is delta, as the light-based method
+//! gives about one light path per pixel per pass.
 
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::path::{orient, radiance_from, Settings as PathSettings};
-use super::World;
+use super::{radiance_from, DepthLimits};
 use crate::bsdf::Mode;
 use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::world::World;
 
 /// Probability with which an unmarked pixel is sampled in a pass.
 const UNMARKED_PROB: f32 = 1.0 / 16.0;
+/// Strata per pixel side of the pre-pass: at most 4×4 primary rays a pixel.
+const PRE_PASS_SIDE: usize = 4;
+/// Depth from which Russian roulette may stop a camera-pass path.
+const RR_DEPTH: u32 = 3;
 
 /// The camera pass's state: the pixel mask and the per-pixel sums.
 pub struct CameraPass {
     active: bool,
+    /// The pre-pass has run (always true when inactive).
+    prepared: bool,
     marked: Vec<bool>,
     sum: Vec<DVec3>,
     passes: u64,
-    settings: PathSettings,
+    seed: u64,
+    limits: DepthLimits,
 }
 
 impl CameraPass {
-    /// Prepares the camera pass; `enabled = false` (`--camera-pass off`)
-    /// gives the raw light-based method.
+    /// The camera pass of a light-based method, not yet prepared: it traces
+    /// nothing until [`CameraPass::prepare`]. `enabled = false`
+    /// (`--camera-pass off`) gives the raw light-based method; so does a
+    /// scene with neither delta lobes nor an environment.
     pub fn new(world: &World, enabled: bool, seed: u64, max_depth: Option<u32>) -> Self {
-        let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let needed = world.lights.env.is_some()
             || world
                 .scene
@@ -68,42 +78,54 @@ impl CameraPass {
                 .iter()
                 .any(|m| m.bsdf(glam::Vec2::ZERO).has_delta());
         let active = enabled && needed;
-        let marked = if active {
-            (0..w * h)
-                .into_par_iter()
-                .map(|i| {
-                    let (x, y) = ((i % w) as f32, (i / w) as f32);
-                    (0..16).any(|k| {
-                        let (sx, sy) = ((k % 4) as f32 + 0.5, (k / 4) as f32 + 0.5);
-                        let ray = world.camera.ray(x + sx / 4.0, y + sy / 4.0);
-                        match world.accel.intersect(&ray) {
-                            None => world.lights.env.is_some(),
-                            Some(hit) => {
-                                let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-                                world.scene.material_of(&sp).bsdf(sp.uv).has_delta()
-                            }
-                        }
-                    })
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
         CameraPass {
             active,
-            marked,
-            sum: if active {
-                vec![DVec3::ZERO; w * h]
-            } else {
-                Vec::new()
-            },
+            prepared: !active,
+            marked: Vec::new(),
+            sum: Vec::new(),
             passes: 0,
-            settings: PathSettings {
-                seed,
+            seed,
+            limits: DepthLimits {
                 max_depth,
-                rr_depth: 3,
+                rr_depth: RR_DEPTH,
             },
         }
+    }
+
+    /// The pre-pass: marks the pixels whose first hit has a delta lobe or
+    /// that see the environment, stopping at a pixel's first such ray.
+    /// Returns the rays traced; runs once (later calls trace nothing).
+    pub fn prepare(&mut self, world: &World) -> u64 {
+        if self.prepared {
+            return 0;
+        }
+        self.prepared = true;
+        let (w, h) = (world.camera.width as usize, world.camera.height as usize);
+        let side = PRE_PASS_SIDE;
+        let marks: Vec<(bool, u64)> = (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let mut rays = 0;
+                let marked = (0..side * side).any(|k| {
+                    let sx = (k % side) as f32 + 0.5;
+                    let sy = (k / side) as f32 + 0.5;
+                    let ray = world.camera.ray(x + sx / side as f32, y + sy / side as f32);
+                    rays += 1;
+                    match world.accel.intersect(&ray) {
+                        None => world.lights.env.is_some(),
+                        Some(hit) => {
+                            let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+                            world.scene.material_of(&sp).bsdf(sp.uv).has_delta()
+                        }
+                    }
+                });
+                (marked, rays)
+            })
+            .collect();
+        self.marked = marks.iter().map(|m| m.0).collect();
+        self.sum = vec![DVec3::ZERO; w * h];
+        marks.iter().map(|m| m.1).sum()
     }
 
     /// True when this scene and setting use a camera pass.
@@ -120,23 +142,26 @@ impl CameraPass {
         }
     }
 
-    /// One pass; returns the rays traced.
+    /// One pass; returns the rays traced. Runs the pre-pass first if the
+    /// caller has not (its rays then count in this pass).
     pub fn step(&mut self, world: &World, pass: u64) -> u64 {
         if !self.active {
             return 0;
         }
+        let pre = self.prepare(world);
         self.passes += 1;
         let w = world.camera.width as usize;
-        let settings = &self.settings;
+        let (seed, limits) = (self.seed, &self.limits);
         let marked = &self.marked;
-        self.sum
+        let rays: u64 = self
+            .sum
             .par_chunks_mut(w)
             .enumerate()
             .map(|(y, row)| {
                 let mut rays = 0;
                 for (x, acc) in row.iter_mut().enumerate() {
                     let i = y * w + x;
-                    let mut rng = Pcg32::keyed(&[settings.seed, pass, i as u64, 0xCA]);
+                    let mut rng = Pcg32::keyed(&[seed, pass, i as u64, 0xCA]);
                     let weight = if marked[i] {
                         1.0
                     } else if rng.next_f32() < UNMARKED_PROB {
@@ -144,7 +169,7 @@ impl CameraPass {
                     } else {
                         continue;
                     };
-                    let (l, r) = sample_pixel(world, settings, x, y, &mut rng);
+                    let (l, r) = sample_pixel(world, limits, x, y, &mut rng);
                     rays += r;
                     let v = l * weight;
                     if v.is_finite() {
@@ -153,7 +178,8 @@ impl CameraPass {
                 }
                 rays
             })
-            .sum()
+            .sum();
+        pre + rays
     }
 
     /// Adds the camera pass's estimate to `img`.
@@ -172,7 +198,7 @@ impl CameraPass {
 /// seen directly, or what arrives through a delta lobe at the first hit.
 fn sample_pixel(
     world: &World,
-    settings: &PathSettings,
+    limits: &DepthLimits,
     x: usize,
     y: usize,
     rng: &mut Pcg32,
@@ -182,30 +208,25 @@ fn sample_pixel(
     let Some(hit) = world.accel.intersect(&ray) else {
         return (world.lights.le_env(ray.d), 1);
     };
-    let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-    let material = world.scene.material_of(&sp);
-    let bsdf = material.bsdf(sp.uv);
-    if !bsdf.has_delta() {
+    let v = world.vertex(&ray, &hit);
+    if !v.bsdf.has_delta() {
         return (Rgb::ZERO, 1);
     }
-    let wo_world = -ray.d;
-    let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
-    let wo = frame.to_local(wo_world);
     let uc = rng.next_f32();
     let u = rng.next_2d();
     // Keep only delta lobes: the non-delta part belongs to the light method
-    let Some(s) = bsdf.sample(wo, uc, u, Mode::Radiance) else {
+    let Some(s) = v.bsdf.sample(v.wo_local, uc, u, Mode::Radiance) else {
         return (Rgb::ZERO, 1);
     };
     if !s.delta || s.pdf <= 0.0 {
         return (Rgb::ZERO, 1);
     }
-    let wi = frame.to_world(s.wi);
-    if wi.dot(ng) * s.wi.z <= 0.0 {
+    let wi = v.frame.to_world(s.wi);
+    if wi.dot(v.ng) * s.wi.z <= 0.0 {
         return (Rgb::ZERO, 1);
     }
     let beta = s.f * (s.wi.z.abs() / s.pdf);
-    let next = Ray::new(offset_point(sp.p, sp.ng, wi), wi);
-    let (l, r) = radiance_from(world, settings, next, rng, 2);
+    let next = Ray::new(offset_point(v.sp.p, v.sp.ng, wi), wi);
+    let (l, r) = radiance_from(world, limits, next, rng, 2);
     (beta * l, 1 + r)
 }

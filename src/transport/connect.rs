@@ -1,0 +1,77 @@
+//! Camera connections of light paths: a surface vertex, or an emission
+//! vertex, joined to the pinhole by one visibility ray and splatted with the
+//! pixel weight g(x) of §2 of the light-path-building paper
+//! ([`crate::camera::Camera::project`]).
+
+use glam::{Vec2, Vec3};
+
+use super::Vertex;
+use crate::bsdf::{shading_normal_correction_over, Mode};
+use crate::film::Film;
+use crate::geometry::offset_point;
+use crate::scene::Rgb;
+use crate::world::World;
+
+/// Connects the surface vertex `v` of a light path carrying power `phi` to
+/// the camera, in importance mode: returns the film position and
+/// Φ · f(wo → wc) · |wc·ns| · g(x) with the shading-normal correction
+/// |wo·ns||wc·ng| / (|wo·ng||wc·ns|) (Veach 1997, eq. 5.17). Adds to `rays`
+/// the visibility ray it traces (none when the point is off the film or the
+/// BSDF gives nothing, as for a purely delta BSDF).
+#[inline]
+pub fn connect_to_camera(
+    world: &World,
+    v: &Vertex,
+    phi: Rgb,
+    rays: &mut u64,
+) -> Option<(Vec2, Rgb)> {
+    let cam = world.camera.position();
+    let p = v.sp.p;
+    let (pix, g) = world.camera.project(p)?;
+    let d = cam - p;
+    let dist = d.length();
+    let wc = d / dist;
+    let wi = v.frame.to_local(wc);
+    // The connection must leave on the side the BSDF says it does
+    if wc.dot(v.ng) * wi.z <= 0.0 {
+        return None;
+    }
+    let f = v.bsdf.eval(v.wo_local, wi, Mode::Importance);
+    if f == Rgb::ZERO {
+        return None;
+    }
+    // f |wc·ns| times the correction: f |wo·ns||wc·ng| / |wo·ng|
+    let k = shading_normal_correction_over(v.wo, wc, v.ng, v.frame.n, 1.0);
+    let c = phi * f * (k * g);
+    if !c.is_finite() || c == Rgb::ZERO {
+        return None;
+    }
+    *rays += 1;
+    if world.accel.occluded(offset_point(p, v.ng, wc), cam) {
+        return None;
+    }
+    Some((pix, c))
+}
+
+/// Connects an emission vertex (point `p`, normal `n`) to the camera for
+/// diffuse emitters, whose directional profile is 1 on the front side:
+/// splats `phi_pos` · cos θ · g(x) when the segment is clear. Returns the
+/// rays traced (0 or 1).
+#[inline]
+pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
+    let Some((pix, g)) = world.camera.project(p) else {
+        return 0;
+    };
+    let d = world.camera.position() - p;
+    let cos = d.dot(n) / d.length();
+    if cos <= 0.0 {
+        return 0;
+    }
+    if !world
+        .accel
+        .occluded(offset_point(p, n, d), world.camera.position())
+    {
+        film.splat(pix.x, pix.y, phi_pos * (cos * g));
+    }
+    1
+}

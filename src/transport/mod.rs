@@ -1,0 +1,46 @@
+//! Transport: what every method shares, so that no method imports another.
+//!
+//! - [`Vertex`] ([`World::vertex`]): a surface hit made ready for scattering:
+//!   the BSDF, the shading frame and geometric normal oriented for
+//!   two-sided materials ([`orient`]), and `wo`.
+//! - [`scatter`]: the next direction of a light path, in importance mode,
+//!   with the shading-normal correction.
+//! - [`connect_to_camera`], [`connect_emission`]: the camera connections of
+//!   light paths, with the pixel weight g(x) of §2 of the
+//!   light-path-building paper.
+//! - [`follow_delta_chain`]: power carried through mirrors and glass to the
+//!   first surface that can be measured, with a named depth limit
+//!   ([`DELTA_CHAIN_DEPTH_LIMIT`]).
+//! - [`light_walk`]: the one light-path walk (Russian roulette on the
+//!   albedo), with a per-vertex hook; `light`, `density` and the diagnostics
+//!   put their own measurement in the hook.
+//! - [`radiance_from`]: the camera-side estimator (next-event estimation
+//!   with MIS), which `path` is and the camera pass uses.
+//! - [`camera_pass`]: the part of path space that light paths cannot reach,
+//!   estimated from the camera for `light` and `plb`.
+//!
+//! Depths follow Mitsuba's `max_depth` everywhere: a path of depth 1 is an
+//! emitter seen directly, depth 2 adds direct lighting. A camera path counts
+//! its segments from the eye; a light path of k segments, joined to the eye
+//! by a camera connection (or by the density method's view pass), makes a
+//! path of k + 1 segments, so its vertices contribute only while k <
+//! `max_depth`.
+//!
+//! Transport reads the [`World`] and the layers below it, never a method:
+//! the data flow of DESIGN.md goes one way.
+
+pub mod camera_pass;
+mod connect;
+mod radiance;
+mod vertex;
+mod walk;
+
+pub use connect::{connect_emission, connect_to_camera};
+pub use radiance::{radiance_from, DepthLimits};
+pub use vertex::{orient, scatter, Vertex};
+pub use walk::{
+    follow_delta_chain, light_walk, Landing, LightVertex, Spectrum, DELTA_CHAIN_DEPTH_LIMIT,
+};
+
+#[cfg(doc)]
+use crate::world::World;

@@ -1,0 +1,146 @@
+//! The camera-side estimator: unidirectional path tracing with next-event
+//! estimation and multiple importance sampling (power heuristic) between
+//! light sampling and BSDF sampling, and Russian roulette on the
+//! throughput. `path` is this estimator from the eye; the camera pass
+//! continues it after a delta lobe.
+
+use crate::bsdf::Mode;
+use crate::geometry::{offset_point, Ray};
+use crate::sampling::{power_heuristic, Pcg32};
+use crate::scene::Rgb;
+use crate::world::World;
+
+/// How deep a camera path may go.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DepthLimits {
+    /// Longest path in segments (Mitsuba's `max_depth`); None = unlimited.
+    pub max_depth: Option<u32>,
+    /// Depth from which Russian roulette may stop a path (Mitsuba's
+    /// `rr_depth`).
+    pub rr_depth: u32,
+}
+
+/// Radiance arriving along `ray`, which is the `depth`-th segment of a camera
+/// path whose previous scattering (if any) was a delta lobe, so that emission
+/// found by `ray` takes full weight; and the number of rays traced. Used for
+/// primary rays (`depth` 1) and by the camera pass after a delta chain.
+pub fn radiance_from(
+    world: &World,
+    limits: &DepthLimits,
+    mut ray: Ray,
+    rng: &mut Pcg32,
+    depth: u32,
+) -> (Rgb, u64) {
+    let (scene, accel, lights) = (&world.scene, &world.accel, &world.lights);
+    let max_depth = limits.max_depth.unwrap_or(u32::MAX);
+    let mut l = Rgb::ZERO;
+    let mut beta = Rgb::ONE;
+    let mut rays = 0u64;
+    // pdf of the direction that led here, and whether it was a delta lobe
+    let mut prev_pdf = 0.0f32;
+    let mut specular = true;
+    let mut prev_p = ray.o;
+    let mut eta_scale = 1.0f32;
+    let mut depth = depth;
+    loop {
+        rays += 1;
+        let Some(hit) = accel.intersect(&ray) else {
+            // Escaped: the environment, weighted against light sampling.
+            let le = lights.le_env(ray.d);
+            if le != Rgb::ZERO {
+                let w = if specular {
+                    1.0
+                } else {
+                    power_heuristic(prev_pdf, lights.pdf_li_env(ray.d))
+                };
+                l += beta * le * w;
+            }
+            break;
+        };
+        let sp = scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let wo_world = -ray.d;
+
+        // Emission of a hit light, weighted against light sampling
+        if lights.is_emitter(hit.tri) {
+            let le = lights.le_tri(hit.tri, sp.frame.n, wo_world);
+            if le != Rgb::ZERO {
+                let w = if specular {
+                    1.0
+                } else {
+                    power_heuristic(
+                        prev_pdf,
+                        lights.pdf_li_tri(scene, prev_p, sp.p, sp.ng, hit.tri),
+                    )
+                };
+                l += beta * le * w;
+            }
+        }
+        if depth >= max_depth {
+            break;
+        }
+
+        // The BSDF in the shading frame; two-sided materials face the viewer
+        let v = super::Vertex::new(world, sp, wo_world);
+        let (bsdf, frame, ng, wo) = (&v.bsdf, &v.frame, v.ng, v.wo_local);
+
+        // Next-event estimation with MIS
+        if bsdf.has_smooth() && depth < max_depth {
+            let u_sel = rng.next_f32();
+            let u_l = rng.next_2d();
+            if let Some(ls) = lights.sample_li(scene, sp.p, u_sel, u_l) {
+                let wi = frame.to_local(ls.wi);
+                let f = bsdf.eval(wo, wi, Mode::Radiance) * wi.z.abs();
+                if f != Rgb::ZERO && ls.wi.dot(ng) * wi.z > 0.0 {
+                    rays += 1;
+                    let origin = offset_point(sp.p, ng, ls.wi);
+                    let blocked = if ls.is_env {
+                        accel.occluded_ray(&Ray::new(origin, ls.wi))
+                    } else {
+                        accel.occluded(origin, offset_point(ls.p, ls.n, -ls.wi))
+                    };
+                    if !blocked {
+                        let w = power_heuristic(ls.pdf, bsdf.pdf(wo, wi));
+                        l += beta * f * ls.le * (w / ls.pdf);
+                    }
+                }
+            }
+        } else {
+            // keep the stream aligned whatever the branch
+            rng.next_f32();
+            rng.next_2d();
+        }
+
+        // Sample the BSDF for the next direction
+        let uc = rng.next_f32();
+        let u = rng.next_2d();
+        let Some(s) = bsdf.sample(wo, uc, u, Mode::Radiance) else {
+            break;
+        };
+        let wi_world = frame.to_world(s.wi);
+        if wi_world.dot(ng) * s.wi.z <= 0.0 || s.pdf <= 0.0 {
+            break;
+        }
+        beta *= s.f * (s.wi.z.abs() / s.pdf);
+        if !beta.is_finite() || beta == Rgb::ZERO {
+            break;
+        }
+        specular = s.delta;
+        prev_pdf = s.pdf;
+        prev_p = sp.p;
+        if s.eta != 1.0 {
+            eta_scale *= s.eta * s.eta;
+        }
+        ray = Ray::new(offset_point(sp.p, sp.ng, wi_world), wi_world);
+        depth += 1;
+
+        // Terminate the walk with Russian roulette on the throughput
+        if depth > limits.rr_depth {
+            let q = (beta.max_element() * eta_scale).min(0.95);
+            if rng.next_f32() >= q {
+                break;
+            }
+            beta /= q;
+        }
+    }
+    (l, rays)
+}

@@ -1,0 +1,166 @@
+//! Light paths: the delta-chain follower and the one light-path walk.
+
+use std::ops::ControlFlow;
+
+use super::{scatter, Vertex};
+use crate::accel::Hit;
+use crate::geometry::{offset_point, Ray};
+use crate::sampling::Pcg32;
+use crate::scene::Rgb;
+use crate::world::World;
+
+/// Path depth (segments from the light) beyond which
+/// [`follow_delta_chain`] stops at the next surface even if it is purely
+/// specular. The follower plays no Russian roulette, so without a limit a
+/// ray trapped between delta surfaces (two facing mirrors, total internal
+/// reflection in a glass body) would never end; a path this deep carries
+/// nothing visible, and a delta vertex returned here measures nothing (its
+/// camera connection evaluates to zero).
+pub const DELTA_CHAIN_DEPTH_LIMIT: u32 = 1000;
+
+/// Where [`follow_delta_chain`] put the power down.
+#[derive(Clone, Copy, Debug)]
+pub struct Landing {
+    /// The first vertex with a non-delta lobe (or the vertex past
+    /// [`DELTA_CHAIN_DEPTH_LIMIT`]).
+    pub vertex: Vertex,
+    /// The power arriving there.
+    pub phi: Rgb,
+    /// Segments of the light path up to and including the last ray.
+    pub depth: u32,
+}
+
+/// Sends power `phi` along `ray`, the `depth`-th segment of a light path,
+/// through delta surfaces (mirrors, smooth glass, which cannot be measured
+/// nor hold a useful hit) to the first vertex with a non-delta lobe. The
+/// operator over a delta chain is one transfer (§4 of the 1999
+/// stochastic-iteration paper; `light --variant iteration` and `plb`).
+/// Returns None when a ray escapes or a delta sample fails; adds the rays
+/// traced to `rays`.
+#[inline]
+pub fn follow_delta_chain(
+    world: &World,
+    mut ray: Ray,
+    mut phi: Rgb,
+    mut depth: u32,
+    rng: &mut Pcg32,
+    rays: &mut u64,
+) -> Option<Landing> {
+    loop {
+        *rays += 1;
+        let hit = world.accel.intersect(&ray)?;
+        let vertex = world.vertex(&ray, &hit);
+        if vertex.bsdf.has_smooth() || depth > DELTA_CHAIN_DEPTH_LIMIT {
+            return Some(Landing { vertex, phi, depth });
+        }
+        // A purely specular surface: pass the power on
+        let (wi, w) = scatter(&vertex, rng)?;
+        phi *= w;
+        ray = Ray::new(offset_point(vertex.sp.p, vertex.sp.ng, wi), wi);
+        depth += 1;
+    }
+}
+
+/// Which colour channels a light walk carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Spectrum {
+    /// All three: Russian roulette reads the largest channel of the albedo.
+    Rgb,
+    /// One channel only (the density paper's per-channel runs): Russian
+    /// roulette reads that channel's albedo, and the other channels of the
+    /// power are kept at zero.
+    Channel(usize),
+}
+
+/// What [`light_walk`] shows its hook at each surface vertex.
+#[derive(Clone, Copy, Debug)]
+pub struct LightVertex<'a> {
+    /// The vertex.
+    pub vertex: &'a Vertex,
+    /// The hit it was built from (triangle and barycentrics).
+    pub hit: &'a Hit,
+    /// The power arriving at the vertex.
+    pub beta: Rgb,
+    /// Segments of the light path up to the vertex (1: the first hit).
+    pub depth: u32,
+}
+
+/// The light-path walk: the particle of power `beta` leaves along `ray` (the
+/// first segment; the emission vertex is the caller's), and at every surface
+/// vertex `on_vertex` measures it; then the walk ends by Russian roulette on
+/// the albedo (so that a particle keeps its power while it lives, §4 of the
+/// 1999 stochastic-iteration paper, §3.1 of the density-estimation paper),
+/// or scatters in importance mode ([`scatter`]). Returns the rays traced by
+/// the walk itself (the hook counts its own).
+///
+/// Depths follow Mitsuba's `max_depth` (see the [module docs](super)): the
+/// hook sees only vertices at depth < `max_depth`, whose light path can
+/// still be joined to the eye, and the walk stops before a segment whose end
+/// could not be. The hook may end the walk with [`ControlFlow::Break`].
+///
+/// Random numbers, per vertex: one for the roulette, then those of
+/// [`scatter`]; the hook draws none.
+#[inline]
+pub fn light_walk(
+    world: &World,
+    mut ray: Ray,
+    mut beta: Rgb,
+    spectrum: Spectrum,
+    max_depth: Option<u32>,
+    rng: &mut Pcg32,
+    mut on_vertex: impl FnMut(&LightVertex) -> ControlFlow<()>,
+) -> u64 {
+    let max_depth = max_depth.unwrap_or(u32::MAX);
+    let mut rays = 0;
+    let mut depth = 1u32;
+    loop {
+        rays += 1;
+        let Some(hit) = world.accel.intersect(&ray) else {
+            break;
+        };
+        let vertex = world.vertex(&ray, &hit);
+
+        // Measure the vertex while its path can still reach the eye
+        if depth < max_depth {
+            let event = LightVertex {
+                vertex: &vertex,
+                hit: &hit,
+                beta,
+                depth,
+            };
+            if on_vertex(&event).is_break() {
+                break;
+            }
+        }
+        if depth + 1 >= max_depth {
+            break;
+        }
+
+        // Terminate the walk with Russian roulette on the albedo, capped
+        // below 1 so that every walk ends
+        let albedo = vertex.bsdf.albedo(vertex.wo_local);
+        let a = match spectrum {
+            Spectrum::Rgb => albedo.max_element(),
+            Spectrum::Channel(k) => albedo[k],
+        }
+        .clamp(0.0, 0.99);
+        if rng.next_f32() >= a {
+            break;
+        }
+        let Some((wi, w)) = scatter(&vertex, rng) else {
+            break;
+        };
+        beta *= w / a;
+        if let Spectrum::Channel(k) = spectrum {
+            let keep = beta[k];
+            beta = Rgb::ZERO;
+            beta[k] = keep;
+        }
+        if !(beta.max_element() > 0.0 && beta.is_finite()) {
+            break;
+        }
+        ray = Ray::new(offset_point(vertex.sp.p, vertex.sp.ng, wi), wi);
+        depth += 1;
+    }
+    rays
+}

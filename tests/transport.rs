@@ -1,0 +1,206 @@
+//! The shared transport layer: the light walk's depth convention (Mitsuba's
+//! `max_depth`, as `path` and `light` count), its hook, the density method
+//! that now follows the same convention, and setup rays counted by
+//! `Method::prepare`.
+
+use std::ops::ControlFlow;
+
+use kalos::methods::{bundle, density, Common, MethodConfig, World};
+use kalos::sampling::Pcg32;
+use kalos::scene::{self, Rgb, Scene};
+use kalos::transport::camera_pass::CameraPass;
+use kalos::transport::{light_walk, Spectrum};
+
+fn load(name: &str, res: u32) -> Scene {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut s = scene::load(&root.join("scenes").join(name)).expect("scene");
+    s.set_resolution(res, res);
+    s
+}
+
+/// The (depth, power) of every vertex the hook sees on walk `i`, traced as
+/// `light` traces it (an emission sample, then the walk), with its own
+/// stream so that walks can be compared one by one.
+fn walk(world: &World, i: u64, max_depth: Option<u32>) -> (Vec<(u32, Rgb)>, u64) {
+    let mut rng = Pcg32::keyed(&[3, i]);
+    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+    let Some(es) = world
+        .lights
+        .sample_emission(&world.scene, u_sel, u_pos, u_dir)
+    else {
+        return (Vec::new(), 0);
+    };
+    let mut seen = Vec::new();
+    let rays = light_walk(
+        world,
+        es.ray(),
+        es.phi,
+        Spectrum::Rgb,
+        max_depth,
+        &mut rng,
+        |e| {
+            seen.push((e.depth, e.beta));
+            ControlFlow::Continue(())
+        },
+    );
+    (seen, rays)
+}
+
+/// A light path of k segments joins the eye in k + 1: the hook sees depths
+/// 1, 2, … below `max_depth` only (none at depth 1, which is emitters
+/// only), and a finite depth only truncates the unlimited walk (the same
+/// vertices with the same power, bit for bit).
+#[test]
+fn light_walk_reports_vertices_below_max_depth_only() {
+    let world = World::new(load("cbox/cbox.xml", 16));
+    let walks = 2000;
+    let full: Vec<_> = (0..walks).map(|i| walk(&world, i, None).0).collect();
+    assert!(
+        full.iter().any(|w| w.len() >= 5),
+        "unlimited walks should reach depth 5 in cbox"
+    );
+    for w in &full {
+        let depths: Vec<u32> = w.iter().map(|v| v.0).collect();
+        assert_eq!(depths, (1..=w.len() as u32).collect::<Vec<_>>());
+    }
+    for m in 1..=4u32 {
+        let mut deepest = 0;
+        for (i, f) in full.iter().enumerate() {
+            let (seen, rays) = walk(&world, i as u64, Some(m));
+            assert!(seen.iter().all(|v| v.0 < m), "max depth {m}: {seen:?}");
+            let n = seen.len();
+            assert_eq!(n, f.len().min(m as usize - 1), "max depth {m}, walk {i}");
+            assert_eq!(&f[..n], &seen[..], "max depth {m}, walk {i}");
+            if m == 1 {
+                // the first segment is traced, nothing is measured
+                assert!(rays <= 1 && seen.is_empty());
+            }
+            deepest = deepest.max(n as u32);
+        }
+        assert_eq!(deepest, m - 1, "max depth {m}");
+    }
+}
+
+/// The hook can end a walk: breaking at the first vertex leaves one ray.
+#[test]
+fn a_hook_can_end_the_walk() {
+    let world = World::new(load("cbox/cbox.xml", 16));
+    let mut ended = 0;
+    for i in 0..200 {
+        let mut rng = Pcg32::keyed(&[5, i]);
+        let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+        let es = world
+            .lights
+            .sample_emission(&world.scene, u_sel, u_pos, u_dir)
+            .expect("cbox has a light");
+        let mut calls = 0;
+        let rays = light_walk(
+            &world,
+            es.ray(),
+            es.phi,
+            Spectrum::Rgb,
+            None,
+            &mut rng,
+            |_| {
+                calls += 1;
+                ControlFlow::Break(())
+            },
+        );
+        assert_eq!(rays, 1);
+        assert!(calls <= 1);
+        ended += calls;
+    }
+    assert!(ended > 100, "most first rays should hit the closed box");
+}
+
+/// Density estimation follows the same convention: at `max_depth` 1 no
+/// particle hit is recorded (a hit of depth 1 joined to the eye is a path
+/// of two segments), so only the emitters are seen; at 2 the walls are lit.
+#[test]
+fn density_at_max_depth_1_shows_only_the_emitters() {
+    let world = World::new(load("cbox/cbox.xml", 24));
+    let render = |max_depth| {
+        let cfg = MethodConfig::Density(density::Settings {
+            particles: 20_000,
+            ..Default::default()
+        });
+        let common = Common {
+            seed: 0,
+            max_depth: Some(max_depth),
+        };
+        let mut m = cfg.create(&world, &common).expect("method");
+        m.prepare(&world).expect("prepare");
+        m.step(&world, 0);
+        m.image(&world)
+    };
+    // pixels that see an emitter nowhere (centre and four inset corners)
+    let (w, h) = (world.camera.width, world.camera.height);
+    let sees_light = |x: u32, y: u32| {
+        [
+            (0.5, 0.5),
+            (0.01, 0.01),
+            (0.99, 0.01),
+            (0.01, 0.99),
+            (0.99, 0.99),
+        ]
+        .iter()
+        .any(|&(dx, dy)| {
+            let ray = world.camera.ray(x as f32 + dx, y as f32 + dy);
+            world
+                .accel
+                .intersect(&ray)
+                .is_some_and(|hit| world.lights.is_emitter(hit.tri))
+        })
+    };
+    let d1 = render(1);
+    let d2 = render(2);
+    let (mut dark, mut lit, mut light) = (0, 0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            if sees_light(x, y) {
+                light += u32::from(d1.data[i].max_element() > 0.0);
+                continue;
+            }
+            assert_eq!(d1.data[i], glam::Vec3::ZERO, "pixel ({x}, {y}) at depth 1");
+            dark += 1;
+            lit += u32::from(d2.data[i].max_element() > 0.0);
+        }
+    }
+    assert!(light > 0, "the light itself must show at depth 1");
+    assert!(lit > dark / 2, "depth 2 lights the walls: {lit} of {dark}");
+}
+
+/// Setup is counted: the camera pass's pre-pass traces between one and 16
+/// rays per pixel in `prepare` (and nothing in a scene that needs no camera
+/// pass), and bundle's view traces at least one ray per pixel sample there.
+#[test]
+fn prepare_counts_the_setup_rays() {
+    let res = 24u64;
+    let glass = World::new(load("glass-mirror/scene.xml", res as u32));
+    let mut cp = CameraPass::new(&glass, true, 0, None);
+    let rays = cp.prepare(&glass);
+    assert!(
+        (res * res..=16 * res * res).contains(&rays),
+        "pre-pass rays {rays}"
+    );
+    assert_eq!(cp.prepare(&glass), 0, "the pre-pass runs once");
+
+    let light_cfg = MethodConfig::Light(Default::default());
+    let mut light = light_cfg
+        .create(&glass, &Common::default())
+        .expect("method");
+    assert_eq!(light.prepare(&glass).expect("prepare").rays, rays);
+    let cbox = World::new(load("cbox/cbox.xml", res as u32));
+    let mut light = light_cfg.create(&cbox, &Common::default()).expect("method");
+    assert_eq!(light.prepare(&cbox).expect("prepare").rays, 0);
+
+    let cfg = MethodConfig::Bundle(bundle::Settings {
+        patches: 300,
+        map_res: Some(64),
+        ..Default::default()
+    });
+    let mut bundle = cfg.create(&cbox, &Common::default()).expect("method");
+    let setup = bundle.prepare(&cbox).expect("prepare").rays;
+    assert!(setup >= 4 * res * res, "bundle setup rays {setup}");
+}
