@@ -1,6 +1,8 @@
 //! Tests of the density-estimation method (`--method density`, `kalos bake`).
 
 mod common;
+#[path = "density/storage.rs"]
+mod storage;
 
 use std::f32::consts::PI;
 use std::path::PathBuf;
@@ -9,12 +11,11 @@ use common::furnace;
 use glam::{Vec2, Vec3};
 use kalos::geometry::look_at;
 use kalos::image_io::read_image;
-use kalos::methods::density::hitfile::{Hit, HitFile, HitWriter};
 use kalos::methods::density::mesh::PlanarMesh;
+use kalos::methods::density::surfaces::SurfaceId;
 use kalos::methods::density::{self, decimate, kernel, Settings};
-use kalos::methods::{Method, World};
+use kalos::methods::{Budget, Driver, Method, World};
 use kalos::metrics::{rel_mse, rel_mse_pair};
-use kalos::sampling::Pcg32;
 use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
 
 fn root() -> PathBuf {
@@ -35,14 +36,19 @@ fn settings(particles: u64, seed: u64) -> Settings {
     }
 }
 
-/// Renders with the density method: bake in pass 0, then `passes` view passes.
+/// Renders with the density method: the bake (prepare), then `passes` view
+/// passes.
 fn render(world: &World, s: Settings, passes: u64) -> (kalos::film::Image, density::BakeStats) {
     let mut m = density::Density::new(world, s);
+    let prepared = m.prepare(world).expect("bake");
     for p in 0..passes {
         m.step(world, p);
     }
-    assert!(m.error.is_none(), "bake failed: {:?}", m.error);
     let stats = m.bake().expect("baked").stats.clone();
+    assert_eq!(
+        prepared.rays, stats.rays,
+        "prepare counts the particle rays"
+    );
     (m.image(world), stats)
 }
 
@@ -209,7 +215,7 @@ fn check_floor_irradiance(floor: Material, w: impl Fn(f64) -> f64 + Copy, n: u64
     let bake = density::bake(&world, &st).expect("bake");
     let floor_tri = 0u32;
     let mesh = &bake.mesh.planar[0];
-    assert_eq!(mesh.surface, 0, "the floor records hits");
+    assert_eq!(mesh.surface, SurfaceId::front(0), "the floor records hits");
     let phi = (PI * s * s) as f64 / n as f64; // Φ = π A L, L = 1
     let h = mesh.bandwidth as f64;
     let area = 64.0f64;
@@ -365,81 +371,6 @@ fn cbox_against_reference() {
     assert!(got <= bound, "relMSE(4n) {got} > {bound}");
 }
 
-/// The hit file: records come back bit-exactly, grouped and sorted by
-/// surface (stable), and a seed reproduces the traced file byte for byte
-/// whatever the thread count.
-#[test]
-fn hit_file_round_trip_and_determinism() {
-    let dir = scratch("roundtrip");
-    let mut rng = Pcg32::new(5, 0);
-    let hits: Vec<Hit> = (0..100_000)
-        .map(|_| Hit {
-            surface: (rng.next_u32() % 1000) | ((rng.next_u32() & 1) << 31),
-            u: rng.next_u32() as u16,
-            v: rng.next_u32() as u16,
-            rgb: rng.next_u32(),
-        })
-        .collect();
-    let mut w = HitWriter::new(&dir, 1000, 7).expect("writer");
-    for c in hits.chunks(3000) {
-        w.push(c).expect("push");
-    }
-    let f = w.finish(&dir.join("hits.bin")).expect("finish");
-    let f = HitFile::open(&f.path).expect("open");
-    assert_eq!(f.len(), hits.len() as u64);
-    let back: Vec<Hit> = (0..f.buckets.len())
-        .flat_map(|b| f.read_bucket(b).expect("read"))
-        .collect();
-    let mut expected = hits.clone();
-    // bucket by surface id without the side bit, then stable sort by full id
-    expected.sort_by_key(|h| ((h.surface & 0x7fff_ffff) / 143, h.surface));
-    assert_eq!(back, expected);
-
-    // the bucket sort in chunks of 1 000 records (a bucket has ~14 000)
-    // writes the same bytes, and the runs index every surface side
-    let mut w = HitWriter::new(&dir.join("chunked"), 1000, 7).expect("writer");
-    w.sort_chunk = 1000;
-    for c in hits.chunks(3000) {
-        w.push(c).expect("push");
-    }
-    let g = w.finish(&dir.join("hits-chunked.bin")).expect("finish");
-    assert_eq!(g.max_sort_records, 1000);
-    assert_eq!(
-        std::fs::read(&f.path).expect("read"),
-        std::fs::read(&g.path).expect("read")
-    );
-    let reopened = HitFile::open(&g.path).expect("open");
-    assert_eq!(reopened.runs, g.runs);
-    for r in &g.runs {
-        let rec = g.read_range(r.start, r.count).expect("range");
-        assert!(rec.iter().all(|h| h.surface == r.surface));
-    }
-    assert_eq!(
-        g.runs.iter().map(|r| r.count).sum::<u64>(),
-        hits.len() as u64
-    );
-
-    // same seed, 1 thread and 2 threads: identical bytes
-    let sc = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("cbox");
-    let world = World::new(sc);
-    let surfaces = density::surfaces::build(&world.scene);
-    let st = settings(60_000, 11);
-    let trace = |threads: usize, name: &str| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
-        let d = dir.join(name);
-        let path = dir.join(format!("{name}.bin"));
-        pool.install(|| density::trace_to_file(&world, &surfaces, &st, &d, &path).expect("trace"));
-        std::fs::read(&path).expect("read")
-    };
-    let (a, b) = (trace(1, "t1"), trace(2, "t2"));
-    assert!(a.len() > 100_000);
-    assert!(a == b, "the hit file depends on the thread count");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
 /// Decimation keeps a height field covering the same chart, and every
 /// vertex of the over-mesh stays within ε in Stevens brightness, checked
 /// independently by point location in the decimated mesh.
@@ -459,7 +390,14 @@ fn decimation_invariants() {
     let r = Vec3::splat(0.7);
     let w0 = 3.0;
     let eps = 0.01;
-    let m = PlanarMesh::new(0, verts.clone(), tris.clone(), h.clone(), 0.05, 1000);
+    let m = PlanarMesh::new(
+        SurfaceId::front(0),
+        verts.clone(),
+        tris.clone(),
+        h.clone(),
+        0.05,
+        1000,
+    );
     let (d, rep) = decimate::decimate_planar(m, &[r], w0, eps);
     eprintln!(
         "decimation: {} → {} triangles, max error {:.4}",
@@ -502,7 +440,7 @@ fn decimation_invariants() {
 fn glb_loads_back_with_vertex_colours() {
     let world = World::new(furnace(0.5, 1.0, 8));
     let b = density::bake(&world, &settings(50_000, 1)).expect("bake");
-    let (lit, other) = kalos::bake::collect(&world.scene, &b);
+    let (lit, other) = b.baked_meshes(&world.scene);
     let bytes = kalos::bake::gltf::encode_glb(&lit, &other, b.w0);
     let (doc, buffers, _) = gltf::import_slice(&bytes).expect("valid glb");
     let mesh = doc.meshes().next().expect("a mesh");
@@ -589,87 +527,6 @@ fn curved_surface_3d_kernel() {
             ((v as f64) / std::f64::consts::PI - 1.0).abs() < 5.0 * sigma_rel + 0.01,
             "vertex {v}"
         );
-    }
-}
-
-/// Phase 2 holds at most `chunk_hits` hit records in memory, whatever the
-/// particle count: the floor scene (with a sphere, for the curved path)
-/// baked at n and 4n particles with a 20 000-record chunk, the largest
-/// surface (the floor) receiving more than 4 chunks at 4n. The counters are
-/// the largest in-memory hit buffers of phase 2 and of the bucket sort of
-/// phase 1 (`BakeStats::max_hits_in_memory`, `max_sort_records`).
-///
-/// Streaming changes nothing but the order of f32 additions: the same bake
-/// with one chunk for everything gives the same irradiance at every vertex
-/// to a relative 1e-5 (the sum of up to ~10⁴ kernel terms per vertex in f32
-/// in another order: its rounding is ~1e-7 per addition, so 1e-5 is far
-/// above rounding and far below any real change, which would be of the
-/// order of one kernel term, ≥ 1e-3 of the sum).
-#[test]
-fn phase_two_hit_memory_does_not_grow_with_n() {
-    let mut sc = floor_scene(0.2, 1.0);
-    let grey = sc.add_material(Material::Diffuse {
-        reflectance: Texture::Constant(Vec3::splat(0.5)),
-    });
-    let m = scene::shapes::sphere(Vec3::new(0.6, 0.3, 0.0), 0.3, 16);
-    sc.add_mesh(
-        "ball",
-        &m.positions,
-        m.normals.as_deref(),
-        None,
-        &m.indices,
-        grey,
-        None,
-    );
-    let world = World::new(sc);
-    let chunk = 20_000usize;
-    let bake = |n: u64, chunk_hits: usize| {
-        let st = Settings {
-            decimate: false,
-            chunk_hits,
-            ..settings(n, 9)
-        };
-        density::bake(&world, &st).expect("bake")
-    };
-    let mut peaks = Vec::new();
-    for n in [100_000u64, 400_000] {
-        let b = bake(n, chunk);
-        let floor_hits = b.mesh.planar[0].hits;
-        eprintln!(
-            "n {n}: hits {}, floor {floor_hits}, largest hit buffer in phase 2 {}, in the bucket sort {}",
-            b.stats.hits, b.stats.max_hits_in_memory, b.stats.max_sort_records
-        );
-        assert!(b.stats.max_hits_in_memory <= chunk as u64);
-        assert!(b.stats.max_sort_records <= chunk as u64);
-        assert!(b.stats.max_hits_in_memory > 0);
-        peaks.push((floor_hits, b.stats.max_hits_in_memory));
-    }
-    assert!(peaks[1].0 > 4 * chunk as u64, "the floor is streamed");
-    assert!(
-        peaks[1].0 > 3 * peaks[0].0,
-        "4n gives the floor ~4× the hits"
-    );
-
-    // streaming in chunks against one chunk: the same estimate
-    let a = bake(400_000, chunk);
-    let b = bake(400_000, usize::MAX / 2);
-    // one chunk: the whole floor was in memory at once
-    assert!(b.stats.max_hits_in_memory >= b.mesh.planar[0].hits);
-    assert_eq!(a.mesh.planar.len(), b.mesh.planar.len());
-    let close = |x: Vec3, y: Vec3| (x - y).abs().max_element() <= 1e-5 * y.max_element() + 1e-30;
-    for (ma, mb) in a.mesh.planar.iter().zip(&b.mesh.planar) {
-        assert_eq!(ma.surface, mb.surface);
-        assert_eq!(ma.verts, mb.verts);
-        for (x, y) in ma.h.iter().zip(&mb.h) {
-            assert!(close(*x, *y), "surface {}: {x} vs {y}", ma.surface);
-        }
-    }
-    assert_eq!(a.mesh.curved.len(), b.mesh.curved.len());
-    assert!(!a.mesh.curved.is_empty());
-    for (ca, cb) in a.mesh.curved.iter().zip(&b.mesh.curved) {
-        for (x, y) in ca.h.iter().flatten().zip(cb.h.iter().flatten()) {
-            assert!(close(*x, *y), "ball: {x} vs {y}");
-        }
     }
 }
 
@@ -896,7 +753,7 @@ fn baked_colours_use_the_texture_at_each_vertex() {
     };
     let world = World::new(sc);
     let b = density::bake(&world, &settings(200_000, 17)).expect("bake");
-    let (lit, _) = kalos::bake::collect(&world.scene, &b);
+    let (lit, _) = b.baked_meshes(&world.scene);
     let (mut dark, mut bright) = (0, 0);
     for ((q, h), l) in lit.positions.iter().zip(&lit.irradiance).zip(&lit.radiance) {
         let uv = Vec2::new((q.x + 1.0) / 2.0, (q.z + 1.0) / 2.0);
@@ -965,10 +822,109 @@ fn assert_faces_receive_pi(bake: &density::Bake, label: &str) {
         let tol = 4.0 / (m.hits as f64).sqrt();
         eprintln!(
             "{label}, face {}: {} hits, mean H {mean:.4} vs π (rel {:+.4}, tol {tol:.4})",
-            m.surface,
+            m.surface.index,
             m.hits,
             mean / std::f64::consts::PI - 1.0
         );
         assert!((mean / std::f64::consts::PI - 1.0).abs() <= tol, "{label}");
     }
+}
+
+/// An empty directory for a scratch test, and a regular file beside it
+/// (a path under a regular file cannot be created, even by root).
+fn scratch_base(name: &str) -> (PathBuf, PathBuf) {
+    let base = scratch(name);
+    let file = base.with_extension("file");
+    std::fs::write(&file, b"not a directory").expect("regular file");
+    (base, file)
+}
+
+/// The entries of a directory.
+fn entries(dir: &std::path::Path) -> Vec<PathBuf> {
+    std::fs::read_dir(dir)
+        .expect("read dir")
+        .map(|e| e.expect("entry").path())
+        .collect()
+}
+
+/// A driver for `passes` passes.
+fn driver(passes: u64) -> Driver<'static> {
+    Driver {
+        budget: Budget {
+            passes: Some(passes),
+            ..Default::default()
+        },
+        cancel: None,
+        reference: None,
+        log_every: 0.0,
+    }
+}
+
+/// A bake that cannot make its scratch directory fails the render: the
+/// driver returns the error (no black image), naming the directory and the
+/// reason. The directory is under a regular file, which fails even as
+/// root; the reason expected is the one the OS gives for the same path.
+#[test]
+fn failed_bake_is_the_render_error() {
+    let world = World::new(furnace(0.5, 1.0, 8));
+    let (base, file) = scratch_base("unwritable");
+    let bad = file.join("scratch");
+    let reason = std::fs::create_dir(bad.join("x"))
+        .expect_err("no directory under a regular file")
+        .to_string();
+    let st = Settings {
+        scratch: Some(bad.clone()),
+        ..settings(20_000, 3)
+    };
+    let mut m = density::Density::new(&world, st);
+    let err = match driver(2).run(&mut m, &world, |_| {}) {
+        Ok(_) => panic!("the render succeeded without a scratch directory"),
+        Err(e) => e.to_string(),
+    };
+    eprintln!("error: {err}");
+    assert!(err.contains(&bad.display().to_string()), "{err}");
+    assert!(err.contains(&reason), "{err}");
+    assert!(m.bake().is_none());
+    let _ = std::fs::remove_dir_all(&base);
+    let _ = std::fs::remove_file(&file);
+}
+
+/// `Density::new` traces nothing, and the scratch directory is gone after
+/// a render and after a render whose bake fails once it has written hits.
+#[test]
+fn scratch_directory_is_gone_after_a_render() {
+    let world = World::new(furnace(0.5, 1.0, 8));
+    let (base, file) = scratch_base("render");
+    let st = Settings {
+        scratch: Some(base.clone()),
+        ..settings(20_000, 3)
+    };
+    let mut m = density::Density::new(&world, st.clone());
+    assert!(m.bake().is_none(), "new does not bake");
+    assert_eq!(entries(&base), Vec::<PathBuf>::new(), "new writes nothing");
+    let r = driver(2).run(&mut m, &world, |_| {}).expect("render");
+    let baked = m.bake().expect("baked");
+    assert!(baked.stats.rays > 0 && r.rays > baked.stats.rays);
+    assert_eq!(entries(&base), Vec::<PathBuf>::new(), "after a render");
+
+    let keep = Settings {
+        keep_hits: Some(file.join("hits.bin")),
+        ..st
+    };
+    let mut m = density::Density::new(&world, keep);
+    let err = driver(2)
+        .run(&mut m, &world, |_| {})
+        .err()
+        .expect("the hit file cannot be kept under a regular file");
+    assert!(
+        err.to_string().contains(&file.display().to_string()),
+        "{err}"
+    );
+    assert_eq!(
+        entries(&base),
+        Vec::<PathBuf>::new(),
+        "after a failed render"
+    );
+    let _ = std::fs::remove_dir_all(&base);
+    let _ = std::fs::remove_file(&file);
 }

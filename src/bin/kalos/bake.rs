@@ -73,7 +73,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
     }
     let b = density::bake(&world, &s)?;
     let t1 = Instant::now();
-    let (lit, other) = kalos::bake::collect(&world.scene, &b);
+    let (lit, other) = b.baked_meshes(&world.scene);
     kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0)?;
     if let Some(p) = &a.ply {
         kalos::bake::ply::write_ply(p, &lit)?;

@@ -29,7 +29,7 @@ use glam::{Vec2, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
-use super::hitfile::{decode_rgb9e5, from_fixed, Hit};
+use super::hits::{decode_rgb9e5, from_fixed, Hit};
 
 /// Normal compatibility of the 3D kernel: cos of the largest angle between
 /// the normal at the estimate point and at a hit that may contribute.

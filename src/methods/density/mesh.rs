@@ -9,13 +9,13 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::kernel::TriGrid;
-use super::surfaces::Surfaces;
+use super::surfaces::{SurfaceId, Surfaces};
 
 /// The mesh of one side of a planar surface.
 #[derive(Clone, Debug, Default)]
 pub struct PlanarMesh {
-    /// Surface id, bit 31 set for the back side.
-    pub surface: u32,
+    /// The surface side.
+    pub surface: SurfaceId,
     /// Vertices, chart coordinates.
     pub verts: Vec<Vec2>,
     /// Triangles (counter-clockwise in the chart).
@@ -32,7 +32,7 @@ pub struct PlanarMesh {
 impl PlanarMesh {
     /// A mesh; builds its point-location grid.
     pub fn new(
-        surface: u32,
+        surface: SurfaceId,
         verts: Vec<Vec2>,
         tris: Vec<[u32; 3]>,
         h: Vec<Vec3>,
@@ -48,7 +48,7 @@ impl PlanarMesh {
     /// which only the decimation reads): the grid is built by
     /// [`DisplayMesh::new`] if the mesh reaches the display mesh as it is.
     pub fn unindexed(
-        surface: u32,
+        surface: SurfaceId,
         verts: Vec<Vec2>,
         tris: Vec<[u32; 3]>,
         h: Vec<Vec3>,
@@ -100,7 +100,7 @@ pub struct DisplayMesh {
     pub planar: Vec<PlanarMesh>,
     /// Curved shapes.
     pub curved: Vec<CurvedMesh>,
-    planar_index: HashMap<u32, u32>,
+    planar_index: HashMap<SurfaceId, u32>,
     curved_index: HashMap<(u32, bool), (u32, u32)>,
 }
 
@@ -144,7 +144,7 @@ impl DisplayMesh {
         back: bool,
     ) -> Vec3 {
         let sid = surfaces.tri_surface[tri as usize];
-        let key = sid | (u32::from(back) << 31);
+        let key = SurfaceId { index: sid, back };
         if let Some(&i) = self.planar_index.get(&key) {
             let s = &surfaces.list[sid as usize];
             return self.planar[i as usize].irradiance(s.to_chart(p));

@@ -2,9 +2,11 @@
 //! Hubbard, Zareski, Walter and Greenberg 1995), the view-independent
 //! method, and the baker behind `kalos bake`.
 //!
-//! Three phases, each parallel and deterministic per seed:
-//! 1. [`particles`]: particle tracing to a hit file ([`hitfile`], 12 bytes a
-//!    hit, streamed to disk in buckets and grouped by surface id);
+//! Three phases, each parallel and deterministic per seed, run in order by
+//! [`bake`], one function each in [`pipeline`]:
+//! 1. [`particles`]: particle tracing into a hit store ([`hits`]: 12 bytes a
+//!    hit; the [`hitfile`] on disk, in a self-removing [`scratch`]
+//!    directory, or memory), grouped by surface side ([`surfaces::SurfaceId`]);
 //! 2. [`kernel`]: per surface ([`surfaces`]), the irradiance H(u, v) by
 //!    kernel density estimation, sampled on an over-mesh;
 //! 3. [`decimate`]: Schroeder-style vertex decimation of the illumination
@@ -26,8 +28,12 @@
 //! approximation: for the coated models the baked colour uses the coat's
 //! mean transmittance T̄ in place of T(cos θo) (the view pass uses the exact
 //! one), and a purely glossy material (`roughconductor`, `phong` with
-//! kd = 0) has no view-independent part at all: it is ray-traced only. The bake happens in the first pass; every pass adds
-//! one jittered sample per pixel of the view pass.
+//! kd = 0) has no view-independent part at all: it is ray-traced only.
+//!
+//! The [`Density`] method bakes in [`Method::prepare`], inside the driver's
+//! clock with the particle rays counted (a failed bake is the render's
+//! error); every step then adds one jittered sample per pixel of the view
+//! pass.
 //!
 //! Colour: one RGB pass. Every particle carries RGB power (its luminaire's
 //! colour, tinted by every reflection), so the three channels of the estimate
@@ -43,20 +49,21 @@
 //! kalos bake scenes/cbox/cbox.xml -o cbox.glb --stats
 //! ```
 
+pub mod baked;
 pub mod decimate;
 pub mod hitfile;
+pub mod hits;
 pub mod kernel;
 pub mod mesh;
 pub mod particles;
+pub mod pipeline;
+pub mod scratch;
 pub mod surfaces;
 
-use std::collections::HashMap;
 use std::f32::consts::PI;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{Method, MethodError, StepStats, World};
@@ -64,13 +71,15 @@ use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
-use crate::scene::{luminance, Rgb};
+use crate::scene::Rgb;
 use crate::transport::orient;
-use hitfile::{decode_rgb9e5, from_fixed, HitFile, HitFileError, HitWriter, HIT_BYTES};
-use kernel::Params;
-use mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
-use particles::Channel;
-use surfaces::{Kind, Surfaces};
+use hitfile::HitFileError;
+use hits::{HitSink, HitSource, MemoryWriter, HIT_BYTES};
+use mesh::DisplayMesh;
+use scratch::ScratchDir;
+use surfaces::Surfaces;
+
+pub use baked::BakedMesh;
 
 /// Settings of the density method (defaults inside the paper's ranges).
 #[derive(Clone, Debug, PartialEq)]
@@ -234,9 +243,18 @@ pub struct Bake {
     pub stats: BakeStats,
 }
 
-/// An error while baking (the hit file's I/O).
+/// An error while baking.
 #[derive(Debug, thiserror::Error)]
 pub enum DensityError {
+    /// The scratch directory could not be made in `base`.
+    #[error("cannot create a scratch directory in {}", base.display())]
+    Scratch {
+        /// The directory it was to be made in.
+        base: PathBuf,
+        /// Why not.
+        #[source]
+        source: std::io::Error,
+    },
     /// Hit-file I/O.
     #[error(transparent)]
     HitFile(#[from] HitFileError),
@@ -245,58 +263,26 @@ pub enum DensityError {
     Settings(#[from] MethodError),
 }
 
-fn scratch_dir(s: &Settings) -> PathBuf {
-    static N: AtomicU64 = AtomicU64::new(0);
-    let base = s.scratch.clone().unwrap_or_else(std::env::temp_dir);
-    base.join(format!(
-        "kalos-density-{}-{}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ))
+/// Where the hits wait between phase 1 and phase 2.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Storage {
+    /// The hit file of §4.1 in a [`ScratchDir`]: memory stays bounded
+    /// whatever the particle count ([`Settings::chunk_hits`]).
+    #[default]
+    Disk,
+    /// Every hit in memory ([`hits::MemoryWriter`]), no files: for tests and
+    /// small runs. The bake is the same, byte for byte.
+    Memory,
 }
 
-/// Phase 1: traces the particles into a hit file at `path` (bucket files in
-/// `dir`). Returns the file, the trace figures and φ = Φ/n.
-pub fn trace_to_file(
-    world: &World,
-    surfaces: &Surfaces,
-    s: &Settings,
-    dir: &std::path::Path,
-    path: &std::path::Path,
-) -> Result<(HitFile, particles::TraceStats, f64), HitFileError> {
-    let lums = particles::luminaires(world);
-    let n_expected_hits = s.particles.saturating_mul(4) * if s.per_channel { 3 } else { 1 };
-    // buckets of about 32 MB of records
-    let buckets = (n_expected_hits * HIT_BYTES as u64 / (32 << 20)).clamp(1, 1024) as u32;
-    let mut w = HitWriter::new(dir, surfaces.list.len() as u32, buckets)?;
-    w.sort_chunk = s.chunk_hits.max(1);
-    let mut total = particles::TraceStats::default();
-    let channels: Vec<Channel> = if s.per_channel {
-        (0..3).map(Channel::Single).collect()
-    } else {
-        vec![Channel::Rgb]
-    };
-    for ch in channels {
-        let t = particles::trace(
-            world,
-            surfaces,
-            &lums,
-            s.particles,
-            ch,
-            s.seed,
-            s.max_depth,
-            &mut w,
-        )?;
-        total.particles += t.particles;
-        total.hits += t.hits;
-        total.rays += t.rays;
-    }
-    let file = w.finish(path)?;
-    Ok((file, total, particles::phi_unit(&lums, s.particles)))
-}
-
-/// Runs the three phases.
+/// Bakes with the hit file on disk: [`bake_with`] and [`Storage::Disk`].
 pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
+    bake_with(world, s, Storage::Disk)
+}
+
+/// Runs the phases of [`pipeline`] in order: trace and group the hits,
+/// estimate the irradiance, decimate the over-mesh into the display mesh.
+pub fn bake_with(world: &World, s: &Settings, storage: Storage) -> Result<Bake, DensityError> {
     s.check()?;
     let scene = &world.scene;
     let surfaces = surfaces::build(scene);
@@ -306,274 +292,41 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
         ..Default::default()
     };
 
-    // Phase 1: particle tracing
-    let t0 = Instant::now();
-    let dir = scratch_dir(s);
-    let path = s.keep_hits.clone().unwrap_or_else(|| dir.join("hits.bin"));
-    let traced = trace_to_file(world, &surfaces, s, &dir, &path);
-    let (file, ts, phi) = match traced {
-        Ok(v) => v,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&dir);
-            return Err(e.into());
+    // Phases 1 and 2, the hits in the store asked for; the scratch
+    // directory goes as soon as the estimate is made, or on any error
+    let estimated = match storage {
+        Storage::Disk => {
+            let scratch = ScratchDir::new(s)?;
+            let sink = pipeline::file_sink(&surfaces, s, &scratch)?;
+            trace_and_estimate(world, &surfaces, s, sink, &mut stats)?
+        }
+        Storage::Memory => {
+            if let Some(p) = &s.keep_hits {
+                return Err(MethodError(format!(
+                    "cannot keep the hits at {}: the in-memory store writes no hit file",
+                    p.display()
+                ))
+                .into());
+            }
+            trace_and_estimate(world, &surfaces, s, MemoryWriter::new(), &mut stats)?
         }
     };
-    stats.particles = ts.particles;
-    stats.hits = ts.hits;
-    stats.rays = ts.rays;
-    stats.hit_file_bytes = file.record_bytes();
-    stats.t_trace = t0.elapsed().as_secs_f64();
-
-    // Phase 2: density estimation, streamed from the hit file
-    let t1 = Instant::now();
-    let params = Params {
-        c1: s.c1,
-        c2: s.c2,
-        phi: phi as f32,
-        max_verts: s.max_verts,
-    };
-    let cap = s.chunk_hits.max(1) as u64;
-    let mut planar: Vec<PlanarMesh> = Vec::new();
-    let mut curved = Vec::new();
-    let mut max_in_memory = 0u64;
-    let result = (|| -> Result<(), HitFileError> {
-        let is_planar = |id: u32| {
-            surfaces
-                .list
-                .get((id & 0x7fff_ffff) as usize)
-                .is_some_and(|s| s.kind == Kind::Planar)
-        };
-        let new_estimator = |run: &hitfile::Run| {
-            let surf = &surfaces.list[(run.surface & 0x7fff_ffff) as usize];
-            let ct = surf.chart_tris(scene);
-            kernel::PlanarEstimator::new(
-                surf.rectangle,
-                surf.size,
-                surf.area,
-                &ct,
-                run.count,
-                &params,
-            )
-        };
-        let finish = |run: &hitfile::Run, est: kernel::PlanarEstimator| {
-            let e = est.finish();
-            PlanarMesh::unindexed(run.surface, e.verts, e.tris, e.h, e.bandwidth, run.count)
-        };
-        let runs = &file.runs;
-        let mut i = 0;
-        while i < runs.len() {
-            if !is_planar(runs[i].surface) {
-                i += 1;
-                continue;
-            }
-            if runs[i].count > cap {
-                // A large surface: its hits chunk by chunk into one estimate
-                let run = runs[i];
-                let mut est = new_estimator(&run);
-                let mut done = 0;
-                while done < run.count {
-                    let m = (run.count - done).min(cap);
-                    let hits = file.read_range(run.start + done, m)?;
-                    max_in_memory = max_in_memory.max(m);
-                    est.add(&hits);
-                    done += m;
-                }
-                planar.push(finish(&run, est));
-                i += 1;
-                continue;
-            }
-            // Consecutive small planar surfaces: one read, estimated in parallel
-            let mut j = i;
-            let mut total = 0;
-            while j < runs.len()
-                && is_planar(runs[j].surface)
-                && runs[j].count <= cap
-                && total + runs[j].count <= cap
-            {
-                total += runs[j].count;
-                j += 1;
-            }
-            let hits = file.read_range(runs[i].start, total)?;
-            max_in_memory = max_in_memory.max(total);
-            let base = runs[i].start;
-            let meshes: Vec<PlanarMesh> = runs[i..j]
-                .par_iter()
-                .map(|run| {
-                    let a = (run.start - base) as usize;
-                    let mut est = new_estimator(run);
-                    est.add(&hits[a..a + run.count as usize]);
-                    finish(run, est)
-                })
-                .collect();
-            planar.extend(meshes);
-            i = j;
-        }
-
-        // Curved shapes: the 3D kernel at their vertices, the hits of a
-        // shape and side (many runs: one per triangle) streamed in chunks.
-        // eq. (2) is additive over chunks, so each chunk's kd-tree gives a
-        // partial sum at every vertex.
-        let mut keys: Vec<((u32, bool), Vec<hitfile::Run>)> = Vec::new();
-        {
-            let mut index: HashMap<(u32, bool), usize> = HashMap::new();
-            for run in runs {
-                let sid = run.surface & 0x7fff_ffff;
-                let Some(surf) = surfaces.list.get(sid as usize) else {
-                    continue;
-                };
-                if surf.kind != Kind::Curved {
-                    continue;
-                }
-                let key = (surf.shape, run.surface >> 31 == 1);
-                let k = *index.entry(key).or_insert_with(|| {
-                    keys.push((key, Vec::new()));
-                    keys.len() - 1
-                });
-                keys[k].1.push(*run);
-            }
-        }
-        keys.sort_by_key(|k| k.0);
-        for (key, kruns) in keys {
-            let sh = &scene.shapes[key.0 as usize];
-            let tris: Vec<u32> = (sh.first_tri..sh.first_tri + sh.tri_count).collect();
-            let area: f32 = tris.iter().map(|&t| scene.tri_area(t)).sum();
-            let n_key: u64 = kruns.iter().map(|r| r.count).sum();
-            let h = s.c1 * (area / n_key.max(1) as f32).sqrt();
-            let at: Vec<(Vec3, Vec3)> = tris
-                .iter()
-                .flat_map(|&t| {
-                    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)].map(|(b1, b2)| {
-                        let sp = scene.surface_point(t, b1, b2);
-                        (sp.p, if key.1 { -sp.frame.n } else { sp.frame.n })
-                    })
-                })
-                .collect();
-            let mut sum = vec![Vec3::ZERO; at.len()];
-            let mut buf: Vec<(Vec3, Vec3, Vec3)> = Vec::new();
-            let flush = |buf: &mut Vec<(Vec3, Vec3, Vec3)>, sum: &mut Vec<Vec3>| {
-                let part = kernel::estimate_3d(&at, buf, h, phi as f32);
-                for (a, b) in sum.iter_mut().zip(part) {
-                    *a += b;
-                }
-                buf.clear();
-            };
-            for run in &kruns {
-                let surf = &surfaces.list[(run.surface & 0x7fff_ffff) as usize];
-                let mut done = 0;
-                while done < run.count {
-                    let m = (run.count - done).min(cap - buf.len() as u64);
-                    let hits = file.read_range(run.start + done, m)?;
-                    for hh in &hits {
-                        let sp =
-                            scene.surface_point(surf.tris[0], from_fixed(hh.u), from_fixed(hh.v));
-                        let n = if key.1 { -sp.frame.n } else { sp.frame.n };
-                        buf.push((sp.p, n, decode_rgb9e5(hh.rgb)));
-                    }
-                    max_in_memory = max_in_memory.max(buf.len() as u64);
-                    done += m;
-                    if buf.len() as u64 >= cap {
-                        flush(&mut buf, &mut sum);
-                    }
-                }
-            }
-            if !buf.is_empty() {
-                flush(&mut buf, &mut sum);
-            }
-            curved.push(CurvedMesh {
-                shape: key.0,
-                back: key.1,
-                h: sum.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-                tris,
-            });
-        }
-        Ok(())
-    })();
-    if s.keep_hits.is_none() {
-        let _ = std::fs::remove_file(&path);
-    }
-    let _ = std::fs::remove_dir_all(&dir);
-    result?;
-    stats.max_hits_in_memory = max_in_memory;
-    stats.max_sort_records = file.max_sort_records;
-
-    // Front sides without hits still get a (black) mesh, so that the
-    // display mesh covers every diffuse surface.
-    let have: std::collections::HashSet<u32> = planar.iter().map(|m| m.surface).collect();
-    for (sid, surf) in surfaces.list.iter().enumerate() {
-        if surf.kind == Kind::Planar && surf.diffuse && !have.contains(&(sid as u32)) {
-            let ct = surf.chart_tris(scene);
-            let est =
-                kernel::estimate_planar(surf.rectangle, surf.size, surf.area, &ct, &[], &params);
-            planar.push(PlanarMesh::unindexed(
-                sid as u32, est.verts, est.tris, est.h, 0.0, 0,
-            ));
-        }
-    }
-    planar.sort_by_key(|m| m.surface);
-    stats.t_estimate = t1.elapsed().as_secs_f64();
+    let pipeline::Estimated { planar, curved, .. } = estimated;
     stats.tris_before = planar.iter().map(|m| m.tris.len() as u64).sum::<u64>()
         + curved.iter().map(|m| m.tris.len() as u64).sum::<u64>();
 
-    // R at the vertices: one value for an untextured surface, else the
-    // texture at each vertex (§3.2: L = R(u, v)·H(u, v)/π)
-    let reflectance = |m: &PlanarMesh| -> Vec<Vec3> {
-        let surf = &surfaces.list[(m.surface & 0x7fff_ffff) as usize];
-        if surf.textured {
-            surf.reflectance_at(scene, &m.verts)
-        } else {
-            vec![surf.reflectance]
-        }
-    };
-
-    // The white point: the 99th percentile of the vertex radiance
-    let mut lum: Vec<f32> = planar
-        .par_iter()
-        .flat_map_iter(|m| {
-            let r = reflectance(m);
-            let r_at = move |i: usize| if r.len() == 1 { r[0] } else { r[i] };
-            m.h.iter()
-                .enumerate()
-                .map(move |(i, h)| luminance(r_at(i) * *h / PI))
-                .collect::<Vec<_>>()
-        })
-        .filter(|v| *v > 0.0)
-        .collect();
-    lum.sort_by(f32::total_cmp);
-    let w0 = lum
-        .get(((lum.len() as f64 * 0.99) as usize).min(lum.len().saturating_sub(1)))
-        .copied()
-        .unwrap_or(1.0)
-        .max(1e-12);
-    drop(lum);
-
-    // Phase 3: decimation
-    let t2 = Instant::now();
-    let mut max_err = 0.0f32;
-    let mut sum_err = 0.0f64;
-    let mut removed = 0u64;
-    if s.decimate {
-        let out: Vec<(PlanarMesh, decimate::Report)> = planar
-            .into_par_iter()
-            .map(|m| {
-                let r = reflectance(&m);
-                decimate::decimate_planar(m, &r, w0, s.epsilon)
-            })
-            .collect();
-        planar = Vec::with_capacity(out.len());
-        for (m, r) in out {
-            max_err = max_err.max(r.max_error);
-            sum_err += r.sum_error;
-            removed += r.removed;
-            planar.push(m);
-        }
-    }
-    stats.t_decimate = t2.elapsed().as_secs_f64();
-    stats.max_brightness_error = max_err;
-    stats.mean_brightness_error = if removed > 0 {
-        (sum_err / removed as f64) as f32
+    // Phase 3: decimation against the white point
+    let w0 = pipeline::white_point(scene, &surfaces, &planar);
+    let t = Instant::now();
+    let planar = if s.decimate {
+        let (planar, d) = pipeline::decimate(scene, &surfaces, planar, w0, s.epsilon);
+        stats.max_brightness_error = d.max_error;
+        stats.mean_brightness_error = d.mean_error;
+        planar
     } else {
-        0.0
+        planar
     };
+    stats.t_decimate = t.elapsed().as_secs_f64();
     let mesh = DisplayMesh::new(planar, curved);
     stats.tris_after = mesh.triangle_count();
     Ok(Bake {
@@ -584,32 +337,79 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
     })
 }
 
-/// The density method's progressive state: the bake, then the view pass.
+/// Phases 1 and 2 through `sink`, timed into `stats`.
+fn trace_and_estimate<S: HitSink>(
+    world: &World,
+    surfaces: &Surfaces,
+    s: &Settings,
+    mut sink: S,
+    stats: &mut BakeStats,
+) -> Result<pipeline::Estimated, DensityError> {
+    // Phase 1: particle tracing, then the grouping by surface
+    let t = Instant::now();
+    let traced = pipeline::trace(world, surfaces, s, &mut sink)?;
+    let hits = pipeline::group(sink)?;
+    stats.particles = traced.particles;
+    stats.hits = traced.hits;
+    stats.rays = traced.rays;
+    stats.hit_file_bytes = hits.hit_count() * HIT_BYTES as u64;
+    stats.max_sort_records = hits.max_sort_records();
+    stats.t_trace = t.elapsed().as_secs_f64();
+
+    // Phase 2: density estimation, streamed from the store
+    let t = Instant::now();
+    let estimated = pipeline::estimate(&world.scene, surfaces, s, &hits, traced.phi)?;
+    stats.max_hits_in_memory = estimated.max_hits_in_memory;
+    stats.t_estimate = t.elapsed().as_secs_f64();
+    Ok(estimated)
+}
+
+/// The density method's progressive state: the bake, made once by
+/// [`Method::prepare`], then one jittered sample per pixel of the view pass
+/// per step.
 pub struct Density {
     settings: Settings,
+    storage: Storage,
     bake: Option<Bake>,
-    /// The error of a failed bake (the image stays black).
-    pub error: Option<String>,
     film: Film,
     passes: u64,
 }
 
 impl Density {
-    /// A density method for `world`.
+    /// A density method for `world`, with the hit file on disk. Cheap: the
+    /// particles are traced by [`Method::prepare`].
     pub fn new(world: &World, settings: Settings) -> Self {
         Density {
             settings,
+            storage: Storage::Disk,
             bake: None,
-            error: None,
             film: Film::new(world.camera.width, world.camera.height),
             passes: 0,
         }
     }
 
-    /// The bake, once the first pass has run.
+    /// The same method with the hits kept in `storage`.
+    pub fn with_storage(mut self, storage: Storage) -> Self {
+        self.storage = storage;
+        self
+    }
+
+    /// The bake, once prepared.
     pub fn bake(&self) -> Option<&Bake> {
         self.bake.as_ref()
     }
+}
+
+/// `e` and its sources, joined by ": ", as one line.
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut line = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        line.push_str(": ");
+        line.push_str(&s.to_string());
+        source = s.source();
+    }
+    line
 }
 
 impl Method for Density {
@@ -617,24 +417,24 @@ impl Method for Density {
         "density"
     }
 
+    /// The bake: its particle rays are the rays of the setup, and a failed
+    /// bake (an unwritable scratch directory, a full disk) is the render's
+    /// error, with its reason.
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        let b = bake_with(world, &self.settings, self.storage)
+            .map_err(|e| MethodError(format!("density bake: {}", error_chain(&e))))?;
+        let rays = b.stats.rays;
+        self.bake = Some(b);
+        Ok(StepStats { rays })
+    }
+
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
-        let mut rays = 0;
-        if self.bake.is_none() && self.error.is_none() {
-            match bake(world, &self.settings) {
-                Ok(b) => {
-                    rays += b.stats.rays;
-                    self.bake = Some(b);
-                }
-                Err(e) => self.error = Some(e.to_string()),
-            }
-        }
         let Some(bk) = &self.bake else {
-            self.passes += 1;
-            return StepStats { rays };
+            panic!("Density::step before Density::prepare (the driver runs prepare first)");
         };
         let w = world.camera.width as usize;
         let seed = self.settings.seed;
-        rays += self
+        let rays = self
             .film
             .sum
             .par_chunks_mut(w)

@@ -25,8 +25,9 @@ use std::ops::ControlFlow;
 
 use rayon::prelude::*;
 
-use super::hitfile::{encode_rgb9e5, to_fixed, Hit, HitFileError, HitWriter};
-use super::surfaces::{Kind, Surfaces};
+use super::hitfile::HitFileError;
+use super::hits::{encode_rgb9e5, to_fixed, Hit, HitSink};
+use super::surfaces::{Kind, SurfaceId, Surfaces};
 
 use crate::geometry::{offset_point, Frame, Ray};
 use crate::methods::World;
@@ -129,7 +130,8 @@ pub fn phi_unit(lums: &[Luminaire], n: u64) -> f64 {
     lums.iter().map(|l| luminance(l.phi) as f64).sum::<f64>() / n.max(1) as f64
 }
 
-/// Traces `n` particles (per channel run) and streams their hits to `out`.
+/// Traces `n` particles (per channel run) and streams their hits to `out`,
+/// in particle order.
 #[allow(clippy::too_many_arguments)]
 pub fn trace(
     world: &World,
@@ -139,7 +141,7 @@ pub fn trace(
     channel: Channel,
     seed: u64,
     max_depth: Option<u32>,
-    out: &mut HitWriter,
+    out: &mut impl HitSink,
 ) -> Result<TraceStats, HitFileError> {
     let weight = |c: Rgb| match channel {
         Channel::Rgb => luminance(c) as f64,
@@ -304,7 +306,7 @@ fn trace_one(
                 Kind::Curved => (hit.b1, hit.b2),
             };
             hits.push(Hit {
-                surface: sid | (u32::from(back) << 31),
+                surface: SurfaceId { index: sid, back },
                 u: to_fixed(u),
                 v: to_fixed(v),
                 rgb: encode_rgb9e5(e.beta * t),

@@ -15,6 +15,67 @@ use glam::{Vec2, Vec3};
 use super::kernel::TriGrid;
 use crate::scene::{Material, Scene, Texture};
 
+/// A receiving surface and the side of it a hit or a mesh is for: the one
+/// place where the side-tagged id of the hit file is encoded and decoded.
+///
+/// On disk and in every ordering, the id is the u32 `index | back << 31`
+/// (§4.1 stores "the surface id (4 bytes)"; the side bit is ours: a
+/// two-sided surface is lit separately on each side). The order of
+/// [`SurfaceId`] is that of the encoded u32, front sides before back sides,
+/// so that sorting by it sorts the records as the hit file holds them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct SurfaceId {
+    /// Index into [`Surfaces::list`].
+    pub index: u32,
+    /// True for the back side (against the triangles' normal).
+    pub back: bool,
+}
+
+impl SurfaceId {
+    /// The side bit of the encoded id.
+    const BACK: u32 = 1 << 31;
+
+    /// The front side of surface `index`.
+    #[inline]
+    pub fn front(index: u32) -> Self {
+        SurfaceId { index, back: false }
+    }
+
+    /// The encoded id: `index`, with bit 31 set for the back side.
+    #[inline]
+    pub fn encode(self) -> u32 {
+        debug_assert!(self.index < Self::BACK, "surface index {}", self.index);
+        self.index | if self.back { Self::BACK } else { 0 }
+    }
+
+    /// The id of an encoded value (every u32 is one).
+    #[inline]
+    pub fn decode(v: u32) -> Self {
+        SurfaceId {
+            index: v & !Self::BACK,
+            back: v & Self::BACK != 0,
+        }
+    }
+
+    /// Position in per-side tables: 2·index + side.
+    #[inline]
+    pub fn side_index(self) -> usize {
+        2 * self.index as usize + usize::from(self.back)
+    }
+}
+
+impl Ord for SurfaceId {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.encode().cmp(&other.encode())
+    }
+}
+
+impl PartialOrd for SurfaceId {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
 /// How a surface is parameterised.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
@@ -119,10 +180,24 @@ impl Surface {
 /// All receiving surfaces of a scene, and the surface of every triangle.
 #[derive(Clone, Debug)]
 pub struct Surfaces {
-    /// The surfaces; the index is the surface id of the hit file.
+    /// The surfaces; the index is [`SurfaceId::index`].
     pub list: Vec<Surface>,
-    /// Surface id of each scene triangle.
+    /// Surface index of each scene triangle.
     pub tri_surface: Vec<u32>,
+}
+
+impl Surfaces {
+    /// The surface an id names (either side).
+    #[inline]
+    pub fn get(&self, id: SurfaceId) -> Option<&Surface> {
+        self.list.get(id.index as usize)
+    }
+
+    /// The surface an id names; the id must come from these surfaces.
+    #[inline]
+    pub fn of(&self, id: SurfaceId) -> &Surface {
+        &self.list[id.index as usize]
+    }
 }
 
 /// The diffuse reflectance R_d of a material at `uv`, if it has a diffuse
