@@ -190,3 +190,35 @@ fn a_method_renders_with_its_own_flags() {
     assert!(out.exists());
     assert!(stdout(&o).contains("plb"));
 }
+
+#[test]
+fn a_failed_density_bake_exits_non_zero_with_the_reason() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // a directory under a regular file cannot be made, even by root
+    let file = dir.path().join("file");
+    std::fs::write(&file, b"x").expect("write");
+    let scratch = file.join("scratch");
+    let out = dir.path().join("d.pfm");
+    let o = kalos(&[
+        "render",
+        "--method",
+        "density",
+        "--particles",
+        "1000",
+        "--scratch",
+        scratch.to_str().expect("utf-8"),
+        "--res",
+        "8x8",
+        "-q",
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert!(!o.status.success(), "a failed bake must not exit 0");
+    let e = stderr(&o);
+    assert!(e.contains("scratch directory"), "{e}");
+    assert!(
+        e.contains(scratch.to_str().expect("utf-8")) || e.contains(file.to_str().expect("utf-8")),
+        "{e}"
+    );
+    assert!(!out.exists(), "no image from a failed bake");
+}

@@ -40,7 +40,7 @@
 //! are made from the same hits and their noise is correlated: no "visible
 //! coloured texture" (§4.4), which the paper's per-channel runs show because
 //! each channel's hits are independent. `Channel::Single` keeps the paper's
-//! per-channel runs for the measurement in BENCHMARKS-density.md. The price
+//! per-channel runs for the measurement in BENCHMARKS.md. The price
 //! is 4 more bytes per hit (RGB9E5 power: 12 bytes instead of 8), against
 //! three runs of 8 bytes (24 bytes for the same particles per channel).
 //!
@@ -114,8 +114,9 @@ pub struct Settings {
     /// Cap on over-mesh vertices per surface.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 1 << 20, value_parser = super::cli::parse_usize))]
     pub max_verts: usize,
-    /// Directory for the hit file's buckets (default: a fresh directory
-    /// under the system's temporary directory, removed after the bake).
+    /// An existing directory in which a fresh scratch directory for the hit
+    /// file is made and removed after the bake (default: the system's
+    /// temporary directory).
     #[cfg_attr(feature = "cli", arg(long))]
     pub scratch: Option<PathBuf>,
     /// Keep the hit file at this path instead of deleting it.
