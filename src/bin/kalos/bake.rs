@@ -88,52 +88,14 @@ pub fn run(a: BakeArgs) -> Result<()> {
         b.w0
     );
     if a.stats {
-        let total = st.t_trace + st.t_estimate + st.t_decimate;
-        let pct = |t: f64| if total > 0.0 { 100.0 * t / total } else { 0.0 };
-        say!("particles        {}", st.particles);
-        say!("hits             {}", st.hits);
-        say!("bytes per hit    {}", st.bytes_per_hit);
-        say!("hit file         {:.1} MB", st.hit_file_bytes as f64 / 1e6);
-        say!("surfaces         {}", st.surfaces);
-        say!("load + BVH       {load_s:.2} s");
+        say!("{st}");
         say!(
-            "phase 1 trace    {:.2} s ({:.0}%)",
-            st.t_trace,
-            pct(st.t_trace)
-        );
-        say!(
-            "phase 2 estimate {:.2} s ({:.0}%)",
-            st.t_estimate,
-            pct(st.t_estimate)
-        );
-        say!(
-            "phase 3 decimate {:.2} s ({:.0}%)",
-            st.t_decimate,
-            pct(st.t_decimate)
-        );
-        say!("write            {write_s:.2} s");
-        say!("triangles before {}", st.tris_before);
-        say!(
-            "triangles after  {} ({:.1}% removed)",
-            st.tris_after,
-            if st.tris_before > 0 {
-                100.0 * (1.0 - st.tris_after as f64 / st.tris_before as f64)
-            } else {
-                0.0
-            }
-        );
-        say!(
-            "brightness error max {:.4}, mean {:.4} (epsilon {})",
-            st.max_brightness_error,
-            st.mean_brightness_error,
-            s.epsilon
-        );
-        say!(
-            "hits in memory   {} at most in phase 2, {} in the bucket sort (chunk {})",
-            st.max_hits_in_memory,
-            st.max_sort_records,
+            "settings         epsilon {}, chunk {} hits",
+            s.epsilon,
             s.chunk_hits
         );
+        say!("load + BVH       {load_s:.2} s");
+        say!("write            {write_s:.2} s");
         match peak_memory() {
             Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),
             None => say!("peak memory      unknown"),

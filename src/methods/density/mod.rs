@@ -231,6 +231,51 @@ pub struct BakeStats {
     pub max_sort_records: u64,
 }
 
+impl std::fmt::Display for BakeStats {
+    /// The figures of `kalos bake --stats`, one per line.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let total = self.t_trace + self.t_estimate + self.t_decimate;
+        let pct = |t: f64| if total > 0.0 { 100.0 * t / total } else { 0.0 };
+        writeln!(f, "particles        {}", self.particles)?;
+        writeln!(f, "hits             {}", self.hits)?;
+        writeln!(f, "bytes per hit    {}", self.bytes_per_hit)?;
+        writeln!(
+            f,
+            "hit file         {:.1} MB",
+            self.hit_file_bytes as f64 / 1e6
+        )?;
+        writeln!(f, "surfaces         {}", self.surfaces)?;
+        for (name, t) in [
+            ("phase 1 trace   ", self.t_trace),
+            ("phase 2 estimate", self.t_estimate),
+            ("phase 3 decimate", self.t_decimate),
+        ] {
+            writeln!(f, "{name} {t:.2} s ({:.0}%)", pct(t))?;
+        }
+        writeln!(f, "triangles before {}", self.tris_before)?;
+        let removed = if self.tris_before > 0 {
+            100.0 * (1.0 - self.tris_after as f64 / self.tris_before as f64)
+        } else {
+            0.0
+        };
+        writeln!(
+            f,
+            "triangles after  {} ({removed:.1}% removed)",
+            self.tris_after
+        )?;
+        writeln!(
+            f,
+            "brightness error max {:.4}, mean {:.4}",
+            self.max_brightness_error, self.mean_brightness_error
+        )?;
+        write!(
+            f,
+            "hits in memory   {} at most in phase 2, {} in the bucket sort",
+            self.max_hits_in_memory, self.max_sort_records
+        )
+    }
+}
+
 /// The result of a bake: surfaces, display mesh, figures.
 #[derive(Clone, Debug)]
 pub struct Bake {
