@@ -14,9 +14,9 @@
 //! 4.5 to allow for the imperfect normality of the block means (a small
 //! absolute floor, 1e-4, covers blocks that are black in both).
 
-mod common;
+use crate::common;
 
-use common::{block_stats, max_block_z, render, render_budget};
+use crate::common::{block_stats, max_block_z, render, render_budget};
 use kalos::film::Image;
 use kalos::methods::{light, plb, Budget, Common, MethodConfig, World};
 use kalos::scene::{self, Scene};

@@ -11,7 +11,7 @@
 //! asserts that its bound is below 1 % of the value, so that it can see a
 //! 1 % bias.
 
-mod common;
+use crate::common;
 
 use kalos::methods::{self, bundle, density, light, plb, Budget, Common, MethodConfig};
 use kalos::scene::Scene;

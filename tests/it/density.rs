@@ -1,13 +1,13 @@
 //! Tests of the density-estimation method (`--method density`, `kalos bake`).
 
-mod common;
+use crate::common;
 #[path = "density/storage.rs"]
 mod storage;
 
 use std::f32::consts::PI;
 use std::path::PathBuf;
 
-use common::furnace;
+use crate::common::furnace;
 use glam::{Vec2, Vec3};
 use kalos::geometry::look_at;
 use kalos::image_io::read_image;

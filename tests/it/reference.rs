@@ -14,7 +14,7 @@
 //! the difference of means must stay within 4 standard errors (the
 //! reference's own error of the mean, ~0.002 %, is added).
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

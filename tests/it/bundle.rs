@@ -6,7 +6,7 @@
 //!   power-defect bias bound of eq. (18), is in `tests/methods.rs`);
 //! - cbox and the glossy plane: see [`check_against`].
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

@@ -3,7 +3,7 @@
 //! noise measured in the same test (independent seeds), never from stored
 //! expected values.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

@@ -1,0 +1,22 @@
+//! The integration tests, in one crate so that the suite links once (the
+//! kalos library and its dependencies are large; 12 test crates linked 12
+//! times on a 2-core machine).
+//!
+//! `methods.rs` is the method × scene table: furnace, longest path and
+//! determinism for every method of `kalos::methods::all()`;
+//! `reference.rs` iterates the same table against the Mitsuba references.
+
+mod common;
+
+mod bsdf;
+mod bundle;
+mod camera_pass;
+mod cli;
+mod density;
+mod driver;
+mod image_io;
+mod loader;
+mod methods;
+mod plb;
+mod reference;
+mod transport;
