@@ -55,10 +55,11 @@ pub struct Settings {
     /// Master seed (set from [`super::Common`]).
     #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Target number of patches (used when `edge` is not given).
+    /// Target number of patches (unless a patch edge is given).
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 5_000))]
     pub patches: usize,
-    /// Target patch edge length in scene units (overrides `patches`).
+    /// Target patch edge length in scene units (overrides the number of
+    /// patches).
     #[cfg_attr(feature = "cli", arg(long = "patch-edge"))]
     pub edge: Option<f32>,
     /// Visibility-map resolution across the scene's bounding sphere; when
@@ -82,8 +83,8 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub discard: u64,
     /// Sub-pixel patches in the painter's map: kept by pixel-centre
-    /// roulette (centre) or by single-pixel roulette (single); see
-    /// [`visibility`].
+    /// roulette (centre) or by single-pixel roulette (single), as the
+    /// `visibility` module explains.
     #[cfg_attr(feature = "cli", arg(long = "subpixel", value_name = "centre|single", default_value = "centre", value_parser = subpixel_rule, action = clap::ArgAction::Set))]
     pub centre_rr: bool,
 }
