@@ -11,7 +11,7 @@ use kalos::methods::density::surfaces::SurfaceId;
 use kalos::methods::density::{self, pipeline, Settings, Storage};
 use kalos::methods::World;
 use kalos::sampling::Pcg32;
-use kalos::scene::{self, Material, Texture};
+use kalos::scene::{self, Material, Scene, Texture};
 
 use super::common::furnace;
 use super::{entries, floor_scene, root, scratch, scratch_base, settings};
@@ -123,6 +123,26 @@ fn hit_file_round_trip_and_determinism() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The floor scene with a grey ball of `rings` rings on it: planar and
+/// curved receivers.
+fn floor_with_ball(rings: u32) -> Scene {
+    let mut sc = floor_scene(0.2, 1.0);
+    let grey = sc.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.5)),
+    });
+    let m = scene::shapes::sphere(Vec3::new(0.6, 0.3, 0.0), 0.3, rings);
+    sc.add_mesh(
+        "ball",
+        &m.positions,
+        m.normals.as_deref(),
+        None,
+        &m.indices,
+        grey,
+        None,
+    );
+    sc
+}
+
 /// Phase 2 holds at most `chunk_hits` hit records in memory, whatever the
 /// particle count: the floor scene (with a sphere, for the curved path)
 /// baked at n and 4n particles with a 20 000-record chunk, the largest
@@ -138,21 +158,7 @@ fn hit_file_round_trip_and_determinism() {
 /// order of one kernel term, ≥ 1e-3 of the sum).
 #[test]
 fn phase_two_hit_memory_does_not_grow_with_n() {
-    let mut sc = floor_scene(0.2, 1.0);
-    let grey = sc.add_material(Material::Diffuse {
-        reflectance: Texture::Constant(Vec3::splat(0.5)),
-    });
-    let m = scene::shapes::sphere(Vec3::new(0.6, 0.3, 0.0), 0.3, 16);
-    sc.add_mesh(
-        "ball",
-        &m.positions,
-        m.normals.as_deref(),
-        None,
-        &m.indices,
-        grey,
-        None,
-    );
-    let world = World::new(sc);
+    let world = World::new(floor_with_ball(16));
     let chunk = 20_000usize;
     let bake = |n: u64, chunk_hits: usize| {
         let st = Settings {
@@ -251,21 +257,7 @@ fn scratch_directory_is_removed() {
 /// that large surfaces are summed chunk by chunk.
 #[test]
 fn memory_and_disk_bakes_are_identical() {
-    let mut sc = floor_scene(0.2, 1.0);
-    let grey = sc.add_material(Material::Diffuse {
-        reflectance: Texture::Constant(Vec3::splat(0.5)),
-    });
-    let m = scene::shapes::sphere(Vec3::new(0.6, 0.3, 0.0), 0.3, 12);
-    sc.add_mesh(
-        "ball",
-        &m.positions,
-        m.normals.as_deref(),
-        None,
-        &m.indices,
-        grey,
-        None,
-    );
-    let world = World::new(sc);
+    let world = World::new(floor_with_ball(12));
     let st = Settings {
         chunk_hits: 7_000,
         ..settings(100_000, 21)
