@@ -136,17 +136,20 @@ fn write_file(path: &Path, text: &str) -> Result<(), GenError> {
 mod tests {
     use super::*;
 
-    /// A fresh directory under the system temp dir.
-    fn scratch(name: &str) -> PathBuf {
-        let dir =
-            std::env::temp_dir().join(format!("kalos-scenegen-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        dir
+    /// A fresh temporary directory (removed when dropped) and a path in it
+    /// that does not exist yet, for `generate` to create.
+    fn scratch(name: &str) -> (tempfile::TempDir, PathBuf) {
+        let tmp = tempfile::Builder::new()
+            .prefix("kalos-scenegen-")
+            .tempdir()
+            .unwrap();
+        let dir = tmp.path().join(name);
+        (tmp, dir)
     }
 
     #[test]
     fn unknown_name_is_an_error_and_writes_nothing() {
-        let dir = scratch("unknown");
+        let (_tmp, dir) = scratch("unknown");
         let e = generate("teapot", &dir, 1).unwrap_err();
         assert!(matches!(e, GenError::UnknownScene { .. }));
         assert!(e.to_string().contains("sphereflake"), "{e}");
@@ -155,7 +158,7 @@ mod tests {
 
     #[test]
     fn writes_the_meshes_and_the_xml_and_no_temporaries() {
-        let dir = scratch("sphereflake");
+        let (_tmp, dir) = scratch("sphereflake");
         let xml = generate("sphereflake", &dir, 1).unwrap();
         assert_eq!(xml, dir.join("scene.xml"));
         let mut names: Vec<String> = std::fs::read_dir(&dir)
@@ -164,24 +167,22 @@ mod tests {
             .collect();
         names.sort();
         assert_eq!(names, ["flake.obj", "floor.obj", "scene.xml"]);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn a_file_in_the_way_is_an_error_naming_it() {
-        let dir = scratch("blocked");
+        let (_tmp, dir) = scratch("blocked");
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join("file");
         std::fs::write(&file, "").unwrap();
         let e = generate("terrain", &file.join("out"), 1).unwrap_err();
         assert!(matches!(e, GenError::CreateDir { .. }), "{e}");
         assert!(e.to_string().contains("file"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn a_failed_write_names_the_file_and_leaves_no_temporary() {
-        let dir = scratch("xml-is-a-dir");
+        let (_tmp, dir) = scratch("xml-is-a-dir");
         std::fs::create_dir_all(dir.join("scene.xml")).unwrap();
         let e = generate("sphereflake", &dir, 1).unwrap_err();
         match &e {
@@ -199,6 +200,5 @@ mod tests {
             })
             .count();
         assert_eq!(leftovers, 0);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -22,10 +22,12 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("kalos-density-test-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+/// A fresh directory for one test, removed when dropped.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("kalos-density-test-{name}-"))
+        .tempdir()
+        .expect("scratch dir")
 }
 
 fn settings(particles: u64, seed: u64) -> Settings {
@@ -831,12 +833,15 @@ fn assert_faces_receive_pi(bake: &density::Bake, label: &str) {
 }
 
 /// An empty directory for a scratch test, and a regular file beside it
-/// (a path under a regular file cannot be created, even by root).
-fn scratch_base(name: &str) -> (PathBuf, PathBuf) {
-    let base = scratch(name);
-    let file = base.with_extension("file");
+/// (a path under a regular file cannot be created, even by root), both in
+/// a temporary directory that is removed when the first value is dropped.
+fn scratch_base(name: &str) -> (tempfile::TempDir, PathBuf, PathBuf) {
+    let tmp = scratch(name);
+    let base = tmp.path().join("base");
+    std::fs::create_dir(&base).expect("base dir");
+    let file = tmp.path().join("file");
     std::fs::write(&file, b"not a directory").expect("regular file");
-    (base, file)
+    (tmp, base, file)
 }
 
 /// The entries of a directory.
@@ -867,7 +872,7 @@ fn driver(passes: u64) -> Driver<'static> {
 #[test]
 fn failed_bake_is_the_render_error() {
     let world = World::new(furnace(0.5, 1.0, 8));
-    let (base, file) = scratch_base("unwritable");
+    let (_tmp, _base, file) = scratch_base("unwritable");
     let bad = file.join("scratch");
     let reason = std::fs::create_dir(bad.join("x"))
         .expect_err("no directory under a regular file")
@@ -885,8 +890,6 @@ fn failed_bake_is_the_render_error() {
     assert!(err.contains(&bad.display().to_string()), "{err}");
     assert!(err.contains(&reason), "{err}");
     assert!(m.bake().is_none());
-    let _ = std::fs::remove_dir_all(&base);
-    let _ = std::fs::remove_file(&file);
 }
 
 /// `Density::new` traces nothing, and the scratch directory is gone after
@@ -894,7 +897,7 @@ fn failed_bake_is_the_render_error() {
 #[test]
 fn scratch_directory_is_gone_after_a_render() {
     let world = World::new(furnace(0.5, 1.0, 8));
-    let (base, file) = scratch_base("render");
+    let (_tmp, base, file) = scratch_base("render");
     let st = Settings {
         scratch: Some(base.clone()),
         ..settings(20_000, 3)
@@ -925,6 +928,4 @@ fn scratch_directory_is_gone_after_a_render() {
         Vec::<PathBuf>::new(),
         "after a failed render"
     );
-    let _ = std::fs::remove_dir_all(&base);
-    let _ = std::fs::remove_file(&file);
 }

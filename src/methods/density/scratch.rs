@@ -9,32 +9,31 @@
 //! path instead, outside the directory, and survives.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::{DensityError, Settings};
 
-/// A fresh directory for one bake, removed on drop.
+/// A fresh directory for one bake, removed on drop (a `tempfile::TempDir`).
 #[derive(Debug)]
 pub struct ScratchDir {
-    dir: PathBuf,
+    dir: tempfile::TempDir,
     hit_file: PathBuf,
     keep_hits: bool,
 }
 
 impl ScratchDir {
-    /// Creates `kalos-density-<pid>-<n>` in [`Settings::scratch`] (the
-    /// system's temporary directory when unset). That directory must exist:
-    /// only the fresh one is created, so only it is removed.
+    /// Creates a fresh `kalos-density-*` directory in [`Settings::scratch`]
+    /// (the system's temporary directory when unset). That directory must
+    /// exist: only the fresh one is created, so only it is removed.
     pub fn new(s: &Settings) -> Result<Self, DensityError> {
-        static N: AtomicU64 = AtomicU64::new(0);
         let base = s.scratch.clone().unwrap_or_else(std::env::temp_dir);
-        let dir = base.join(format!(
-            "kalos-density-{}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir(&dir).map_err(|source| DensityError::Scratch { base, source })?;
-        let hit_file = s.keep_hits.clone().unwrap_or_else(|| dir.join("hits.bin"));
+        let dir = tempfile::Builder::new()
+            .prefix("kalos-density-")
+            .tempdir_in(&base)
+            .map_err(|source| DensityError::Scratch { base, source })?;
+        let hit_file = s
+            .keep_hits
+            .clone()
+            .unwrap_or_else(|| dir.path().join("hits.bin"));
         Ok(ScratchDir {
             dir,
             hit_file,
@@ -44,7 +43,7 @@ impl ScratchDir {
 
     /// The directory.
     pub fn path(&self) -> &Path {
-        &self.dir
+        self.dir.path()
     }
 
     /// Where the hit file goes: the kept path, or inside the directory.
@@ -55,12 +54,5 @@ impl ScratchDir {
     /// True when the hit file is kept (it is not in the directory).
     pub fn keeps_hits(&self) -> bool {
         self.keep_hits
-    }
-}
-
-impl Drop for ScratchDir {
-    fn drop(&mut self) {
-        // Nothing to report to: a directory that cannot be removed is left
-        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }

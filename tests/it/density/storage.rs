@@ -21,7 +21,8 @@ use super::{entries, floor_scene, root, scratch, scratch_base, settings};
 /// whatever the thread count.
 #[test]
 fn hit_file_round_trip_and_determinism() {
-    let dir = scratch("roundtrip");
+    let tmp = scratch("roundtrip");
+    let dir = tmp.path().to_path_buf();
     let mut rng = Pcg32::new(5, 0);
     let hits: Vec<Hit> = (0..100_000)
         .map(|_| Hit {
@@ -120,7 +121,6 @@ fn hit_file_round_trip_and_determinism() {
     let (a, b) = (trace(1, "t1"), trace(2, "t2"));
     assert!(a.len() > 100_000);
     assert!(a == b, "the hit file depends on the thread count");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The floor scene with a grey ball of `rings` rings on it: planar and
@@ -216,7 +216,7 @@ fn phase_two_hit_memory_does_not_grow_with_n() {
 #[test]
 fn scratch_directory_is_removed() {
     let world = World::new(furnace(0.5, 1.0, 8));
-    let (base, file) = scratch_base("removed");
+    let (_tmp, base, file) = scratch_base("removed");
     let st = Settings {
         scratch: Some(base.clone()),
         ..settings(20_000, 3)
@@ -246,8 +246,6 @@ fn scratch_directory_is_removed() {
     });
     assert!(unwound.is_err());
     assert!(!path.exists(), "after a panic");
-    let _ = std::fs::remove_dir_all(&base);
-    let _ = std::fs::remove_file(&file);
 }
 
 /// The in-memory hit store gives the bake of the hit file, bit for bit:
