@@ -102,23 +102,17 @@ fn command(method: &str) -> Result<Command> {
 /// Parses `args` (what follows `kalos render`) for the method they name.
 pub fn parse(args: Vec<OsString>) -> Result<(RenderArgs, methods::MethodConfig)> {
     let method = mcli::scan_method(&args).unwrap_or_else(|| "path".to_string());
-    if methods::by_name(&method).is_err() {
-        // let clap report the bad value with the list of methods
-        let err = command("path")?
-            .try_get_matches_from(std::iter::once(OsString::from("render")).chain(args.clone()))
-            .err();
-        if let Some(e) = err {
-            e.exit();
-        }
-    }
-    let matches = match command(&method)?
+    // An unknown method is parsed as `path`'s command, whose --method
+    // parser reports the bad value with the list of methods
+    let info = methods::by_name(&method).unwrap_or(&methods::all()[0]);
+    let matches = match command(info.name)?
         .try_get_matches_from(std::iter::once(OsString::from("render")).chain(args))
     {
         Ok(m) => m,
         Err(e) => {
             if e.kind() == ErrorKind::UnknownArgument {
                 if let Some(ContextValue::String(flag)) = e.get(ContextKind::InvalidArg) {
-                    if let Some(msg) = mcli::foreign_flag_message(&method, flag) {
+                    if let Some(msg) = mcli::foreign_flag_message(info.name, flag) {
                         eprintln!("error: {msg}");
                         std::process::exit(2);
                     }
@@ -127,11 +121,8 @@ pub fn parse(args: Vec<OsString>) -> Result<(RenderArgs, methods::MethodConfig)>
             e.exit()
         }
     };
-    let a = RenderArgs::from_arg_matches(&matches)
-        .map_err(|e| e.exit())
-        .unwrap();
-    let info = methods::by_name(&method)?;
-    let cfg = (info.from_args)(&matches).map_err(|e| e.exit()).unwrap();
+    let a = RenderArgs::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    let cfg = (info.from_args)(&matches).unwrap_or_else(|e| e.exit());
     Ok((a, cfg))
 }
 
