@@ -152,17 +152,29 @@ fn bad_values_are_refused_before_rendering() {
         assert!(stderr(&o).contains(flag), "{}", stderr(&o));
     }
     // --discard is for light's iteration form only
-    let o = kalos(&[
-        "render",
-        "--method",
-        "light",
-        "--discard",
-        "5",
-        "-o",
-        "x.pfm",
-    ]);
+    let o = kalos(&["render", "--method", "light", "--discard", "5", "--dry-run"]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("iteration"), "{}", stderr(&o));
+    // and the same flags with valid values are accepted (the refusals above
+    // are the values', not the command's)
+    for args in [
+        &["--method", "plb", "--lambda", "0.5", "--phase-len", "10"][..],
+        &[
+            "--method",
+            "light",
+            "--variant",
+            "iteration",
+            "--discard",
+            "5",
+        ],
+        &["--method", "light", "--camera-pass", "off"],
+    ] {
+        let mut all = vec!["render"];
+        all.extend_from_slice(args);
+        all.push("--dry-run");
+        let o = kalos(&all);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+    }
 }
 
 #[test]
