@@ -56,7 +56,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let room = &mut rooms[usize::from(v.sp.p.x > 0.0)];
                 room.vertices += 1;
                 if v.bsdf.has_smooth() {
-                    if let Some((_, c)) = connect_to_camera(&world, v, e.beta, &mut connection_rays)
+                    if let Some((_, c)) =
+                        connect_to_camera(&world, v, e.beta, false, &mut connection_rays)
                     {
                         room.connected += 1;
                         room.energy += luminance(c) as f64;

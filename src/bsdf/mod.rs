@@ -569,6 +569,18 @@ impl Bsdf {
         self.is_delta() || matches!(self, Bsdf::Plastic { .. })
     }
 
+    /// True when some lobe is glossy: a non-delta lobe concentrated about a
+    /// direction (Phong with a specular part, the rough conductor, the coat
+    /// of rough plastic). The glossy camera pass of `plb` estimates such
+    /// lobes from the camera side too.
+    pub fn has_glossy(&self) -> bool {
+        match self {
+            Bsdf::Phong { ks, .. } => ks.max_element() > 0.0,
+            Bsdf::RoughConductor { .. } | Bsdf::RoughPlastic { .. } => true,
+            _ => false,
+        }
+    }
+
     /// True when some lobe is non-delta, so that connections (NEE, camera) can
     /// reach it.
     pub fn has_smooth(&self) -> bool {

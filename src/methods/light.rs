@@ -156,6 +156,7 @@ impl LightTracer {
             camera_pass: CameraPass::new(
                 world,
                 settings.camera_pass,
+                false,
                 settings.seed,
                 settings.max_depth,
             ),
@@ -260,7 +261,8 @@ fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> 
         |e| {
             // Connect to the camera at every non-delta vertex
             if e.vertex.bsdf.has_smooth() {
-                if let Some((pix, c)) = connect_to_camera(world, e.vertex, e.beta, &mut rays) {
+                if let Some((pix, c)) = connect_to_camera(world, e.vertex, e.beta, false, &mut rays)
+                {
                     film.splat(pix.x, pix.y, c);
                 }
             }
@@ -393,7 +395,8 @@ fn transfer(
     if landing.depth >= s.max_depth.unwrap_or(u32::MAX) {
         return rays;
     }
-    if let Some((pix, c)) = connect_to_camera(world, &landing.vertex, landing.phi, &mut rays) {
+    if let Some((pix, c)) = connect_to_camera(world, &landing.vertex, landing.phi, false, &mut rays)
+    {
         film.splat(pix.x, pix.y, c);
     }
     chain.last = Some(landing);

@@ -24,6 +24,26 @@
 //! pass drops every path whose x₁ scatters through a non-delta lobe and never
 //! adds emission at x₁.
 //!
+//! **Glossy first vertices** (`CameraPass::new` with `glossy`, used by
+//! `plb --variant guided`). A light path reaches the camera through a
+//! glossy lobe at x₁ only when its last segment happens to fall inside the
+//! lobe, so glossy surfaces seen by the camera are noisy in every
+//! light-based method, while a camera-side BSDF sample at x₁ finds the lobe
+//! at once. Both strategies can make every path whose x₁ scatters through a
+//! glossy BSDF's non-delta lobes, so they are combined by multiple
+//! importance sampling: the camera pass weights its non-delta sample by
+//! w_C and the light-based connection weights its splat by 1 − w_C
+//! ([`camera_share`]). w_C is a function of the path alone (the BSDF at x₁,
+//! the direction to the eye and the direction to x₂), computed identically
+//! by both sides, so the two weights sum to one on every such path: nothing
+//! is counted twice and nothing is lost, whatever the weight. It is the
+//! balance heuristic (power 2) between the BSDF's sampling density at x₁,
+//! p, and a constant κ standing for the light side's density of arrivals:
+//! w_C = p² / (p² + κ²). Where the lobe is sharp (p ≫ κ) the camera side
+//! takes the path; over a diffuse base (p ≤ 1/π) the light side keeps most
+//! of it. BSDFs without a glossy lobe ([`Bsdf::has_glossy`]) stay entirely
+//! with the light side.
+//!
 //! Budget. Scenes with neither delta lobes nor an environment need no camera
 //! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass
 //! ([`CameraPass::prepare`], run by the methods' `prepare`, so inside the
@@ -38,8 +58,10 @@
 use glam::DVec3;
 use rayon::prelude::*;
 
+use glam::Vec3;
+
 use super::{radiance_from, DepthLimits};
-use crate::bsdf::Mode;
+use crate::bsdf::{Bsdf, Mode};
 use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
@@ -52,10 +74,37 @@ const UNMARKED_PROB: f32 = 1.0 / 16.0;
 const PRE_PASS_SIDE: usize = 4;
 /// Depth from which Russian roulette may stop a camera-pass path.
 const RR_DEPTH: u32 = 3;
+/// κ of [`camera_share`], per steradian: the BSDF density at which the
+/// camera side and the light side share a glossy path equally.
+const KAPPA: f32 = 1.0;
+
+/// The camera side's MIS weight w_C = p² / (p² + κ²) of a path whose first
+/// camera vertex x₁ has BSDF `bsdf` and scatters from `wo` (local, toward
+/// the eye) to `wi` (local, toward x₂) through a non-delta lobe; p is the
+/// BSDF's sampling density of `wi` given `wo`. Zero for BSDFs without a
+/// glossy lobe. The light-based method weights its camera connection by
+/// 1 − w_C (see the module docs).
+#[inline]
+pub fn camera_share(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
+    if !bsdf.has_glossy() {
+        return 0.0;
+    }
+    let p = bsdf.pdf(wo, wi);
+    if p.is_nan() || p <= 0.0 {
+        return 0.0;
+    }
+    let p2 = p * p;
+    if p2.is_infinite() {
+        return 1.0;
+    }
+    p2 / (p2 + KAPPA * KAPPA)
+}
 
 /// The camera pass's state: the pixel mask and the per-pixel sums.
 pub struct CameraPass {
     active: bool,
+    /// Glossy first vertices too, with MIS (see the module docs).
+    glossy: bool,
     /// The pre-pass has run (always true when inactive).
     prepared: bool,
     marked: Vec<bool>,
@@ -69,17 +118,26 @@ impl CameraPass {
     /// The camera pass of a light-based method, not yet prepared: it traces
     /// nothing until [`CameraPass::prepare`]. `enabled = false`
     /// (`--camera-pass off`) gives the raw light-based method; so does a
-    /// scene with neither delta lobes nor an environment.
-    pub fn new(world: &World, enabled: bool, seed: u64, max_depth: Option<u32>) -> Self {
+    /// scene with neither delta lobes nor an environment (nor, with
+    /// `glossy`, glossy lobes). With `glossy` the method's camera
+    /// connections must be weighted by 1 − [`camera_share`]
+    /// ([`CameraPass::splits_glossy`]).
+    pub fn new(
+        world: &World,
+        enabled: bool,
+        glossy: bool,
+        seed: u64,
+        max_depth: Option<u32>,
+    ) -> Self {
         let needed = world.lights.env.is_some()
-            || world
-                .scene
-                .materials
-                .iter()
-                .any(|m| m.bsdf(glam::Vec2::ZERO).has_delta());
+            || world.scene.materials.iter().any(|m| {
+                let b = m.bsdf(glam::Vec2::ZERO);
+                b.has_delta() || (glossy && b.has_glossy())
+            });
         let active = enabled && needed;
         CameraPass {
             active,
+            glossy: glossy && enabled,
             prepared: !active,
             marked: Vec::new(),
             sum: Vec::new(),
@@ -102,6 +160,7 @@ impl CameraPass {
         self.prepared = true;
         let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let side = PRE_PASS_SIDE;
+        let glossy = self.glossy;
         let marks: Vec<(bool, u64)> = (0..w * h)
             .into_par_iter()
             .map(|i| {
@@ -116,7 +175,8 @@ impl CameraPass {
                         None => world.lights.env.is_some(),
                         Some(hit) => {
                             let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
-                            world.scene.material_of(&sp).bsdf(sp.uv).has_delta()
+                            let b = world.scene.material_of(&sp).bsdf(sp.uv);
+                            b.has_delta() || (glossy && b.has_glossy())
                         }
                     }
                 });
@@ -133,6 +193,12 @@ impl CameraPass {
         self.active
     }
 
+    /// True when glossy first vertices are shared with the camera pass, so
+    /// that the method's camera connections must carry 1 − [`camera_share`].
+    pub fn splits_glossy(&self) -> bool {
+        self.glossy
+    }
+
     /// One pass; returns the rays traced. Runs the pre-pass first if the
     /// caller has not (its rays then count in this pass).
     pub fn step(&mut self, world: &World, pass: u64) -> u64 {
@@ -142,7 +208,7 @@ impl CameraPass {
         let pre = self.prepare(world);
         self.passes += 1;
         let w = world.camera.width as usize;
-        let (seed, limits) = (self.seed, &self.limits);
+        let (seed, limits, glossy) = (self.seed, &self.limits, self.glossy);
         let marked = &self.marked;
         let rays: u64 = self
             .sum
@@ -160,7 +226,7 @@ impl CameraPass {
                     } else {
                         continue;
                     };
-                    let (l, r) = sample_pixel(world, limits, x, y, &mut rng);
+                    let (l, r) = sample_pixel(world, limits, glossy, x, y, &mut rng);
                     rays += r;
                     let v = l * weight;
                     if v.is_finite() {
@@ -186,10 +252,13 @@ impl CameraPass {
 }
 
 /// The camera-pass estimate for one sample of pixel (x, y): the environment
-/// seen directly, or what arrives through a delta lobe at the first hit.
+/// seen directly, or what arrives through a delta lobe at the first hit
+/// (and, with `glossy`, through a glossy BSDF's other lobes, weighted by
+/// [`camera_share`]).
 fn sample_pixel(
     world: &World,
     limits: &DepthLimits,
+    glossy: bool,
     x: usize,
     y: usize,
     rng: &mut Pcg32,
@@ -200,23 +269,35 @@ fn sample_pixel(
         return (world.lights.le_env(ray.d), 1);
     };
     let v = world.vertex(&ray, &hit);
-    if !v.bsdf.has_delta() {
+    let glossy = glossy && v.bsdf.has_glossy();
+    if !v.bsdf.has_delta() && !glossy {
         return (Rgb::ZERO, 1);
     }
     let uc = rng.next_f32();
     let u = rng.next_2d();
-    // Keep only delta lobes: the non-delta part belongs to the light method
+    // Keep delta lobes, and glossy ones with their MIS weight: the rest
+    // belongs to the light method
     let Some(s) = v.bsdf.sample(v.wo_local, uc, u, Mode::Radiance) else {
         return (Rgb::ZERO, 1);
     };
-    if !s.delta || s.pdf <= 0.0 {
+    if s.pdf <= 0.0 {
+        return (Rgb::ZERO, 1);
+    }
+    let share = if s.delta {
+        1.0
+    } else if glossy {
+        camera_share(&v.bsdf, v.wo_local, s.wi)
+    } else {
+        0.0
+    };
+    if share <= 0.0 {
         return (Rgb::ZERO, 1);
     }
     let wi = v.frame.to_world(s.wi);
     if wi.dot(v.ng) * s.wi.z <= 0.0 {
         return (Rgb::ZERO, 1);
     }
-    let beta = s.f * (s.wi.z.abs() / s.pdf);
+    let beta = s.f * (s.wi.z.abs() / s.pdf * share);
     let next = Ray::new(offset_point(v.sp.p, v.sp.ng, wi), wi);
     let (l, r) = radiance_from(world, limits, next, rng, 2);
     (beta * l, 1 + r)

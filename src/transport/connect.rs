@@ -5,6 +5,7 @@
 
 use glam::{Vec2, Vec3};
 
+use super::camera_pass::camera_share;
 use super::Vertex;
 use crate::bsdf::{shading_normal_correction_over, Mode};
 use crate::film::Film;
@@ -17,12 +18,15 @@ use crate::world::World;
 /// Φ · f(wo → wc) · |wc·ns| · g(x) with the shading-normal correction
 /// |wo·ns||wc·ng| / (|wo·ng||wc·ns|) (Veach 1997, eq. 5.17). Adds to `rays`
 /// the visibility ray it traces (none when the point is off the film or the
-/// BSDF gives nothing, as for a purely delta BSDF).
+/// BSDF gives nothing, as for a purely delta BSDF). With `glossy_split`
+/// (the glossy camera pass is on) the splat carries the light side's MIS
+/// weight 1 − [`camera_share`].
 #[inline]
 pub fn connect_to_camera(
     world: &World,
     v: &Vertex,
     phi: Rgb,
+    glossy_split: bool,
     rays: &mut u64,
 ) -> Option<(Vec2, Rgb)> {
     let cam = world.camera.position();
@@ -41,7 +45,11 @@ pub fn connect_to_camera(
         return None;
     }
     // f |wc·ns| times the correction: f |wo·ns||wc·ng| / |wo·ng|
-    let k = shading_normal_correction_over(v.wo, wc, v.ng, v.frame.n, 1.0);
+    let mut k = shading_normal_correction_over(v.wo, wc, v.ng, v.frame.n, 1.0);
+    if glossy_split {
+        // The camera side samples x₁ → x₂ from wi (toward the eye)
+        k *= 1.0 - camera_share(&v.bsdf, wi, v.wo_local);
+    }
     let c = phi * f * (k * g);
     if !c.is_finite() || c == Rgb::ZERO {
         return None;

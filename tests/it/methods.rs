@@ -73,7 +73,26 @@ fn rows(name: &str) -> Vec<Row> {
             },
             Row {
                 config: common::plb(plb::Settings {
-                    importance: plb::Importance::Pooled,
+                    variant: plb::Variant::Paper,
+                    ..Default::default()
+                }),
+                passes: 1024,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
+            Row {
+                config: common::plb(plb::Settings {
+                    variant: plb::Variant::Paper,
+                    measure: Some(plb::Measure::Birth),
+                    ..Default::default()
+                }),
+                passes: 1024,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
+            Row {
+                config: common::plb(plb::Settings {
+                    variant: plb::Variant::Pooled,
                     ..Default::default()
                 }),
                 passes: 1024,

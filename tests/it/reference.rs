@@ -83,7 +83,22 @@ fn row(name: &str) -> Row {
                 64,
             ),
         ]),
-        "plb" => Row::Unbiased(vec![(common::plb(plb::Settings::default()), 64)]),
+        "plb" => Row::Unbiased(
+            [
+                plb::Variant::Guided,
+                plb::Variant::Paper,
+                plb::Variant::Pooled,
+            ]
+            .into_iter()
+            .map(|variant| {
+                let s = plb::Settings {
+                    variant,
+                    ..Default::default()
+                };
+                (common::plb(s), 64)
+            })
+            .collect(),
+        ),
         "bundle" => Row::Elsewhere("tests/bundle.rs (patch and map discretisation)"),
         "density" => Row::Elsewhere("tests/density.rs (the kernel's blur)"),
         other => panic!("method '{other}' has no row in tests/reference.rs"),

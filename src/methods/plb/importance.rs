@@ -31,6 +31,11 @@ pub(super) fn compute_importance(hits: &mut [Hit], lambda: f64) {
 
 /// Cells per axis of the pooled-importance grid.
 pub(super) const GRID_RES: usize = 16;
+/// Slots of the grid's statistics: the cells, then one for the rays the
+/// lights emit (`--variant guided` chooses the lights by it).
+pub(super) const SLOTS: usize = GRID_RES * GRID_RES * GRID_RES + 1;
+/// The slot of the lights' emitted rays.
+pub(super) const LIGHT_SLOT: u32 = (SLOTS - 1) as u32;
 /// Pseudo-count of the grid's prior: a cell's weight is shrunk toward the
 /// mean over all cells as if it had this many samples at the mean.
 const GRID_PRIOR: f64 = 4.0;
@@ -110,12 +115,11 @@ impl CellStats {
 impl ImportanceGrid {
     pub(super) fn new(lo: glam::Vec3, hi: glam::Vec3) -> Self {
         let extent = (hi - lo).max(glam::Vec3::splat(1e-6));
-        let cells = GRID_RES * GRID_RES * GRID_RES;
         ImportanceGrid {
             lo,
             scale: glam::Vec3::splat(GRID_RES as f32) / extent,
-            all: CellStats::new(cells),
-            fresh: CellStats::new(cells),
+            all: CellStats::new(SLOTS),
+            fresh: CellStats::new(SLOTS),
         }
     }
 
@@ -138,16 +142,26 @@ impl ImportanceGrid {
         self.fresh.add(cell as usize, r);
     }
 
-    /// W(cell) + f r̄, always positive.
-    pub(super) fn weight(&self, cell: u32) -> f64 {
+    /// The mean r over all slots (1 before anything was recorded).
+    fn mean(&self) -> f64 {
         let a = &self.all;
-        let mean = if a.total > 0.0 {
+        if a.total > 0.0 {
             a.total / a.count as f64
         } else {
             1.0
-        };
+        }
+    }
+
+    /// W(cell): the mean r of the cell's rays, shrunk toward the mean.
+    pub(super) fn value(&self, cell: u32) -> f64 {
+        let a = &self.all;
         let (sum, n) = (a.sum[cell as usize], a.n[cell as usize] as f64);
-        (sum + GRID_PRIOR * mean) / (n + GRID_PRIOR) + GRID_FLOOR * mean
+        (sum + GRID_PRIOR * self.mean()) / (n + GRID_PRIOR)
+    }
+
+    /// W(cell) + f r̄, always positive.
+    pub(super) fn weight(&self, cell: u32) -> f64 {
+        self.value(cell) + GRID_FLOOR * self.mean()
     }
 }
 

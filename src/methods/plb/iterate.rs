@@ -5,17 +5,18 @@
 
 use glam::Vec2;
 
-use super::importance::ImportanceGrid;
+use std::sync::Arc;
+
+use super::guide::{emit_guided, scatter_guided, DirGuide, DirRecord};
+use super::importance::{ImportanceGrid, LIGHT_SLOT};
 use super::purge::end_phase;
-use super::Settings;
+use super::{Measure, Settings, Variant};
 use crate::film::Film;
 use crate::geometry::{offset_point, Ray};
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb, SurfacePoint};
-use crate::transport::{
-    connect_emission, connect_to_camera, follow_delta_chain, scatter, Landing, Vertex,
-};
+use crate::transport::{connect_emission, connect_to_camera, follow_delta_chain, Landing, Vertex};
 
 /// No parent: the hit was shot from a light.
 pub(super) const NO_PARENT: u32 = u32::MAX;
@@ -72,18 +73,33 @@ pub(super) struct Lane {
     pub(super) counted: u64,
     /// Steps taken (the lights' image is averaged over them).
     pub(super) steps: u64,
+    /// Steps whose new hits were measured at birth (`--measure birth`):
+    /// the hits' image is averaged over them.
+    pub(super) born: u64,
     /// The lights' image, Σ over steps of the emission-vertex splats.
     pub(super) le_film: Film,
     /// Σ over the counted phases of the hits' image.
     pub(super) hit_film: Film,
-    /// The pooled-importance grid (`--variant pooled` only).
+    /// The pooled-importance grid (`--variant pooled` and `guided`).
     pub(super) grid: Option<ImportanceGrid>,
+    /// This lane's directional records since the last merge (guided only).
+    pub(super) dirs: Option<Vec<DirRecord>>,
+    /// The directional densities of this pass (guided, after the first).
+    pub(super) guide: Option<Arc<DirGuide>>,
 }
 
 impl Lane {
-    pub(super) fn new(w: u32, h: u32, grid: Option<ImportanceGrid>) -> Self {
+    pub(super) fn new(
+        w: u32,
+        h: u32,
+        grid: Option<ImportanceGrid>,
+        dirs: Option<Vec<DirRecord>>,
+    ) -> Self {
         Lane {
             grid,
+            dirs,
+            guide: None,
+            born: 0,
             hits: Vec::new(),
             cum: Vec::new(),
             reflected: 0.0,
@@ -122,27 +138,85 @@ impl Lane {
     }
 }
 
+/// The switches of one plb run, read once from its settings.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Form {
+    /// `--variant guided`: landing values that count what the landing
+    /// point passes on, guided directions, lights chosen by importance.
+    pub(super) guided: bool,
+    /// Hits measured at birth (else at every phase end).
+    pub(super) birth: bool,
+    /// Camera connections carry the light side's MIS weight of the glossy
+    /// camera pass (guided with the camera pass on).
+    pub(super) glossy_split: bool,
+    /// The longest path in segments (u32::MAX: unlimited).
+    pub(super) max_depth: u32,
+}
+
+impl Form {
+    pub(super) fn of(s: &Settings) -> Self {
+        Form {
+            guided: s.variant == Variant::Guided,
+            birth: s.measure.unwrap_or(s.variant.default_measure()) == Measure::Birth,
+            glossy_split: s.variant == Variant::Guided && s.camera_pass,
+            max_depth: s.max_depth.unwrap_or(u32::MAX),
+        }
+    }
+}
+
+/// The lights' least share of the steps under `--variant guided`, as a
+/// fraction of their share by power: importance may move the work to the
+/// hits, but light keeps entering the population.
+const LIGHT_FLOOR: f64 = 0.1;
+
+/// Where a spawned or emitted ray came from, for the learnt statistics.
+struct Source {
+    /// Slot of the importance grid (the parent's cell, or the lights').
+    slot: u32,
+    /// Cell and direction for the directional histograms (guided only).
+    dir: Option<(u32, glam::Vec3)>,
+}
+
 /// One step of `Iterate` (§3), ending the phase when it is full. Returns the
 /// rays traced.
 pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64 {
-    let max_depth = s.max_depth.unwrap_or(u32::MAX);
+    let form = Form::of(s);
     let mut rays = 0;
     let m = lane.m + 1;
     lane.m = m;
     lane.steps += 1;
+    let counting = lane.phases >= s.discard;
+    if form.birth && counting {
+        lane.born += 1;
+    }
 
     // Select the lights or hit i: the lights by their share of the power of
-    // L_{m−1} (§3), the hits in proportion to their importance (§3.1)
+    // L_{m−1} (§3), the hits in proportion to their importance (§3.1).
+    // Guided: the lights by their share of the importance, Φ_e W_e against
+    // Σ s_i (W_e the value of the lights' own rays), floored
     let phi_e = world.lights.total_power();
     let w_hits = lane.cum.last().copied().unwrap_or(0.0);
     let refl = lane.sigma * lane.reflected;
     let p_light = if w_hits > 0.0 && refl > 0.0 {
-        phi_e / (phi_e + refl)
+        let by_power = phi_e / (phi_e + refl);
+        match lane.grid.as_ref().filter(|_| form.guided) {
+            Some(g) => {
+                let le = phi_e * g.value(LIGHT_SLOT);
+                let by_importance = le / (le + lane.sigma * w_hits);
+                if by_importance.is_finite() {
+                    by_importance.max(LIGHT_FLOOR * by_power)
+                } else {
+                    by_power
+                }
+            }
+            None => by_power,
+        }
     } else {
         1.0
     };
     let u = rng.next_f64();
     let mut shot: Option<(Ray, Rgb, u32, u32)> = None; // ray, Φ, parent, depth
+    let mut source: Option<Source> = None;
     if u < p_light {
         // Sample the light source: Φ = Le cos θ / p_e / (1 − Σs_i)
         let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
@@ -154,13 +228,39 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
             if !es.is_env {
                 rays += connect_emission(world, es.p, es.n, es.phi_pos * inv_p, &mut lane.le_film);
             }
-            let ray = es.ray();
-            shot = Some((ray, es.phi * inv_p, NO_PARENT, 1));
+            match (form.guided, lane.grid.as_ref(), lane.guide.as_deref()) {
+                (true, Some(grid), Some(guide)) if !es.is_env => {
+                    // A guided direction: Φ = Le cos θ / (p_pos p(ω))
+                    let cell = grid.cell(es.p);
+                    let (d, k) = emit_guided(es.n, es.d, guide, cell, rng);
+                    source = Some(Source {
+                        slot: LIGHT_SLOT,
+                        dir: Some((cell, d)),
+                    });
+                    if k > 0.0 {
+                        let ray = Ray::new(offset_point(es.p, es.n, d), d);
+                        shot = Some((ray, es.phi_pos * (k * inv_p), NO_PARENT, 1));
+                    }
+                }
+                _ => {
+                    if form.guided {
+                        source = Some(Source {
+                            slot: LIGHT_SLOT,
+                            dir: lane
+                                .grid
+                                .as_ref()
+                                .filter(|_| !es.is_env)
+                                .map(|g| (g.cell(es.p), es.d)),
+                        });
+                    }
+                    shot = Some((es.ray(), es.phi * inv_p, NO_PARENT, 1));
+                }
+            }
         }
     } else {
         // Select hit i with s_i = (1 − P(light)) w_i / Σw, then sample a
-        // direction from its cosine-weighted BSDF:
-        // Φ = Φ_i f cos θ / p / s_i
+        // direction from its cosine-weighted BSDF (guided: from the
+        // mixture of `guide`): Φ = Φ_i f cos θ / p / s_i
         let t = rng.next_f64() * w_hits;
         let i = lane
             .cum
@@ -170,10 +270,19 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
         let s_i = (1.0 - p_light) * h.s / w_hits;
         if s_i > 0.0 {
             let v = Vertex::new(world, h.sp, h.wo);
-            if let Some((wi, w)) = scatter(&v, rng) {
-                let phi = h.phi * w * (lane.sigma / s_i) as f32;
-                let ray = Ray::new(offset_point(h.sp.p, h.sp.ng, wi), wi);
-                shot = Some((ray, phi, i as u32, h.depth + 1));
+            let guide = lane.guide.as_deref().filter(|_| form.guided);
+            if let Some(g) = scatter_guided(&v, guide, h.cell, rng) {
+                if lane.grid.is_some() {
+                    source = Some(Source {
+                        slot: h.cell,
+                        dir: form.guided.then_some((h.cell, g.wi)),
+                    });
+                }
+                if g.w != Rgb::ZERO {
+                    let phi = h.phi * g.w * (lane.sigma / s_i) as f32;
+                    let ray = Ray::new(offset_point(h.sp.p, h.sp.ng, g.wi), g.wi);
+                    shot = Some((ray, phi, i as u32, h.depth + 1));
+                }
             }
         }
     }
@@ -189,35 +298,59 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
     }
 
     // Trace, and append the new hit with power Φ/m
+    let before = lane.hits.len();
     if let Some((ray, phi, parent, depth)) = shot {
         let stored = phi * (1.0 / (m as f64 * lane.sigma)) as f32;
-        let before = lane.hits.len();
-        rays += trace(world, ray, stored, parent, depth, max_depth, rng, lane);
-        // Pooled importance: the image impact per unit power of where the
-        // ray from the parent's cell landed (0 if it added no visible hit)
-        if let Some(g) = lane.grid.as_mut().filter(|_| parent != NO_PARENT) {
-            let r = lane.hits.get(before).map_or(0.0, |c| {
-                let l = luminance(c.phi) as f64;
-                if l > 0.0 {
-                    luminance(c.contrib).max(0.0) as f64 / l
-                } else {
-                    0.0
-                }
-            });
-            g.record(lane.hits[parent as usize].cell, r);
+        // At birth the hit's power is Φ = stored · m σ
+        let birth = (form.birth && counting).then_some((m as f64 * lane.sigma) as f32);
+        rays += trace(world, ray, stored, parent, depth, form, birth, rng, lane);
+    }
+    // What the ray brought back, per unit power, for the learnt statistics
+    // (0 when it escaped, landed hidden, or was never traced)
+    if let Some(src) = source {
+        let r = lane
+            .hits
+            .get(before)
+            .map_or(0.0, |c| landing_value(c, lane.grid.as_ref(), form.guided));
+        // Pooled records only the hits' rays; guided also the lights'
+        if src.slot != LIGHT_SLOT || form.guided {
+            if let Some(g) = lane.grid.as_mut() {
+                g.record(src.slot, r);
+            }
+        }
+        if let (Some((cell, d)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
+            dirs.extend(DirRecord::new(cell, d, r));
         }
     }
 
     lane.in_phase += 1;
     if lane.in_phase >= s.phase_len {
-        end_phase(s, rng, lane);
+        end_phase(s, form, rng, lane);
     }
     rays
 }
 
+/// The value r of a landing hit `c`, per unit of the power that reached it:
+/// the image impact of its camera connection (`--variant pooled`), plus,
+/// guided, what its own spawned rays are expected to bring, its output
+/// luminance times its cell's value W (so that a landing hidden from the
+/// camera, behind the baffle say, is worth what it passes on).
+fn landing_value(c: &Hit, grid: Option<&ImportanceGrid>, guided: bool) -> f64 {
+    let l = luminance(c.phi) as f64;
+    if l <= 0.0 {
+        return 0.0;
+    }
+    let mut v = luminance(c.contrib).max(0.0) as f64;
+    if let Some(g) = grid.filter(|_| guided && c.spawn) {
+        v += c.out_lum as f64 * g.value(c.cell);
+    }
+    v / l
+}
+
 /// Sends stored power `phi` along `ray`, through delta chains
 /// ([`follow_delta_chain`]), and appends the first non-delta hit with its
-/// camera connection. Returns the rays.
+/// camera connection; `birth` (the factor from stored to actual power) when
+/// the hit is measured at birth. Returns the rays.
 #[allow(clippy::too_many_arguments)]
 fn trace(
     world: &World,
@@ -225,10 +358,12 @@ fn trace(
     phi: Rgb,
     parent: u32,
     depth: u32,
-    max_depth: u32,
+    form: Form,
+    birth: Option<f32>,
     rng: &mut Pcg32,
     lane: &mut Lane,
 ) -> u64 {
+    let max_depth = form.max_depth;
     let mut rays = 0;
     let Some(Landing {
         vertex: v,
@@ -243,7 +378,7 @@ fn trace(
     let mut contrib = Rgb::ZERO;
     let mut pix = Vec2::ZERO;
     if depth < max_depth && v.bsdf.has_smooth() {
-        if let Some((p, c)) = connect_to_camera(world, &v, phi, &mut rays) {
+        if let Some((p, c)) = connect_to_camera(world, &v, phi, form.glossy_split, &mut rays) {
             contrib = c;
             pix = p;
         }
@@ -257,6 +392,11 @@ fn trace(
     let spawn = out_lum > 0.0 && depth.saturating_add(1) < max_depth && out_lum.is_finite();
     if !(phi.is_finite() && out_lum.is_finite()) {
         return rays;
+    }
+    if let Some(k) = birth {
+        if contrib != Rgb::ZERO {
+            lane.hit_film.splat(pix.x, pix.y, contrib * k);
+        }
     }
     let (cell, s) = match &lane.grid {
         Some(g) => {

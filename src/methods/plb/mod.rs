@@ -54,17 +54,41 @@
 //!   point, as in `light --variant iteration`
 //!   ([`crate::transport::follow_delta_chain`]).
 //!
-//! `--variant pooled` (our extension, not in the paper; the default is the
-//! paper's `ComputeImportance`): eq. (9) has no visibility in it, and
-//! eq. (8) judges a hit by its own one or two children, so on a scene lit
-//! through a gap the paper's importance barely prefers the hits that matter
-//! (BENCHMARKS.md, plb diagnosis). The pooled rule keeps, per cell of a 16³
-//! grid over the scene, the mean image impact per unit power of every ray
-//! ever spawned from that cell (`ImportanceGrid`), and sets a hit's
-//! importance to its output luminance times that mean (shrunk toward the
-//! global mean, with a floor so that every hit can still spawn). The
-//! iteration, power weights, phases and purge are unchanged, so it is
-//! unbiased for the same reason; only where the next ray starts changes.
+//! Forms (`--variant`). `paper` is the method exactly as published (the
+//! choices above are where the paper is silent). Two forms are ours:
+//!
+//! - `pooled`: eq. (9) has no visibility in it, and eq. (8) judges a hit
+//!   by its own one or two children, so on a scene lit through a gap the
+//!   paper's importance barely prefers the hits that matter (BENCHMARKS.md,
+//!   plb diagnosis). The pooled rule keeps, per cell of a 16³ grid over the
+//!   scene, the mean image impact per unit power of every ray ever spawned
+//!   from that cell (`ImportanceGrid`), and sets a hit's importance to its
+//!   output luminance times that mean (shrunk toward the global mean, with
+//!   a floor so that every hit can still spawn). The iteration, power
+//!   weights, phases and purge are unchanged, so it is unbiased for the
+//!   same reason; only where the next ray starts changes.
+//! - `guided` (the default) builds on `pooled`:
+//!   - a ray's value counts what its landing point passes on, its output
+//!     luminance times its own cell's value, not only what it shows the
+//!     camera (`iterate::landing_value`), so a landing hidden behind a
+//!     screen is worth its onward light;
+//!   - spawned rays, and the rays the lights emit, are drawn from a
+//!     mixture of the BSDF (the emitter's cosine) and a learnt directional
+//!     histogram per cell, with the mixture pdf in the weight (`guide`);
+//!   - the lights are chosen by importance (their power times the value
+//!     of their rays) against the hits, floored at a tenth of their share
+//!     by power;
+//!   - each hit is measured once, at birth (`--measure birth`, also
+//!     available to the other forms): the image averages over the steps the
+//!     camera contribution of each new hit at the power Φ of the ray that
+//!     made it. Each step's new hit has expected power T(Le + L_{m−1}), so
+//!     this has the phase images' expectation without the purge's noise;
+//!   - the camera pass takes glossy first vertices too, sharing them with
+//!     the light paths by MIS ([`crate::transport::camera_pass`]).
+//!
+//!   Every change moves where rays go or when they are counted, never the
+//!   expectation (tests/it/plb.rs checks each form against `path`, light
+//!   or the Mitsuba reference).
 //!
 //! Parallelism: a fixed number of lanes (8), each with its own population,
 //! films and random streams keyed by (seed, pass, lane); lanes are merged in
@@ -72,7 +96,7 @@
 //!
 //! ```text
 //! kalos render scenes/two-rooms/scene.xml --method plb --time 30 -o p.exr
-//! kalos render scenes/two-rooms/scene.xml --method plb --lambda 1 --phase-len 400 --population 100 --rays 30M -o p.exr
+//! kalos render scenes/two-rooms/scene.xml --method plb --variant paper --lambda 1 --phase-len 400 --population 100 --rays 30M -o p.exr
 //! ```
 
 use rayon::prelude::*;
@@ -82,12 +106,16 @@ use crate::film::{Film, Image};
 use crate::sampling::Pcg32;
 use crate::transport::camera_pass::CameraPass;
 
+mod guide;
 mod importance;
 mod iterate;
 mod purge;
 
-use importance::{share_grids, CellStats, ImportanceGrid, GRID_RES};
-use iterate::{iterate, Lane};
+use std::sync::Arc;
+
+use guide::{DirGuide, DirStats};
+use importance::{share_grids, CellStats, ImportanceGrid, SLOTS};
+use iterate::{iterate, Form, Lane};
 
 /// Settings of progressive light path building.
 #[derive(Clone, Debug, PartialEq)]
@@ -125,32 +153,70 @@ pub struct Settings {
     /// on, or off for the raw method.
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     pub camera_pass: bool,
-    /// How a hit's importance is found: the paper's rule (§3.1, eqs. 8–9),
-    /// or pooled over a grid of measured image impact (our extension).
+    /// Which form of the method: the paper's (§3, eqs. 8–9, measured at
+    /// every phase end), `pooled` importance, or kalos's `guided` form
+    /// (pooled importance learnt through the path, directional guiding of
+    /// spawned and emitted rays, each hit measured once, the glossy camera
+    /// pass).
     #[cfg_attr(
         feature = "cli",
-        arg(
-            long = "variant",
-            value_name = "VARIANT",
-            value_enum,
-            default_value = "paper"
-        )
+        arg(long, value_name = "VARIANT", value_enum, default_value = "guided")
     )]
-    pub importance: Importance,
+    pub variant: Variant,
+    /// When a hit's camera contribution enters the image: at every phase
+    /// end with its current power (the paper's phase images, §5), or once,
+    /// at birth. Unset: the variant's own (`paper` and `pooled`: phase,
+    /// `guided`: birth).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "WHEN", value_enum))]
+    pub measure: Option<Measure>,
 }
 
-/// The hit-selection rule.
+/// The form of the method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-pub enum Importance {
+pub enum Variant {
     /// §3.1 as the paper gives it: potential impact (eq. (9)) plus λ times
-    /// the children's measured impact (eq. (8)).
+    /// the children's measured impact (eq. (8)); rays spawned by BSDF
+    /// sampling, the lights chosen by power.
     Paper,
-    /// Not in the paper (`--variant pooled`): the output luminance times the
-    /// measured image impact per unit power of the rays spawned from the
-    /// same grid cell, pooled over all hits ever spawned there, with a
-    /// defensive floor (`importance::ImportanceGrid`).
+    /// Not in the paper: the output luminance times the measured image
+    /// impact per unit power of the rays spawned from the same grid cell,
+    /// pooled over all hits ever spawned there, with a defensive floor
+    /// (`importance::ImportanceGrid`). Otherwise the paper's method.
     Pooled,
+    /// kalos's form (the default), not in the paper: pooled importance
+    /// that counts what a ray's landing point passes on (not only what it
+    /// shows the camera directly), spawned and emitted rays drawn from a
+    /// mixture of the BSDF (or the emitter's cosine) and a learnt
+    /// directional distribution per grid cell (`guide`), the lights chosen
+    /// by importance, hits measured at birth, and the camera pass extended
+    /// to glossy surfaces with MIS.
+    Guided,
+}
+
+/// When a hit's camera contribution is measured.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Measure {
+    /// At every phase end, at the hit's current power (§5): the phase image
+    /// M L_m; the final image averages the phase images.
+    Phase,
+    /// Once, when the hit is born, at the power of the ray that made it
+    /// (Φ, not Φ/m); the final image averages over the steps. Same
+    /// expectation as the phase images (each step's new hit has expected
+    /// power T(Le + L_{m−1}), the same operator the phase images average),
+    /// without the purge's noise in the measurement.
+    Birth,
+}
+
+impl Variant {
+    /// The measurement this variant uses unless `--measure` says otherwise.
+    pub fn default_measure(self) -> Measure {
+        match self {
+            Variant::Paper | Variant::Pooled => Measure::Phase,
+            Variant::Guided => Measure::Birth,
+        }
+    }
 }
 
 impl Default for Settings {
@@ -165,7 +231,8 @@ impl Default for Settings {
             steps_per_pass: 0,
             discard: 0,
             camera_pass: true,
-            importance: Importance::Paper,
+            variant: Variant::Guided,
+            measure: None,
         }
     }
 }
@@ -195,8 +262,11 @@ impl Settings {
 /// The progressive state of light path building.
 pub struct Plb {
     settings: Settings,
-    /// The merged pooled-importance grid (`--variant pooled` only).
+    /// The merged pooled-importance grid (`--variant pooled`, `guided`).
     shared: Option<CellStats>,
+    /// The merged directional records and the densities built from them
+    /// (`--variant guided`).
+    shared_dirs: Option<(DirStats, Arc<DirGuide>)>,
     lanes: Vec<Lane>,
     pixels: u64,
     camera_pass: CameraPass,
@@ -207,24 +277,27 @@ impl Plb {
     pub fn new(world: &World, settings: Settings) -> Self {
         let (w, h) = (world.camera.width, world.camera.height);
         let n = settings.lanes.max(1);
+        let pooled = settings.variant != Variant::Paper;
+        let guided = settings.variant == Variant::Guided;
         Plb {
             camera_pass: CameraPass::new(
                 world,
                 settings.camera_pass,
+                guided,
                 settings.seed,
                 settings.max_depth,
             ),
             lanes: (0..n)
                 .map(|_| {
-                    let grid = (settings.importance == Importance::Pooled).then(|| {
+                    let grid = pooled.then(|| {
                         let (lo, hi) = world.scene.bounds();
                         ImportanceGrid::new(lo, hi)
                     });
-                    Lane::new(w, h, grid)
+                    Lane::new(w, h, grid, guided.then(Vec::new))
                 })
                 .collect(),
-            shared: (settings.importance == Importance::Pooled)
-                .then(|| CellStats::new(GRID_RES * GRID_RES * GRID_RES)),
+            shared: pooled.then(|| CellStats::new(SLOTS)),
+            shared_dirs: guided.then(|| (DirStats::new(SLOTS), Arc::new(DirGuide::new(SLOTS)))),
             settings,
             pixels: w as u64 * h as u64,
         }
@@ -265,7 +338,12 @@ impl Plb {
         }
         let inv = |n: u64| if n == 0 { 0.0 } else { 1.0 / n as f64 };
         let a = le.to_image(inv(steps));
-        let b = hits.to_image(inv(counted));
+        let born: u64 = self.lanes.iter().map(|l| l.born).sum();
+        let b = if Form::of(&self.settings).birth {
+            hits.to_image(inv(born))
+        } else {
+            hits.to_image(inv(counted))
+        };
         let mut img = Image {
             width: w,
             height: h,
@@ -274,6 +352,13 @@ impl Plb {
         self.camera_pass.add_to(&mut img);
         img
     }
+}
+
+/// Whether the directional densities are rebuilt after pass `pass`: after
+/// passes 0, 1, 3, 7, … (doubling, while they learn fast) and then every
+/// 32nd, so that merging the lanes' records costs little per pass.
+fn guide_refresh(pass: u64) -> bool {
+    (pass + 1).is_power_of_two() || (pass + 1).is_multiple_of(32)
 }
 
 impl Method for Plb {
@@ -303,6 +388,22 @@ impl Method for Plb {
             .sum::<u64>();
         if let Some(shared) = self.shared.as_mut() {
             share_grids(shared, &mut self.lanes);
+        }
+        if let Some((shared, guide)) = self.shared_dirs.as_mut().filter(|_| guide_refresh(pass)) {
+            // Merge the lanes' directional records in lane order, rebuild
+            // the densities of the cells they touched, and give every lane
+            // the densities built from all records so far
+            for l in &mut self.lanes {
+                l.guide = None;
+                if let Some(d) = l.dirs.as_mut() {
+                    shared.drain_from(d);
+                }
+            }
+            Arc::make_mut(guide).update_touched(shared);
+            shared.untouch();
+            for l in &mut self.lanes {
+                l.guide = Some(guide.clone());
+            }
         }
         let camera_rays = self.camera_pass.step(world, pass);
         StepStats {

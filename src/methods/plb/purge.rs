@@ -1,19 +1,19 @@
 //! The end of a phase (§5) and the random purge of the hit population (§4).
 
 use super::importance::compute_importance;
-use super::iterate::{Hit, Lane, NO_PARENT};
+use super::iterate::{Form, Hit, Lane, NO_PARENT};
 use super::Settings;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
 
-/// The end of a phase (§5): the image estimate, `ComputeImportance`, and the
-/// random purge.
-pub(super) fn end_phase(s: &Settings, rng: &mut Pcg32, lane: &mut Lane) {
+/// The end of a phase (§5): the image estimate (unless the hits are
+/// measured at birth), `ComputeImportance`, and the random purge.
+pub(super) fn end_phase(s: &Settings, form: Form, rng: &mut Pcg32, lane: &mut Lane) {
     lane.in_phase = 0;
     lane.phases += 1;
 
     // The phase image: every hit's camera contribution at its current power
-    if lane.phases > s.discard {
+    if lane.phases > s.discard && !form.birth {
         lane.counted += 1;
         let sigma = lane.sigma as f32;
         for h in &lane.hits {
