@@ -446,3 +446,73 @@ fn shading_normals_vs_path() {
     );
     assert!((m - mp).abs() <= tol, "bundle {m} vs path {mp} ± {tol}");
 }
+
+/// The smooth-conductor stand-in of the transfer is a mirror: for every
+/// outgoing direction wo its albedo ∫ f(wo, wi) cos θ_i dω_i must be the
+/// Fresnel reflectance F(θ_o), as for the Dirac BRDF F δ(wi − r(wo)) / cos θ_i
+/// that it replaces. (The stand-in without the 1/cos θ_i had albedo
+/// F · cos θ_o, half of F at 60°.)
+///
+/// The integral is a deterministic midpoint rule in polar coordinates
+/// (α, φ) around the mirror direction r, for α ≤ 0.35 rad: the lobe
+/// cos^n α with n = 400 is below e^{−24} of its peak there, and the lobe
+/// stays above the horizon up to θ_o = 75° (75° + 0.35 rad < 90°), so the
+/// exact value is F. The tolerance is the rule's own error, measured as
+/// the difference between the grid and one with half the steps per axis
+/// (the midpoint rule's error falls 4× when the steps halve, so that
+/// difference is 3× the error of the finer grid), plus the f32 rounding
+/// of the terms: cos α = r · wi carries a few ulp of error (the frame's
+/// rotation and the dot product, taken as 4 ε = 4 · 2⁻²⁴), which cos^n α
+/// multiplies by n = 400, so each term and the sum are within 400 · 4 ε ≈
+/// 9.5e-5 of F, relative.
+#[test]
+fn mirror_transfer_albedo_is_fresnel() {
+    use kalos::bsdf::fresnel::fresnel_conductor;
+    use kalos::bsdf::Bsdf;
+    use kalos::geometry::Frame;
+    use kalos::methods::bundle::transfer::{eval_local, MIRROR_EXPONENT};
+
+    let (eta, k) = (Vec3::new(0.2, 0.4, 1.4), Vec3::new(3.6, 2.4, 1.8));
+    let bsdf = Bsdf::Conductor {
+        eta,
+        k,
+        s: Vec3::ONE,
+    };
+    let albedo = |wo: Vec3, na: usize, nphi: usize| -> Vec3 {
+        let r = Vec3::new(-wo.x, -wo.y, wo.z);
+        let frame = Frame::from_normal(r);
+        let a_max = 0.35f64;
+        let (da, dphi) = (a_max / na as f64, std::f64::consts::TAU / nphi as f64);
+        let mut sum = glam::DVec3::ZERO;
+        for i in 0..na {
+            let a = (i as f64 + 0.5) * da;
+            for j in 0..nphi {
+                let phi = (j as f64 + 0.5) * dphi;
+                let l = Vec3::new(
+                    (a.sin() * phi.cos()) as f32,
+                    (a.sin() * phi.sin()) as f32,
+                    a.cos() as f32,
+                );
+                let wi = frame.to_world(l);
+                let f = eval_local(&bsdf, wo, wi);
+                sum += f.as_dvec3() * (wi.z.max(0.0) as f64 * a.sin() * da * dphi);
+            }
+        }
+        sum.as_vec3()
+    };
+    for deg in [0.0f32, 30.0, 45.0, 60.0, 75.0] {
+        let t = deg.to_radians();
+        let wo = Vec3::new(t.sin(), 0.0, t.cos());
+        let fine = albedo(wo, 800, 256);
+        let coarse = albedo(wo, 400, 128);
+        let f = fresnel_conductor(wo.z, eta, k);
+        let rounding = MIRROR_EXPONENT * 4.0 * f32::EPSILON / 2.0 * f.max_element();
+        let tol = (fine - coarse).abs().max_element() / 3.0 + rounding;
+        let err = (fine - f).abs().max_element();
+        eprintln!("θ_o = {deg}°: albedo {fine:?}, F {f:?}, error {err:.2e}, tolerance {tol:.2e}");
+        assert!(
+            err <= tol,
+            "θ_o = {deg}°: albedo {fine:?} vs F {f:?} (tolerance {tol:.2e})"
+        );
+    }
+}

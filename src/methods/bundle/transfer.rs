@@ -12,10 +12,11 @@
 //! sides: no transmission; zero on the back of one-sided materials).
 //!
 //! Mirror-like conductors: a Dirac BRDF can never map ω_m onto a random
-//! ω_{m+1}, so in the transfer a smooth conductor is replaced by a Phong lobe
-//! of exponent [`MIRROR_EXPONENT`] around the mirror direction, scaled by the
-//! conductor's Fresnel reflectance (the paper's "mirror-like" patches are
-//! glossy in the same sense). The camera side still sees a perfect mirror
+//! ω_{m+1}, so in the transfer a smooth conductor is replaced by a lobe
+//! cos^n α of exponent [`MIRROR_EXPONENT`] around the mirror direction,
+//! scaled by the conductor's Fresnel reflectance and divided by cos θ_i as
+//! the mirror's δ is, so that its albedo is F at every angle (the paper's
+//! "mirror-like" patches are glossy in the same sense). The camera side still sees a perfect mirror
 //! (see `image.rs`). Glass (dielectrics) is left out: it neither reflects nor
 //! transmits in the transfer.
 
@@ -41,10 +42,14 @@ pub fn eval_local(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
             if wo.z <= 0.0 || wi.z <= 0.0 {
                 return Rgb::ZERO;
             }
+            // F δ(wi − r) / cos θ_i with the δ widened to the lobe
+            // (n + 1)/(2π) cos^n α, which integrates to 1 over the sphere
+            // of wi around r: the albedo ∫ f cos θ_i dω_i is then F, as for
+            // the mirror, while the lobe stays above the horizon.
             let r = Vec3::new(-wo.x, -wo.y, wo.z);
             let c = r.dot(wi).max(0.0);
             let n = MIRROR_EXPONENT;
-            s * fresnel_conductor(wo.z, eta, k) * ((n + 2.0) / (2.0 * PI) * c.powf(n))
+            s * fresnel_conductor(wo.z, eta, k) * ((n + 1.0) / (2.0 * PI) * c.powf(n) / wi.z)
         }
         _ => bsdf.eval(wo, wi, Mode::Radiance),
     }
