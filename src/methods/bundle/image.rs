@@ -15,9 +15,15 @@
 //! one sampled chain per pixel sample, so a mirror shows a sharp reflection
 //! of the patch radiance field.
 //!
-//! Each pixel keeps [`SAMPLES`] stratified sub-pixel positions; iteration m
-//! uses position m mod [`SAMPLES`], so averaging over iterations also
-//! anti-aliases.
+//! Sub-pixel positions ([`Positions`]): by default every iteration draws a
+//! fresh position in each pixel (jittered in the 2×2 stratum m mod 4, so
+//! that four iterations cover the pixel evenly) and traces its camera ray,
+//! delta chain included, from the seeded stream of (pixel, iteration); the
+//! average over iterations then converges to the pixel's box-filtered
+//! value, and the delta chains are re-sampled every iteration. `fixed` is
+//! the paper's preprocessing ("stored in a map"): [`SAMPLES`] stratified
+//! positions traced once, iteration m using position m mod [`SAMPLES`], so
+//! the image keeps the error of those four points.
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -36,6 +42,17 @@ pub const SAMPLES: usize = 4;
 const NO_PATCH: u32 = u32::MAX;
 /// Longest chain of delta bounces followed from the camera.
 const MAX_DELTA: u32 = 8;
+
+/// Where the sub-pixel positions come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Positions {
+    /// A fresh jittered position per pixel and iteration (the default).
+    Jittered,
+    /// [`SAMPLES`] positions per pixel, traced once at setup (the paper's
+    /// preprocessing).
+    Fixed,
+}
 
 /// Which image estimate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -64,10 +81,13 @@ pub struct PixelSample {
     pub ns: Vec3,
 }
 
-/// The preprocessed view: [`SAMPLES`] samples per pixel, sample-major.
+/// The view: with [`Positions::Fixed`], [`SAMPLES`] samples per pixel
+/// traced once, sample-major; with [`Positions::Jittered`], none stored.
 pub struct View {
-    /// Samples, `SAMPLES` blocks of width × height.
+    /// Samples, `SAMPLES` blocks of width × height (fixed positions only).
     pub samples: Vec<PixelSample>,
+    positions: Positions,
+    seed: u64,
     /// Area-weighted patch lists per vertex (CSR) for Gouraud.
     vstart: Vec<u32>,
     vpatch: Vec<u32>,
@@ -76,11 +96,16 @@ pub struct View {
 }
 
 impl View {
-    /// Traces the camera rays once.
-    pub fn new(world: &World, patches: &Patches, seed: u64) -> Self {
+    /// The view; traces the camera rays once for fixed positions.
+    pub fn new(world: &World, patches: &Patches, seed: u64, positions: Positions) -> Self {
         let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let n = w * h;
-        let results: Vec<(PixelSample, u64)> = (0..SAMPLES * n)
+        let fixed = if positions == Positions::Fixed {
+            SAMPLES * n
+        } else {
+            0
+        };
+        let results: Vec<(PixelSample, u64)> = (0..fixed)
             .into_par_iter()
             .map(|k| {
                 let (s, pix) = (k / n, k % n);
@@ -121,14 +146,47 @@ impl View {
         }
         View {
             samples,
+            positions,
+            seed,
             vstart,
             vpatch,
             rays,
         }
     }
 
-    /// Adds one estimate to `sum` (one entry per pixel), using sample block
-    /// `iter mod SAMPLES`.
+    /// The sample of pixel `pix` in iteration `iter`, and the rays traced
+    /// for it: the stored one (fixed positions), or a fresh position in
+    /// stratum `iter` mod 4, traced now.
+    fn sample(
+        &self,
+        world: &World,
+        patches: &Patches,
+        pix: usize,
+        iter: u64,
+    ) -> (PixelSample, u64) {
+        let n = world.camera.width as usize * world.camera.height as usize;
+        match self.positions {
+            Positions::Fixed => (self.samples[(iter as usize % SAMPLES) * n + pix], 0),
+            Positions::Jittered => {
+                let w = world.camera.width as usize;
+                let (x, y) = (pix % w, pix / w);
+                let s = iter % 4;
+                let mut rng = Pcg32::keyed(&[self.seed, pix as u64, iter, 0x1B]);
+                let j = rng.next_2d();
+                let fx = ((s % 2) as f32 + j.x) * 0.5;
+                let fy = ((s / 2) as f32 + j.y) * 0.5;
+                trace(
+                    world,
+                    patches,
+                    world.camera.ray(x as f32 + fx, y as f32 + fy),
+                    &mut rng,
+                )
+            }
+        }
+    }
+
+    /// Adds one estimate to `sum` (one entry per pixel), using the
+    /// samples of iteration `iter`; returns the rays traced.
     #[allow(clippy::too_many_arguments)]
     pub fn accumulate(
         &self,
@@ -140,12 +198,13 @@ impl View {
         e_minus: &[Rgb],
         iter: u64,
         sum: &mut [DVec3],
-    ) {
-        let n = sum.len();
-        let block = &self.samples[(iter as usize % SAMPLES) * n..][..n];
+    ) -> u64 {
         match mode {
-            ImageMode::Phong => {
-                sum.par_iter_mut().zip(block).for_each(|(acc, s)| {
+            ImageMode::Phong => sum
+                .par_iter_mut()
+                .enumerate()
+                .map(|(pix, acc)| {
+                    let (s, rays) = self.sample(world, patches, pix, iter);
                     let mut l = s.le;
                     if s.patch != NO_PATCH {
                         let i = s.patch as usize;
@@ -163,8 +222,9 @@ impl View {
                     if l.is_finite() {
                         *acc += l.as_dvec3();
                     }
-                });
-            }
+                    rays
+                })
+                .sum(),
             ImageMode::Gouraud => {
                 // L^eye[i] of §5, reflected part only (emission is exact per pixel)
                 let eye = world.camera.position();
@@ -193,19 +253,24 @@ impl View {
                         }
                     })
                     .collect();
-                sum.par_iter_mut().zip(block).for_each(|(acc, s)| {
-                    let mut l = s.le;
-                    if s.patch != NO_PATCH {
-                        let vid = patches.vid[s.patch as usize];
-                        let r = vert[vid[0] as usize] * s.w.x
-                            + vert[vid[1] as usize] * s.w.y
-                            + vert[vid[2] as usize] * s.w.z;
-                        l += s.thr * r;
-                    }
-                    if l.is_finite() {
-                        *acc += l.as_dvec3();
-                    }
-                });
+                sum.par_iter_mut()
+                    .enumerate()
+                    .map(|(pix, acc)| {
+                        let (s, rays) = self.sample(world, patches, pix, iter);
+                        let mut l = s.le;
+                        if s.patch != NO_PATCH {
+                            let vid = patches.vid[s.patch as usize];
+                            let r = vert[vid[0] as usize] * s.w.x
+                                + vert[vid[1] as usize] * s.w.y
+                                + vert[vid[2] as usize] * s.w.z;
+                            l += s.thr * r;
+                        }
+                        if l.is_finite() {
+                            *acc += l.as_dvec3();
+                        }
+                        rays
+                    })
+                    .sum()
             }
         }
     }

@@ -43,7 +43,7 @@ use rayon::prelude::*;
 use super::{Method, MethodError, StepStats, World};
 use crate::film::Image;
 use crate::scene::Rgb;
-use image::{ImageMode, View};
+use image::{ImageMode, Positions, View};
 use patches::Patches;
 use sequence::{Directions, Sequence};
 use visibility::{SweepInput, Visibility};
@@ -87,6 +87,10 @@ pub struct Settings {
     /// `visibility` module explains.
     #[cfg_attr(feature = "cli", arg(long = "subpixel", value_name = "centre|single", default_value = "centre", value_parser = subpixel_rule, action = clap::ArgAction::Set))]
     pub centre_rr: bool,
+    /// Sub-pixel positions of the image estimate: a fresh jittered one per
+    /// pixel and iteration, or four traced once (the paper's preprocessing).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "jittered"))]
+    pub positions: Positions,
 }
 
 /// Parses `--subpixel`: true for pixel-centre roulette.
@@ -135,6 +139,7 @@ impl Default for Settings {
             visibility: Visibility::Painter,
             discard: 0,
             centre_rr: true,
+            positions: Positions::Jittered,
         }
     }
 }
@@ -216,7 +221,7 @@ impl Bundle {
             let r = (8.0 * radius / edge.max(1e-9)).ceil();
             (r.min(4096.0) as u32).max(1024)
         });
-        let view = View::new(world, &patches, settings.seed);
+        let view = View::new(world, &patches, settings.seed, settings.positions);
         let rays = view.rays;
         let n = patches.len();
         self.l_plus = vec![Rgb::ZERO; n];
@@ -313,7 +318,7 @@ impl Method for Bundle {
         // Image estimate, averaged over the kept iterations
         let t = Instant::now();
         if self.iter >= self.settings.discard {
-            setup.view.accumulate(
+            rays += setup.view.accumulate(
                 world,
                 patches,
                 self.settings.image,
