@@ -25,7 +25,7 @@
 //! positions traced once, iteration m using position m mod [`SAMPLES`], so
 //! the image keeps the error of those four points.
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::patches::Patches;
@@ -35,7 +35,7 @@ use crate::geometry::{offset_point, Ray};
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
-use crate::transport::orient;
+use crate::transport::{direct_light, orient, Vertex};
 
 /// Sub-pixel positions per pixel.
 pub const SAMPLES: usize = 4;
@@ -79,6 +79,11 @@ pub struct PixelSample {
     pub wo: Vec3,
     /// Shading normal at the visible point (front side).
     pub ns: Vec3,
+    /// Scene triangle of the visible point, for the first shot's light
+    /// sample.
+    pub tri: u32,
+    /// Barycentrics (b1, b2) of the visible point on `tri`.
+    pub b: Vec2,
 }
 
 /// The view: with [`Positions::Fixed`], [`SAMPLES`] samples per pixel
@@ -87,6 +92,8 @@ pub struct View {
     /// Samples, `SAMPLES` blocks of width × height (fixed positions only).
     pub samples: Vec<PixelSample>,
     positions: Positions,
+    /// Add one light sample per pixel at the visible point (the first shot).
+    nee: bool,
     seed: u64,
     /// Area-weighted patch lists per vertex (CSR) for Gouraud.
     vstart: Vec<u32>,
@@ -97,7 +104,13 @@ pub struct View {
 
 impl View {
     /// The view; traces the camera rays once for fixed positions.
-    pub fn new(world: &World, patches: &Patches, seed: u64, positions: Positions) -> Self {
+    pub fn new(
+        world: &World,
+        patches: &Patches,
+        seed: u64,
+        positions: Positions,
+        nee: bool,
+    ) -> Self {
         let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let n = w * h;
         let fixed = if positions == Positions::Fixed {
@@ -147,6 +160,7 @@ impl View {
         View {
             samples,
             positions,
+            nee,
             seed,
             vstart,
             vpatch,
@@ -185,6 +199,20 @@ impl View {
         }
     }
 
+    /// With the first shot, the direct light that sample `s` of pixel `pix`
+    /// sees in iteration `iter` (one light sample at its visible point,
+    /// times the delta chain's throughput), and the rays traced.
+    fn direct(&self, world: &World, s: &PixelSample, pix: usize, iter: u64) -> (Rgb, u64) {
+        if !self.nee || s.patch == NO_PATCH {
+            return (Rgb::ZERO, 0);
+        }
+        let sp = world.scene.surface_point(s.tri, s.b.x, s.b.y);
+        let v = Vertex::new(world, sp, s.wo);
+        let mut rng = Pcg32::keyed(&[self.seed, pix as u64, iter, 0x1D]);
+        let (l, rays) = direct_light(world, &v, &mut rng);
+        (s.thr * l, rays)
+    }
+
     /// Adds one estimate to `sum` (one entry per pixel), using the
     /// samples of iteration `iter`; returns the rays traced.
     #[allow(clippy::too_many_arguments)]
@@ -205,7 +233,8 @@ impl View {
                 .enumerate()
                 .map(|(pix, acc)| {
                     let (s, rays) = self.sample(world, patches, pix, iter);
-                    let mut l = s.le;
+                    let (ld, shadow) = self.direct(world, &s, pix, iter);
+                    let mut l = s.le + ld;
                     if s.patch != NO_PATCH {
                         let i = s.patch as usize;
                         let p = &patches.p[i];
@@ -222,7 +251,7 @@ impl View {
                     if l.is_finite() {
                         *acc += l.as_dvec3();
                     }
-                    rays
+                    rays + shadow
                 })
                 .sum(),
             ImageMode::Gouraud => {
@@ -257,7 +286,8 @@ impl View {
                     .enumerate()
                     .map(|(pix, acc)| {
                         let (s, rays) = self.sample(world, patches, pix, iter);
-                        let mut l = s.le;
+                        let (ld, shadow) = self.direct(world, &s, pix, iter);
+                        let mut l = s.le + ld;
                         if s.patch != NO_PATCH {
                             let vid = patches.vid[s.patch as usize];
                             let r = vert[vid[0] as usize] * s.w.x
@@ -268,7 +298,7 @@ impl View {
                         if l.is_finite() {
                             *acc += l.as_dvec3();
                         }
-                        rays
+                        rays + shadow
                     })
                     .sum()
             }
@@ -285,6 +315,8 @@ fn trace(world: &World, patches: &Patches, mut ray: Ray, rng: &mut Pcg32) -> (Pi
         le: Rgb::ZERO,
         wo: Vec3::Z,
         ns: Vec3::Z,
+        tri: 0,
+        b: Vec2::ZERO,
     };
     let mut rays = 0;
     for _ in 0..=MAX_DELTA {
@@ -304,6 +336,8 @@ fn trace(world: &World, patches: &Patches, mut ray: Ray, rng: &mut Pcg32) -> (Pi
             out.w = w;
             out.wo = wo_world;
             out.ns = sp.frame.n;
+            out.tri = hit.tri;
+            out.b = Vec2::new(hit.b1, hit.b2);
             break;
         }
         let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
