@@ -14,6 +14,8 @@
 //! - [`light_walk`]: the one light-path walk (Russian roulette on the
 //!   albedo), with a per-vertex hook; `light`, `density` and the diagnostics
 //!   put their own measurement in the hook.
+//! - [`direct_light`], [`shadow_clear`]: next-event estimation alone (one
+//!   light sample, no MIS), for bundle's first shot.
 //! - [`radiance_from`]: the camera-side estimator (next-event estimation
 //!   with MIS), which `path` is and the camera pass uses.
 //! - [`camera_pass`]: the part of path space that light paths cannot reach,
@@ -31,11 +33,13 @@
 
 pub mod camera_pass;
 mod connect;
+mod direct;
 mod radiance;
 mod vertex;
 mod walk;
 
 pub use connect::{connect_emission, connect_to_camera};
+pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, DepthLimits};
 pub use vertex::{orient, scatter, Vertex};
 pub use walk::{

@@ -202,12 +202,19 @@ fn painter_pairs_equal_zbuffer_on_cbox() {
     assert_eq!(bad, 0, "{bad} of 300 directions pair patches differently");
 }
 
-fn render(scene: &Scene, seed: u64, patches: usize, map_res: u32, iters: u64) -> Image {
+fn render(
+    base: &bundle::Settings,
+    scene: &Scene,
+    seed: u64,
+    patches: usize,
+    map_res: u32,
+    iters: u64,
+) -> Image {
     let o = common::bundle(bundle::Settings {
         patches,
         map_res: Some(map_res),
         discard: 10,
-        ..Default::default()
+        ..base.clone()
     });
     common::render(scene, &o, seed, iters).0
 }
@@ -225,7 +232,9 @@ fn render(scene: &Scene, seed: u64, patches: usize, map_res: u32, iters: u64) ->
 /// The test asserts relMSE(I_h, ref) ≤ 1.5 × (relMSE(I_h, I_2h) + v_ref),
 /// the 1.5 being the foundation issue's margin for the noise of the
 /// estimates themselves.
+#[allow(clippy::too_many_arguments)]
 fn check_against(
+    base: &bundle::Settings,
     name: &str,
     scene: &Scene,
     reference: &Image,
@@ -234,8 +243,8 @@ fn check_against(
     map_res: u32,
     iters: u64,
 ) {
-    let ih = render(scene, 1, patches, map_res, iters);
-    let i2h = render(scene, 2, patches / 4, map_res / 2, iters);
+    let ih = render(base, scene, 1, patches, map_res, iters);
+    let i2h = render(base, scene, 2, patches / 4, map_res / 2, iters);
     let got = rel_mse(&ih, reference).expect("sizes");
     let disc = rel_mse(&ih, &i2h).expect("sizes");
     let bound = 1.5 * (disc + v_ref);
@@ -246,13 +255,47 @@ fn check_against(
     assert!(got <= bound, "{name}: relMSE {got:.4e} > bound {bound:.4e}");
 }
 
-/// cbox against the Mitsuba reference.
+/// cbox against the Mitsuba reference, in the default form (first shot,
+/// jittered positions).
 #[test]
 fn cbox() {
     let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
     let reference = read_image(&root().join("refs/cbox.pfm")).expect("reference");
     // refs/NOISE: cbox half-vs-half relMSE 1.525e-5
-    check_against("cbox", &scene, &reference, 1.525e-5 / 4.0, 4000, 1024, 300);
+    let base = bundle::Settings::default();
+    check_against(
+        &base,
+        "cbox",
+        &scene,
+        &reference,
+        1.525e-5 / 4.0,
+        4000,
+        1024,
+        300,
+    );
+}
+
+/// cbox against the Mitsuba reference in the paper's pure form: direct
+/// light carried by the bundles, the visible points traced once.
+#[test]
+fn cbox_paper_form() {
+    let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
+    let reference = read_image(&root().join("refs/cbox.pfm")).expect("reference");
+    let base = bundle::Settings {
+        direct: bundle::Direct::Bundles,
+        positions: bundle::image::Positions::Fixed,
+        ..Default::default()
+    };
+    check_against(
+        &base,
+        "cbox (paper)",
+        &scene,
+        &reference,
+        1.525e-5 / 4.0,
+        4000,
+        1024,
+        300,
+    );
 }
 
 /// A Phong plane (kd 0.2, ks 0.6, n 20) under a small square light, seen
@@ -327,7 +370,17 @@ fn glossy_plane_vs_path() {
             .map(|(a, b)| (*a + *b) * 0.5)
             .collect(),
     };
-    check_against("glossy plane", &scene, &reference, v_ref, 2000, 256, 3000);
+    let base = bundle::Settings::default();
+    check_against(
+        &base,
+        "glossy plane",
+        &scene,
+        &reference,
+        v_ref,
+        2000,
+        256,
+        3000,
+    );
 }
 
 /// A 2 × 2 diffuse floor whose shading normals are all tilted by 45°
@@ -442,6 +495,181 @@ fn shading_normals_vs_path() {
     let tol = 5.41 * (se_b * se_b + se_p * se_p).sqrt() + disc;
     eprintln!(
         "tilted floor: bundle {m:.5} ± {se_b:.5} (replicas {means:?}), path {mp:.5} ± {se_p:.5}, \
+         quarter patches {m2h:.5}; tolerance {tol:.5}"
+    );
+    assert!((m - mp).abs() <= tol, "bundle {m} vs path {mp} ± {tol}");
+}
+
+/// The smooth-conductor stand-in of the transfer is a mirror: for every
+/// outgoing direction wo its albedo ∫ f(wo, wi) cos θ_i dω_i must be the
+/// Fresnel reflectance F(θ_o), as for the Dirac BRDF F δ(wi − r(wo)) / cos θ_i
+/// that it replaces. (The stand-in without the 1/cos θ_i had albedo
+/// F · cos θ_o, half of F at 60°.)
+///
+/// The integral is a deterministic midpoint rule in polar coordinates
+/// (α, φ) around the mirror direction r, for α ≤ 0.35 rad: the lobe
+/// cos^n α with n = 400 is below e^{−24} of its peak there, and the lobe
+/// stays above the horizon up to θ_o = 75° (75° + 0.35 rad < 90°), so the
+/// exact value is F. The tolerance is the rule's own error, measured as
+/// the difference between the grid and one with half the steps per axis
+/// (the midpoint rule's error falls 4× when the steps halve, so that
+/// difference is 3× the error of the finer grid), plus the f32 rounding
+/// of the terms: cos α = r · wi carries a few ulp of error (the frame's
+/// rotation and the dot product, taken as 4 ε = 4 · 2⁻²⁴), which cos^n α
+/// multiplies by n = 400, so each term and the sum are within 400 · 4 ε ≈
+/// 9.5e-5 of F, relative.
+#[test]
+fn mirror_transfer_albedo_is_fresnel() {
+    use kalos::bsdf::fresnel::fresnel_conductor;
+    use kalos::bsdf::Bsdf;
+    use kalos::geometry::Frame;
+    use kalos::methods::bundle::transfer::{eval_local, MIRROR_EXPONENT};
+
+    let (eta, k) = (Vec3::new(0.2, 0.4, 1.4), Vec3::new(3.6, 2.4, 1.8));
+    let bsdf = Bsdf::Conductor {
+        eta,
+        k,
+        s: Vec3::ONE,
+    };
+    let albedo = |wo: Vec3, na: usize, nphi: usize| -> Vec3 {
+        let r = Vec3::new(-wo.x, -wo.y, wo.z);
+        let frame = Frame::from_normal(r);
+        let a_max = 0.35f64;
+        let (da, dphi) = (a_max / na as f64, std::f64::consts::TAU / nphi as f64);
+        let mut sum = glam::DVec3::ZERO;
+        for i in 0..na {
+            let a = (i as f64 + 0.5) * da;
+            for j in 0..nphi {
+                let phi = (j as f64 + 0.5) * dphi;
+                let l = Vec3::new(
+                    (a.sin() * phi.cos()) as f32,
+                    (a.sin() * phi.sin()) as f32,
+                    a.cos() as f32,
+                );
+                let wi = frame.to_world(l);
+                let f = eval_local(&bsdf, wo, wi);
+                sum += f.as_dvec3() * (wi.z.max(0.0) as f64 * a.sin() * da * dphi);
+            }
+        }
+        sum.as_vec3()
+    };
+    for deg in [0.0f32, 30.0, 45.0, 60.0, 75.0] {
+        let t = deg.to_radians();
+        let wo = Vec3::new(t.sin(), 0.0, t.cos());
+        let fine = albedo(wo, 800, 256);
+        let coarse = albedo(wo, 400, 128);
+        let f = fresnel_conductor(wo.z, eta, k);
+        let rounding = MIRROR_EXPONENT * 4.0 * f32::EPSILON / 2.0 * f.max_element();
+        let tol = (fine - coarse).abs().max_element() / 3.0 + rounding;
+        let err = (fine - f).abs().max_element();
+        eprintln!("θ_o = {deg}°: albedo {fine:?}, F {f:?}, error {err:.2e}, tolerance {tol:.2e}");
+        assert!(
+            err <= tol,
+            "θ_o = {deg}°: albedo {fine:?} vs F {f:?} (tolerance {tol:.2e})"
+        );
+    }
+}
+
+/// A 2 × 2 diffuse floor (albedo 0.5) under a uniform sky of radiance 1,
+/// shaded by a 1 × 1 diffuse square (albedo 0.5) hanging 0.5 above it and
+/// facing down, so that the floor gets direct sky light, a penumbra, and
+/// light reflected back by the square's underside.
+fn sky_floor() -> Scene {
+    let mut s = Scene::empty("sky-floor");
+    let white = s.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.5)),
+    });
+    let quad = |h: f32, y: f32| {
+        [
+            Vec3::new(-h, y, -h),
+            Vec3::new(h, y, -h),
+            Vec3::new(h, y, h),
+            Vec3::new(-h, y, h),
+        ]
+    };
+    s.add_mesh(
+        "floor",
+        &quad(1.0, 0.0),
+        None,
+        None,
+        &[[0, 2, 1], [0, 3, 2]],
+        white,
+        None,
+    );
+    s.add_mesh(
+        "shade",
+        &quad(0.5, 0.5),
+        None,
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        white,
+        None,
+    );
+    s.emitters.push(scene::EmitterDesc::Constant {
+        radiance: Vec3::ONE,
+    });
+    s.camera = CameraDesc {
+        to_world: look_at(Vec3::new(0.0, 2.0, 2.0), Vec3::ZERO, Vec3::Y),
+        fov_x_deg: 50.0,
+        width: 24,
+        height: 24,
+        near_clip: 1e-3,
+    };
+    s
+}
+
+/// The first shot with a sky: the light samples take the sky as direct
+/// light, so the sweep must not carry it too (it would count twice), and
+/// the square's underside must still send the floor's light back through
+/// the bundles. bundle's image mean against path's, with the bound of
+/// [`shading_normals_vs_path`]: K = 8 seeds give independent replicas of
+/// bundle's mean; path's standard error comes from the per-pixel
+/// differences of two renders; the test asserts |bundle − path| ≤ 5.41
+/// (two-sided 99.9 % Student-t, 7 degrees of freedom) × √(se_b² + se_p²)
+/// plus the discretisation bound |m_h − m_2h| from a render with a quarter
+/// of the patches and the same seed.
+#[test]
+fn first_shot_sky_vs_path() {
+    let scene = sky_floor();
+    let (p1, _) = common::render(&scene, &common::path(), 31, 1024);
+    let (p2, _) = common::render(&scene, &common::path(), 32, 1024);
+    let n = p1.data.len() as f64;
+    let mp = p1
+        .data
+        .iter()
+        .zip(&p2.data)
+        .map(|(a, b)| (a.x + b.x) as f64 / 2.0)
+        .sum::<f64>()
+        / n;
+    let se_p = (p1
+        .data
+        .iter()
+        .zip(&p2.data)
+        .map(|(a, b)| ((a.x - b.x) as f64).powi(2) / 4.0)
+        .sum::<f64>()
+        / (n * n))
+        .sqrt();
+    let bo = |patches| {
+        MethodConfig::Bundle(bundle::Settings {
+            patches,
+            map_res: Some(128),
+            ..Default::default()
+        })
+    };
+    let k = 8;
+    let iters = 300;
+    let mean_of = |o: &MethodConfig, seed| {
+        common::mean_and_se(&common::render(&scene, o, seed, iters).0, 0).0
+    };
+    let means: Vec<f64> = (0..k).map(|seed| mean_of(&bo(400), seed)).collect();
+    let m = means.iter().sum::<f64>() / k as f64;
+    let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k as f64 - 1.0);
+    let se_b = (var / k as f64).sqrt();
+    let m2h = mean_of(&bo(100), 0);
+    let disc = (m2h - means[0]).abs();
+    let tol = 5.41 * (se_b * se_b + se_p * se_p).sqrt() + disc;
+    eprintln!(
+        "sky floor: bundle {m:.5} ± {se_b:.5} (replicas {means:?}), path {mp:.5} ± {se_p:.5}, \
          quarter patches {m2h:.5}; tolerance {tol:.5}"
     );
     assert!((m - mp).abs() <= tol, "bundle {m} vs path {mp} ± {tol}");

@@ -173,7 +173,8 @@ fn density_at_max_depth_1_shows_only_the_emitters() {
 
 /// Setup is counted: the camera pass's pre-pass traces between one and 16
 /// rays per pixel in `prepare` (and nothing in a scene that needs no camera
-/// pass), and bundle's view traces at least one ray per pixel sample there.
+/// pass), and bundle's view with fixed positions traces at least one ray
+/// per pixel sample there.
 #[test]
 fn prepare_counts_the_setup_rays() {
     let res = 24u64;
@@ -198,6 +199,7 @@ fn prepare_counts_the_setup_rays() {
     let cfg = MethodConfig::Bundle(bundle::Settings {
         patches: 300,
         map_res: Some(64),
+        positions: bundle::image::Positions::Fixed,
         ..Default::default()
     });
     let mut bundle = cfg.create(&cbox, &Common::default()).expect("method");

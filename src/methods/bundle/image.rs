@@ -15,11 +15,17 @@
 //! one sampled chain per pixel sample, so a mirror shows a sharp reflection
 //! of the patch radiance field.
 //!
-//! Each pixel keeps [`SAMPLES`] stratified sub-pixel positions; iteration m
-//! uses position m mod [`SAMPLES`], so averaging over iterations also
-//! anti-aliases.
+//! Sub-pixel positions ([`Positions`]): by default every iteration draws a
+//! fresh position in each pixel (jittered in the 2×2 stratum m mod 4, so
+//! that four iterations cover the pixel evenly) and traces its camera ray,
+//! delta chain included, from the seeded stream of (pixel, iteration); the
+//! average over iterations then converges to the pixel's box-filtered
+//! value, and the delta chains are re-sampled every iteration. `fixed` is
+//! the paper's preprocessing ("stored in a map"): [`SAMPLES`] stratified
+//! positions traced once, iteration m using position m mod [`SAMPLES`], so
+//! the image keeps the error of those four points.
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::patches::Patches;
@@ -29,13 +35,24 @@ use crate::geometry::{offset_point, Ray};
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
-use crate::transport::orient;
+use crate::transport::{direct_light, orient, Vertex};
 
 /// Sub-pixel positions per pixel.
 pub const SAMPLES: usize = 4;
 const NO_PATCH: u32 = u32::MAX;
 /// Longest chain of delta bounces followed from the camera.
 const MAX_DELTA: u32 = 8;
+
+/// Where the sub-pixel positions come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Positions {
+    /// A fresh jittered position per pixel and iteration (the default).
+    Jittered,
+    /// [`SAMPLES`] positions per pixel, traced once at setup (the paper's
+    /// preprocessing).
+    Fixed,
+}
 
 /// Which image estimate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,12 +79,22 @@ pub struct PixelSample {
     pub wo: Vec3,
     /// Shading normal at the visible point (front side).
     pub ns: Vec3,
+    /// Scene triangle of the visible point, for the first shot's light
+    /// sample.
+    pub tri: u32,
+    /// Barycentrics (b1, b2) of the visible point on `tri`.
+    pub b: Vec2,
 }
 
-/// The preprocessed view: [`SAMPLES`] samples per pixel, sample-major.
+/// The view: with [`Positions::Fixed`], [`SAMPLES`] samples per pixel
+/// traced once, sample-major; with [`Positions::Jittered`], none stored.
 pub struct View {
-    /// Samples, `SAMPLES` blocks of width × height.
+    /// Samples, `SAMPLES` blocks of width × height (fixed positions only).
     pub samples: Vec<PixelSample>,
+    positions: Positions,
+    /// Add one light sample per pixel at the visible point (the first shot).
+    nee: bool,
+    seed: u64,
     /// Area-weighted patch lists per vertex (CSR) for Gouraud.
     vstart: Vec<u32>,
     vpatch: Vec<u32>,
@@ -76,11 +103,22 @@ pub struct View {
 }
 
 impl View {
-    /// Traces the camera rays once.
-    pub fn new(world: &World, patches: &Patches, seed: u64) -> Self {
+    /// The view; traces the camera rays once for fixed positions.
+    pub fn new(
+        world: &World,
+        patches: &Patches,
+        seed: u64,
+        positions: Positions,
+        nee: bool,
+    ) -> Self {
         let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let n = w * h;
-        let results: Vec<(PixelSample, u64)> = (0..SAMPLES * n)
+        let fixed = if positions == Positions::Fixed {
+            SAMPLES * n
+        } else {
+            0
+        };
+        let results: Vec<(PixelSample, u64)> = (0..fixed)
             .into_par_iter()
             .map(|k| {
                 let (s, pix) = (k / n, k % n);
@@ -121,14 +159,62 @@ impl View {
         }
         View {
             samples,
+            positions,
+            nee,
+            seed,
             vstart,
             vpatch,
             rays,
         }
     }
 
-    /// Adds one estimate to `sum` (one entry per pixel), using sample block
-    /// `iter mod SAMPLES`.
+    /// The sample of pixel `pix` in iteration `iter`, and the rays traced
+    /// for it: the stored one (fixed positions), or a fresh position in
+    /// stratum `iter` mod 4, traced now.
+    fn sample(
+        &self,
+        world: &World,
+        patches: &Patches,
+        pix: usize,
+        iter: u64,
+    ) -> (PixelSample, u64) {
+        let n = world.camera.width as usize * world.camera.height as usize;
+        match self.positions {
+            Positions::Fixed => (self.samples[(iter as usize % SAMPLES) * n + pix], 0),
+            Positions::Jittered => {
+                let w = world.camera.width as usize;
+                let (x, y) = (pix % w, pix / w);
+                let s = iter % 4;
+                let mut rng = Pcg32::keyed(&[self.seed, pix as u64, iter, 0x1B]);
+                let j = rng.next_2d();
+                let fx = ((s % 2) as f32 + j.x) * 0.5;
+                let fy = ((s / 2) as f32 + j.y) * 0.5;
+                trace(
+                    world,
+                    patches,
+                    world.camera.ray(x as f32 + fx, y as f32 + fy),
+                    &mut rng,
+                )
+            }
+        }
+    }
+
+    /// With the first shot, the direct light that sample `s` of pixel `pix`
+    /// sees in iteration `iter` (one light sample at its visible point,
+    /// times the delta chain's throughput), and the rays traced.
+    fn direct(&self, world: &World, s: &PixelSample, pix: usize, iter: u64) -> (Rgb, u64) {
+        if !self.nee || s.patch == NO_PATCH {
+            return (Rgb::ZERO, 0);
+        }
+        let sp = world.scene.surface_point(s.tri, s.b.x, s.b.y);
+        let v = Vertex::new(world, sp, s.wo);
+        let mut rng = Pcg32::keyed(&[self.seed, pix as u64, iter, 0x1D]);
+        let (l, rays) = direct_light(world, &v, &mut rng);
+        (s.thr * l, rays)
+    }
+
+    /// Adds one estimate to `sum` (one entry per pixel), using the
+    /// samples of iteration `iter`; returns the rays traced.
     #[allow(clippy::too_many_arguments)]
     pub fn accumulate(
         &self,
@@ -140,13 +226,15 @@ impl View {
         e_minus: &[Rgb],
         iter: u64,
         sum: &mut [DVec3],
-    ) {
-        let n = sum.len();
-        let block = &self.samples[(iter as usize % SAMPLES) * n..][..n];
+    ) -> u64 {
         match mode {
-            ImageMode::Phong => {
-                sum.par_iter_mut().zip(block).for_each(|(acc, s)| {
-                    let mut l = s.le;
+            ImageMode::Phong => sum
+                .par_iter_mut()
+                .enumerate()
+                .map(|(pix, acc)| {
+                    let (s, rays) = self.sample(world, patches, pix, iter);
+                    let (ld, shadow) = self.direct(world, &s, pix, iter);
+                    let mut l = s.le + ld;
                     if s.patch != NO_PATCH {
                         let i = s.patch as usize;
                         let p = &patches.p[i];
@@ -163,8 +251,9 @@ impl View {
                     if l.is_finite() {
                         *acc += l.as_dvec3();
                     }
-                });
-            }
+                    rays + shadow
+                })
+                .sum(),
             ImageMode::Gouraud => {
                 // L^eye[i] of §5, reflected part only (emission is exact per pixel)
                 let eye = world.camera.position();
@@ -193,19 +282,25 @@ impl View {
                         }
                     })
                     .collect();
-                sum.par_iter_mut().zip(block).for_each(|(acc, s)| {
-                    let mut l = s.le;
-                    if s.patch != NO_PATCH {
-                        let vid = patches.vid[s.patch as usize];
-                        let r = vert[vid[0] as usize] * s.w.x
-                            + vert[vid[1] as usize] * s.w.y
-                            + vert[vid[2] as usize] * s.w.z;
-                        l += s.thr * r;
-                    }
-                    if l.is_finite() {
-                        *acc += l.as_dvec3();
-                    }
-                });
+                sum.par_iter_mut()
+                    .enumerate()
+                    .map(|(pix, acc)| {
+                        let (s, rays) = self.sample(world, patches, pix, iter);
+                        let (ld, shadow) = self.direct(world, &s, pix, iter);
+                        let mut l = s.le + ld;
+                        if s.patch != NO_PATCH {
+                            let vid = patches.vid[s.patch as usize];
+                            let r = vert[vid[0] as usize] * s.w.x
+                                + vert[vid[1] as usize] * s.w.y
+                                + vert[vid[2] as usize] * s.w.z;
+                            l += s.thr * r;
+                        }
+                        if l.is_finite() {
+                            *acc += l.as_dvec3();
+                        }
+                        rays + shadow
+                    })
+                    .sum()
             }
         }
     }
@@ -220,6 +315,8 @@ fn trace(world: &World, patches: &Patches, mut ray: Ray, rng: &mut Pcg32) -> (Pi
         le: Rgb::ZERO,
         wo: Vec3::Z,
         ns: Vec3::Z,
+        tri: 0,
+        b: Vec2::ZERO,
     };
     let mut rays = 0;
     for _ in 0..=MAX_DELTA {
@@ -239,6 +336,8 @@ fn trace(world: &World, patches: &Patches, mut ray: Ray, rng: &mut Pcg32) -> (Pi
             out.w = w;
             out.wo = wo_world;
             out.ns = sp.frame.n;
+            out.tri = hit.tri;
+            out.b = Vec2::new(hit.b1, hit.b2);
             break;
         }
         let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());

@@ -14,6 +14,17 @@
 //!    radiance is reflected into it: L_new\[i\] = L_i^e(ω_{m+1}) +
 //!    4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L\[j\] ([`transfer`]).
 //!
+//! First shot (`--direct nee`, the default; Castro et al.'s "first-shot"
+//! for global lines, ref. 5 of the paper): light that arrives straight from
+//! the emitters is not left to the few global directions that hit a small
+//! luminaire. Every iteration, each pixel takes one light sample at its
+//! visible point and each patch one from a uniform point of the patch
+//! (next-event estimation, [`transfer::direct`]), the patches start from
+//! that direct light instead of their emission, and the sweep carries no
+//! sky. The bundles then carry only what non-emitting patches send: the
+//! indirect light. Emission seen by the camera is still taken exactly per
+//! pixel. `--direct bundles` is the paper's pure form.
+//!
 //! The image converges to the exact image up to the patch and map
 //! discretisation: radiance is constant over a patch in each direction
 //! (eq. (23)), and the painter's sort by centroid can misorder overlapping
@@ -43,7 +54,7 @@ use rayon::prelude::*;
 use super::{Method, MethodError, StepStats, World};
 use crate::film::Image;
 use crate::scene::Rgb;
-use image::{ImageMode, View};
+use image::{ImageMode, Positions, View};
 use patches::Patches;
 use sequence::{Directions, Sequence};
 use visibility::{SweepInput, Visibility};
@@ -87,6 +98,27 @@ pub struct Settings {
     /// `visibility` module explains.
     #[cfg_attr(feature = "cli", arg(long = "subpixel", value_name = "centre|single", default_value = "centre", value_parser = subpixel_rule, action = clap::ArgAction::Set))]
     pub centre_rr: bool,
+    /// Sub-pixel positions of the image estimate: a fresh jittered one per
+    /// pixel and iteration, or four traced once (the paper's preprocessing).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "jittered"))]
+    pub positions: Positions,
+    /// Direct light: by next-event estimation (the first shot, the
+    /// default), or carried by the bundles as the paper does.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "nee"))]
+    pub direct: Direct,
+}
+
+/// How light that arrives straight from the emitters is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Direct {
+    /// The first shot: per pixel and per patch, one light sample per
+    /// iteration (next-event estimation without MIS); the bundles carry
+    /// only what non-emitting patches send, and no sky.
+    Nee,
+    /// The paper's pure form: the bundles carry the emission of the
+    /// luminaires and the sky like any other radiance.
+    Bundles,
 }
 
 /// Parses `--subpixel`: true for pixel-centre roulette.
@@ -135,6 +167,8 @@ impl Default for Settings {
             visibility: Visibility::Painter,
             discard: 0,
             centre_rr: true,
+            positions: Positions::Jittered,
+            direct: Direct::Nee,
         }
     }
 }
@@ -216,7 +250,13 @@ impl Bundle {
             let r = (8.0 * radius / edge.max(1e-9)).ceil();
             (r.min(4096.0) as u32).max(1024)
         });
-        let view = View::new(world, &patches, settings.seed);
+        let view = View::new(
+            world,
+            &patches,
+            settings.seed,
+            settings.positions,
+            settings.direct == Direct::Nee,
+        );
         let rays = view.rays;
         let n = patches.len();
         self.l_plus = vec![Rgb::ZERO; n];
@@ -263,6 +303,12 @@ impl Bundle {
     }
 }
 
+/// The stream of patch `i`'s first-shot light sample for direction ω_{m+1}
+/// (`m` = 0 for ω_1): keyed, so the same whatever the thread count.
+fn first_shot_rng(seed: u64, i: usize, m: u64) -> crate::sampling::Pcg32 {
+    crate::sampling::Pcg32::keyed(&[seed, i as u64, m, 0x1C])
+}
+
 impl Method for Bundle {
     fn name(&self) -> &'static str {
         "bundle"
@@ -280,14 +326,35 @@ impl Method for Bundle {
         let mut rays = self.build(world);
         let setup = self.setup.as_ref().expect("built above");
         let patches = &setup.patches;
+        let nee = self.settings.direct == Direct::Nee;
         if self.iter == 0 {
-            // ω_1 and L[i] = L_i^e(±ω_1)
+            // ω_1 and L[i] = L_i^e(±ω_1), or the first shot's direct light
             self.d = self.dirs.next_dir();
             let d = self.d;
-            self.l_plus = patches.p.par_iter().map(|p| p.le(d)).collect();
-            self.l_minus = patches.p.par_iter().map(|p| p.le(-d)).collect();
+            if nee {
+                let first: Vec<(Rgb, Rgb, u64)> = patches
+                    .p
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, p)| transfer::direct(world, p, d, &mut first_shot_rng(seed, i, 0)))
+                    .collect();
+                rays += first.iter().map(|x| x.2).sum::<u64>();
+                self.l_plus = first.iter().map(|x| x.0).collect();
+                self.l_minus = first.iter().map(|x| x.1).collect();
+            } else {
+                self.l_plus = patches.p.par_iter().map(|p| p.le(d)).collect();
+                self.l_minus = patches.p.par_iter().map(|p| p.le(-d)).collect();
+            }
         }
         let d = self.d;
+        // With the first shot the sky is direct light, taken by the light samples
+        let sky = |w: Vec3| {
+            if nee {
+                Rgb::ZERO
+            } else {
+                world.lights.le_env(w)
+            }
+        };
 
         // Transfer along ±ω_m through the visibility map
         let inc = visibility::sweep(
@@ -296,8 +363,8 @@ impl Method for Bundle {
                 d,
                 l_plus: &self.l_plus,
                 l_minus: &self.l_minus,
-                sky_plus: world.lights.le_env(-d),
-                sky_minus: world.lights.le_env(d),
+                sky_plus: sky(-d),
+                sky_minus: sky(d),
                 res: setup.res,
                 center: world.lights.center,
                 radius: world.lights.radius,
@@ -313,7 +380,7 @@ impl Method for Bundle {
         // Image estimate, averaged over the kept iterations
         let t = Instant::now();
         if self.iter >= self.settings.discard {
-            setup.view.accumulate(
+            rays += setup.view.accumulate(
                 world,
                 patches,
                 self.settings.image,
@@ -327,23 +394,32 @@ impl Method for Bundle {
         }
         self.timings.image += t.elapsed().as_secs_f64();
 
-        // New direction ω_{m+1}; reflect what arrived into ±ω_{m+1}
+        // New direction ω_{m+1}; reflect what arrived into ±ω_{m+1}, on
+        // top of the emission (the paper) or of the first shot
         let t = Instant::now();
         let dn = self.dirs.next_dir();
-        let (lp, lm): (Vec<Rgb>, Vec<Rgb>) = patches
+        let next = self.iter + 1;
+        let new: Vec<(Rgb, Rgb, u64)> = patches
             .p
             .par_iter()
             .enumerate()
             .map(|(i, p)| {
                 let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
+                let (sp, sm, r) = if nee {
+                    transfer::direct(world, p, dn, &mut first_shot_rng(seed, i, next))
+                } else {
+                    (p.le(dn), p.le(-dn), 0)
+                };
                 (
-                    transfer::reflect(p, d, ep, em, dn),
-                    transfer::reflect(p, d, ep, em, -dn),
+                    transfer::reflect_onto(sp, p, d, ep, em, dn),
+                    transfer::reflect_onto(sm, p, d, ep, em, -dn),
+                    r,
                 )
             })
-            .unzip();
-        self.l_plus = lp;
-        self.l_minus = lm;
+            .collect();
+        rays += new.iter().map(|x| x.2).sum::<u64>();
+        self.l_plus = new.iter().map(|x| x.0).collect();
+        self.l_minus = new.iter().map(|x| x.1).collect();
         self.d = dn;
         self.iter += 1;
         self.timings.transfer += t.elapsed().as_secs_f64();

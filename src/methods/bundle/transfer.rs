@@ -12,10 +12,11 @@
 //! sides: no transmission; zero on the back of one-sided materials).
 //!
 //! Mirror-like conductors: a Dirac BRDF can never map ω_m onto a random
-//! ω_{m+1}, so in the transfer a smooth conductor is replaced by a Phong lobe
-//! of exponent [`MIRROR_EXPONENT`] around the mirror direction, scaled by the
-//! conductor's Fresnel reflectance (the paper's "mirror-like" patches are
-//! glossy in the same sense). The camera side still sees a perfect mirror
+//! ω_{m+1}, so in the transfer a smooth conductor is replaced by a lobe
+//! cos^n α of exponent [`MIRROR_EXPONENT`] around the mirror direction,
+//! scaled by the conductor's Fresnel reflectance and divided by cos θ_i as
+//! the mirror's δ is, so that its albedo is F at every angle (the paper's
+//! "mirror-like" patches are glossy in the same sense). The camera side still sees a perfect mirror
 //! (see `image.rs`). Glass (dielectrics) is left out: it neither reflects nor
 //! transmits in the transfer.
 
@@ -27,7 +28,10 @@ use super::patches::Patch;
 use crate::bsdf::fresnel::fresnel_conductor;
 use crate::bsdf::{Bsdf, Mode};
 use crate::geometry::Frame;
+use crate::sampling::{uniform_triangle, Pcg32};
 use crate::scene::Rgb;
+use crate::transport::shadow_clear;
+use crate::world::World;
 
 /// Phong exponent standing in for a smooth conductor in the transfer.
 pub const MIRROR_EXPONENT: f32 = 400.0;
@@ -41,10 +45,14 @@ pub fn eval_local(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
             if wo.z <= 0.0 || wi.z <= 0.0 {
                 return Rgb::ZERO;
             }
+            // F δ(wi − r) / cos θ_i with the δ widened to the lobe
+            // (n + 1)/(2π) cos^n α, which integrates to 1 over the sphere
+            // of wi around r: the albedo ∫ f cos θ_i dω_i is then F, as for
+            // the mirror, while the lobe stays above the horizon.
             let r = Vec3::new(-wo.x, -wo.y, wo.z);
             let c = r.dot(wi).max(0.0);
             let n = MIRROR_EXPONENT;
-            s * fresnel_conductor(wo.z, eta, k) * ((n + 2.0) / (2.0 * PI) * c.powf(n))
+            s * fresnel_conductor(wo.z, eta, k) * ((n + 1.0) / (2.0 * PI) * c.powf(n) / wi.z)
         }
         _ => bsdf.eval(wo, wi, Mode::Radiance),
     }
@@ -104,7 +112,15 @@ pub const MIN_COS_G: f32 = 1e-6;
 /// from the sweep along ±d: Le(w) + 2π Σ_{±} f̃(±d, w) E_±/A.
 #[inline]
 pub fn reflect(p: &Patch, d: Vec3, e_plus: Rgb, e_minus: Rgb, w: Vec3) -> Rgb {
-    let mut l = p.le(w);
+    reflect_onto(p.le(w), p, d, e_plus, e_minus, w)
+}
+
+/// `start` + 2π Σ_{±} f̃(±d, w) E_±/A: what patch `p` reflects toward `w`
+/// of the sweep along ±d, added to `start` (the emission for the paper's
+/// operator, the first shot's direct light for [`super::Direct::Nee`]).
+#[inline]
+pub fn reflect_onto(start: Rgb, p: &Patch, d: Vec3, e_plus: Rgb, e_minus: Rgb, w: Vec3) -> Rgb {
+    let mut l = start;
     let k = 2.0 * PI / p.area;
     if e_plus != Rgb::ZERO {
         l += brdf(p, p.ns, d, w) * e_plus * k;
@@ -113,4 +129,41 @@ pub fn reflect(p: &Patch, d: Vec3, e_plus: Rgb, e_minus: Rgb, w: Vec3) -> Rgb {
         l += brdf(p, p.ns, -d, w) * e_minus * k;
     }
     l
+}
+
+/// The first shot on the patch side: the radiance that patch `p` reflects
+/// toward `w` and toward −`w` of the light arriving straight from the
+/// emitters, estimated by one light sample from a uniform point of the
+/// patch (so that it averages over the patch, as the patch's constant
+/// radiance of eq. (23) does): f̃(−wi, ±w) |cos θ_s| Le / pdf when the
+/// shadow ray is clear, with f̃ and the shading correction of [`brdf`].
+/// Returns both and the rays traced (0 or 1).
+pub fn direct(world: &World, p: &Patch, w: Vec3, rng: &mut Pcg32) -> (Rgb, Rgb, u64) {
+    let b = uniform_triangle(rng.next_2d());
+    let u_sel = rng.next_f32();
+    let u = rng.next_2d();
+    let q = p.v[0] * (1.0 - b.x - b.y) + p.v[1] * b.x + p.v[2] * b.y;
+    let Some(ls) = world.lights.sample_li(&world.scene, q, u_sel, u) else {
+        return (Rgb::ZERO, Rgb::ZERO, 0);
+    };
+    if ls.pdf.is_nan() || ls.pdf <= 0.0 {
+        return (Rgb::ZERO, Rgb::ZERO, 0);
+    }
+    // brdf() gives f |cos θ_s| / |cos θ_g| of the flow direction −wi
+    let cos_g = p.ng.dot(ls.wi);
+    let g = ls.le * (cos_g.abs() / ls.pdf);
+    let (f_plus, f_minus) = (brdf(p, p.ns, -ls.wi, w), brdf(p, p.ns, -ls.wi, -w));
+    if f_plus == Rgb::ZERO && f_minus == Rgb::ZERO {
+        return (Rgb::ZERO, Rgb::ZERO, 0);
+    }
+    let side = if cos_g > 0.0 { p.ng } else { -p.ng };
+    if !shadow_clear(world, q, side, &ls) {
+        return (Rgb::ZERO, Rgb::ZERO, 1);
+    }
+    let (l_plus, l_minus) = (f_plus * g, f_minus * g);
+    if l_plus.is_finite() && l_minus.is_finite() {
+        (l_plus, l_minus, 1)
+    } else {
+        (Rgb::ZERO, Rgb::ZERO, 1)
+    }
 }
