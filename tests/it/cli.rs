@@ -61,6 +61,7 @@ fn each_method_help_lists_only_its_own_flags() {
                 "--discard",
                 "--camera-pass",
                 "--variant",
+                "--measure",
             ],
         ),
         (
@@ -74,6 +75,8 @@ fn each_method_help_lists_only_its_own_flags() {
                 "--visibility",
                 "--discard",
                 "--subpixel",
+                "--positions",
+                "--direct",
             ],
         ),
         (
