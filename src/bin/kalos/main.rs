@@ -125,6 +125,10 @@ struct PlotArgs {
     /// Plot title.
     #[arg(long, default_value = "")]
     title: String,
+    /// Label of the y axis (the logs' last column), when it holds another
+    /// error measure than the relative MSE.
+    #[arg(long, default_value = "relative MSE")]
+    y_label: String,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -273,6 +277,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
     }
     let mut opts = PlotOptions::for_axis(x);
     opts.title = a.title;
+    opts.y_label = a.y_label;
     plot::plot_convergence(&series, &a.output, &opts)?;
     say!("plot written to {}", a.output.display());
     Ok(())
