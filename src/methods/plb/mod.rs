@@ -149,8 +149,9 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub discard: u64,
     /// The camera pass, which estimates from the camera what light paths
-    /// cannot reach (delta surfaces seen by the camera, the environment):
-    /// on, or off for the raw method.
+    /// cannot reach (delta surfaces seen by the camera, the environment)
+    /// and, with `--variant guided`, shares glossy surfaces seen by the
+    /// camera with the light paths by MIS: on, or off for the raw method.
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     pub camera_pass: bool,
     /// Which form of the method: the paper's (§3, eqs. 8–9, measured at
