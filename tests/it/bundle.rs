@@ -4,7 +4,10 @@
 //! - form factor: independent replicas (directions) give a sample standard
 //!   error; the bound is a 4σ quantile of it (the furnace, with the
 //!   power-defect bias bound of eq. (18), is in `tests/methods.rs`);
-//! - cbox and the glossy plane: see [`check_against`].
+//! - cbox and the glossy plane: see [`check_against`];
+//! - the first shot's sky, shading normals and the final gather: replicas
+//!   over seeds against path, see [`first_shot_sky_vs_path`] and
+//!   [`gather_glossy_vs_path`].
 
 use crate::common;
 
@@ -276,7 +279,8 @@ fn cbox() {
 }
 
 /// cbox against the Mitsuba reference in the paper's pure form: direct
-/// light carried by the bundles, the visible points traced once.
+/// light carried by the bundles, the visible points traced once, no final
+/// gather.
 #[test]
 fn cbox_paper_form() {
     let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
@@ -284,6 +288,7 @@ fn cbox_paper_form() {
     let base = bundle::Settings {
         direct: bundle::Direct::Bundles,
         positions: bundle::image::Positions::Fixed,
+        gather: bundle::Gather::Off,
         ..Default::default()
     };
     check_against(
@@ -673,4 +678,218 @@ fn first_shot_sky_vs_path() {
          quarter patches {m2h:.5}; tolerance {tol:.5}"
     );
     assert!((m - mp).abs() <= tol, "bundle {m} vs path {mp} ± {tol}");
+}
+
+/// A glossy floor (Phong kd 0.1, ks 0.7, n 30) that mirrors a white back
+/// wall, lit by a small square that faces the wall, so that much of what
+/// the floor shows is light bounced off the wall: the final gather's case.
+/// The wall glows with `wall_le`: then the floor's glossy reflection of it
+/// is direct light, which the pixel's light sample takes, and a gather that
+/// took the wall's emission again would count it twice.
+fn glossy_floor_wall(wall_le: f32) -> Scene {
+    let mut s = Scene::empty("glossy-floor-wall");
+    let phong = s.add_material(Material::Phong {
+        diffuse_reflectance: Texture::Constant(Vec3::splat(0.1)),
+        specular_reflectance: Texture::Constant(Vec3::splat(0.7)),
+        exponent: 30.0,
+    });
+    let white = s.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.8)),
+    });
+    let black = s.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::ZERO),
+    });
+    let floor = [
+        Vec3::new(-1.0, 0.0, -1.0),
+        Vec3::new(1.0, 0.0, -1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(-1.0, 0.0, 1.0),
+    ];
+    s.add_mesh(
+        "floor",
+        &floor,
+        None,
+        None,
+        &[[0, 2, 1], [0, 3, 2]],
+        phong,
+        None,
+    );
+    let wall = [
+        Vec3::new(-1.0, 0.0, -1.0),
+        Vec3::new(1.0, 0.0, -1.0),
+        Vec3::new(1.0, 1.5, -1.0),
+        Vec3::new(-1.0, 1.5, -1.0),
+    ];
+    s.add_mesh(
+        "wall",
+        &wall,
+        None,
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        white,
+        (wall_le > 0.0).then_some(Vec3::splat(wall_le)),
+    );
+    // Faces −z, toward the wall, from above the camera's view
+    let q = [
+        Vec3::new(-0.25, 1.2, 0.6),
+        Vec3::new(0.25, 1.2, 0.6),
+        Vec3::new(0.25, 1.6, 0.6),
+        Vec3::new(-0.25, 1.6, 0.6),
+    ];
+    s.add_mesh(
+        "light",
+        &q,
+        None,
+        None,
+        &[[0, 2, 1], [0, 3, 2]],
+        black,
+        Some(Vec3::splat(20.0)),
+    );
+    s.camera = CameraDesc {
+        to_world: look_at(Vec3::new(0.0, 0.6, 2.2), Vec3::new(0.0, 0.2, -0.6), Vec3::Y),
+        fov_x_deg: 55.0,
+        width: 32,
+        height: 32,
+        near_clip: 1e-3,
+    };
+    s
+}
+
+/// Pixels whose centre sees a glossy surface.
+fn glossy_pixels(scene: &Scene) -> Vec<bool> {
+    let world = kalos::world::World::new(scene.clone());
+    let (w, h) = (world.camera.width, world.camera.height);
+    (0..w * h)
+        .map(|k| {
+            let ray = world.camera.ray((k % w) as f32 + 0.5, (k / w) as f32 + 0.5);
+            world.accel.intersect(&ray).is_some_and(|hit| {
+                let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+                world.scene.material_of(&sp).bsdf(sp.uv).has_glossy()
+            })
+        })
+        .collect()
+}
+
+/// The final gather on glossy pixels keeps the image's expectation
+/// ([`glossy_floor_wall`] with a glowing wall, so that the emission it sees
+/// must not be counted twice) and lowers its variance (a dark wall: the
+/// glow's own light-sample noise, which the gather does not touch, would
+/// hide the gather's effect). See [`check_gather`].
+#[test]
+fn gather_glossy_vs_path() {
+    check_gather("glowing wall", &glossy_floor_wall(0.3), false);
+}
+
+/// [`gather_glossy_vs_path`] with a dark wall, where all the floor's
+/// bounced light goes through the gather: the same bounds on the mean,
+/// and the variance on glossy pixels must fall.
+#[test]
+fn gather_glossy_variance() {
+    check_gather("dark wall", &glossy_floor_wall(0.0), true);
+}
+
+/// Checks the final gather on `scene`'s glossy pixels against path and
+/// against `--gather off`, and (with `variance`) that it lowers the
+/// per-pixel variance.
+///
+/// Expectation: the mean red value over the glossy pixels, with the bound
+/// of [`first_shot_sky_vs_path`]: K = 8 seeds give independent replicas of
+/// bundle's mean (sample standard error se_b); path's standard error se_p
+/// comes from the per-pixel differences of two renders; the discretisation
+/// allowance is |m_h − m_2h| from a render with a quarter of the patches
+/// (and the same seed). With the gather against path: |m − m_path| ≤ 5.41
+/// (two-sided 99.9 % Student-t, 7 degrees of freedom) × √(se_b² + se_p²) +
+/// disc. With against without the gather (the two differ in expectation
+/// only by discretisation: the gather reads the patch solution from the
+/// exact visible point, the Phong estimate averages it over the visible
+/// patch): the same with both standard errors and both allowances.
+///
+/// Variance (only with `variance`): per glossy pixel, the sample variance of its value over the
+/// K seeds, averaged over the glossy pixels. Each is an unbiased estimate
+/// of the pixel's variance at this iteration count; the average over a few
+/// hundred pixels has a relative error of about √(2/(K−1)) /
+/// √(pixels) < 5 % if the pixels were independent, and the assert only
+/// asks that the gather halves it.
+fn check_gather(name: &str, scene: &Scene, variance: bool) {
+    let scene = scene.clone();
+    let mask = glossy_pixels(&scene);
+    let n = mask.iter().filter(|&&g| g).count() as f64;
+    assert!(n > 200.0, "only {n} glossy pixels");
+    let red = |img: &Image| -> Vec<f64> {
+        img.data
+            .iter()
+            .zip(&mask)
+            .filter(|(_, &g)| g)
+            .map(|(p, _)| p.x as f64)
+            .collect()
+    };
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+
+    // path: mean and standard error from two renders
+    let p1 = red(&common::render(&scene, &common::path(), 41, 1024).0);
+    let p2 = red(&common::render(&scene, &common::path(), 42, 1024).0);
+    let mp = (mean(&p1) + mean(&p2)) / 2.0;
+    let se_p = (p1
+        .iter()
+        .zip(&p2)
+        .map(|(a, b)| (a - b).powi(2) / 4.0)
+        .sum::<f64>()
+        / (n * n))
+        .sqrt();
+
+    // bundle with and without the gather: K replicas each
+    let bo = |patches, gather| {
+        MethodConfig::Bundle(bundle::Settings {
+            patches,
+            map_res: Some(128),
+            gather,
+            ..Default::default()
+        })
+    };
+    let k = 8;
+    let iters = 300;
+    let run = |gather| {
+        let reps: Vec<Vec<f64>> = (0..k)
+            .map(|seed| red(&common::render(&scene, &bo(800, gather), seed, iters).0))
+            .collect();
+        let means: Vec<f64> = reps.iter().map(|r| mean(r)).collect();
+        let m = mean(&means);
+        let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k as f64 - 1.0);
+        let se = (var / k as f64).sqrt();
+        // per-pixel variance over the replicas, averaged over the pixels
+        let pix_var = (0..n as usize)
+            .map(|i| {
+                let mi = reps.iter().map(|r| r[i]).sum::<f64>() / k as f64;
+                reps.iter().map(|r| (r[i] - mi).powi(2)).sum::<f64>() / (k as f64 - 1.0)
+            })
+            .sum::<f64>()
+            / n;
+        let m2h = mean(&red(&common::render(&scene, &bo(200, gather), 0, iters).0));
+        let disc = (m2h - means[0]).abs();
+        (m, se, pix_var, disc)
+    };
+    let (m_on, se_on, v_on, disc_on) = run(bundle::Gather::Glossy);
+    let (m_off, se_off, v_off, disc_off) = run(bundle::Gather::Off);
+    let tol_path = 5.41 * (se_on * se_on + se_p * se_p).sqrt() + disc_on;
+    let tol_off = 5.41 * (se_on * se_on + se_off * se_off).sqrt() + disc_on + disc_off;
+    eprintln!(
+        "{} ({n} glossy pixels): gather {m_on:.5} ± {se_on:.5} (disc {disc_on:.5}), \
+         off {m_off:.5} ± {se_off:.5} (disc {disc_off:.5}), path {mp:.5} ± {se_p:.5}; \
+         tolerances {tol_path:.5} (path), {tol_off:.5} (off); \
+         per-pixel variance {v_on:.3e} (gather) vs {v_off:.3e} (off), ratio {:.3}",
+        name,
+        v_on / v_off
+    );
+    assert!(
+        (m_on - mp).abs() <= tol_path,
+        "gather {m_on} vs path {mp} ± {tol_path}"
+    );
+    assert!(
+        (m_on - m_off).abs() <= tol_off,
+        "gather {m_on} vs off {m_off} ± {tol_off}"
+    );
+    assert!(
+        !variance || v_on <= 0.5 * v_off,
+        "per-pixel variance on glossy pixels {v_on:.3e} (gather) vs {v_off:.3e} (off)"
+    );
 }

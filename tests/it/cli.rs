@@ -77,6 +77,7 @@ fn each_method_help_lists_only_its_own_flags() {
                 "--subpixel",
                 "--positions",
                 "--direct",
+                "--gather",
             ],
         ),
         (

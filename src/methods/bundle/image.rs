@@ -24,6 +24,10 @@
 //! the paper's preprocessing ("stored in a map"): [`SAMPLES`] stratified
 //! positions traced once, iteration m using position m mod [`SAMPLES`], so
 //! the image keeps the error of those four points.
+//!
+//! Pixels whose visible point is glossy take their reflected term from a
+//! final gather instead (`View::gather`; the argument is in the docs of
+//! [`super`]).
 
 use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
@@ -94,6 +98,8 @@ pub struct View {
     positions: Positions,
     /// Add one light sample per pixel at the visible point (the first shot).
     nee: bool,
+    /// Final gather at glossy visible points ([`super::Gather::Glossy`]).
+    gather: bool,
     seed: u64,
     /// Area-weighted patch lists per vertex (CSR) for Gouraud.
     vstart: Vec<u32>,
@@ -110,6 +116,7 @@ impl View {
         seed: u64,
         positions: Positions,
         nee: bool,
+        gather: bool,
     ) -> Self {
         let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let n = w * h;
@@ -161,6 +168,7 @@ impl View {
             samples,
             positions,
             nee,
+            gather,
             seed,
             vstart,
             vpatch,
@@ -213,6 +221,85 @@ impl View {
         (s.thr * l, rays)
     }
 
+    /// The final gather of sample `s` of pixel `pix` in iteration `iter`:
+    /// None when it does not apply (gather off, nothing seen, or a visible
+    /// point without a glossy lobe); otherwise the radiance that the visible
+    /// point x reflects toward the eye of what the patch solution sends it
+    /// (times the delta chain's throughput), and the rays traced.
+    ///
+    /// One direction wi is drawn from the BSDF at x (radiance mode) and
+    /// traced to the first surface y, on patch j. What patch j sends back
+    /// toward x, −wi, is the patch solution in the form the transfer builds
+    /// it ([`transfer::reflect_onto`], eq. (27) for one direction): the
+    /// start term plus 2π Σ_± f̃_j(±ω_m, −wi) E_±\[j\]/A_j, with E_± what j
+    /// received in this iteration's sweep. The start term is what the
+    /// bundles carry besides reflected light: j's emission (the paper's
+    /// form), or with the first shot a fresh light sample from a uniform
+    /// point of j ([`transfer::direct`]) and no emission, since light
+    /// straight from the emitters to x is the pixel's own light sample.
+    /// A gather ray that leaves the scene brings the sky in the paper's
+    /// form and nothing with the first shot, for the same reason. The
+    /// estimate is f(wo, wi) |cos θ_i| / pdf(wi) times that radiance; the
+    /// module docs of [`super`] give the argument that nothing is counted
+    /// twice.
+    #[allow(clippy::too_many_arguments)]
+    fn gather(
+        &self,
+        world: &World,
+        patches: &Patches,
+        s: &PixelSample,
+        pix: usize,
+        iter: u64,
+        d: Vec3,
+        e_plus: &[Rgb],
+        e_minus: &[Rgb],
+    ) -> Option<(Rgb, u64)> {
+        if !self.gather || s.patch == NO_PATCH {
+            return None;
+        }
+        let sp = world.scene.surface_point(s.tri, s.b.x, s.b.y);
+        let v = Vertex::new(world, sp, s.wo);
+        if !v.bsdf.has_glossy() {
+            return None;
+        }
+        // Sample the BSDF at x; the glossy BSDFs have no delta lobe, and a
+        // sample on the wrong side of the geometric surface carries nothing
+        let mut rng = Pcg32::keyed(&[self.seed, pix as u64, iter, 0x1E]);
+        let uc = rng.next_f32();
+        let u = rng.next_2d();
+        let Some(bs) = v.bsdf.sample(v.wo_local, uc, u, Mode::Radiance) else {
+            return Some((Rgb::ZERO, 0));
+        };
+        let wi = v.frame.to_world(bs.wi);
+        if bs.delta || bs.pdf <= 0.0 || wi.dot(v.ng) * bs.wi.z <= 0.0 {
+            return Some((Rgb::ZERO, 0));
+        }
+        let weight = bs.f * (bs.wi.z.abs() / bs.pdf);
+
+        // Trace to y and read what its patch sends back toward x
+        let ray = Ray::new(offset_point(v.sp.p, v.ng, wi), wi);
+        let Some(hit) = world.accel.intersect(&ray) else {
+            let sky = if self.nee {
+                Rgb::ZERO
+            } else {
+                world.lights.le_env(wi)
+            };
+            return Some((finite(s.thr * weight * sky), 1));
+        };
+        let (j, _) = patches.locate(hit.tri, hit.b1, hit.b2);
+        let j = j as usize;
+        let p = &patches.p[j];
+        let w = -wi;
+        let (start, shadow) = if self.nee {
+            let (l, _, r) = transfer::direct(world, p, w, &mut rng);
+            (l, r)
+        } else {
+            (p.le(w), 0)
+        };
+        let l = transfer::reflect_onto(start, p, d, e_plus[j], e_minus[j], w);
+        Some((finite(s.thr * weight * l), 1 + shadow))
+    }
+
     /// Adds one estimate to `sum` (one entry per pixel), using the
     /// samples of iteration `iter`; returns the rays traced.
     #[allow(clippy::too_many_arguments)]
@@ -235,6 +322,14 @@ impl View {
                     let (s, rays) = self.sample(world, patches, pix, iter);
                     let (ld, shadow) = self.direct(world, &s, pix, iter);
                     let mut l = s.le + ld;
+                    let gather = self.gather(world, patches, &s, pix, iter, d, e_plus, e_minus);
+                    if let Some((lg, g_rays)) = gather {
+                        l += lg;
+                        if l.is_finite() {
+                            *acc += l.as_dvec3();
+                        }
+                        return rays + shadow + g_rays;
+                    }
                     if s.patch != NO_PATCH {
                         let i = s.patch as usize;
                         let p = &patches.p[i];
@@ -288,6 +383,14 @@ impl View {
                         let (s, rays) = self.sample(world, patches, pix, iter);
                         let (ld, shadow) = self.direct(world, &s, pix, iter);
                         let mut l = s.le + ld;
+                        let gather = self.gather(world, patches, &s, pix, iter, d, e_plus, e_minus);
+                        if let Some((lg, g_rays)) = gather {
+                            l += lg;
+                            if l.is_finite() {
+                                *acc += l.as_dvec3();
+                            }
+                            return rays + shadow + g_rays;
+                        }
                         if s.patch != NO_PATCH {
                             let vid = patches.vid[s.patch as usize];
                             let r = vert[vid[0] as usize] * s.w.x
@@ -303,6 +406,16 @@ impl View {
                     .sum()
             }
         }
+    }
+}
+
+/// `l`, or black when it is not finite.
+#[inline]
+fn finite(l: Rgb) -> Rgb {
+    if l.is_finite() {
+        l
+    } else {
+        Rgb::ZERO
     }
 }
 

@@ -25,6 +25,52 @@
 //! indirect light. Emission seen by the camera is still taken exactly per
 //! pixel. `--direct bundles` is the paper's pure form.
 //!
+//! Final gather (`--gather glossy`, the default): a pixel whose visible
+//! point x (after any delta chain) has a glossy lobe would get its bounced
+//! light only from the one direction pair ±ω_m per iteration, which
+//! rarely falls inside a narrow lobe. Instead, each iteration such a pixel
+//! draws one direction wi from its BSDF (radiance mode), traces it to the
+//! first surface y, on patch j, and takes
+//!
+//! L_gather = f(wo, wi) |cos θ_i| / pdf(wi) · L̂_j(−wi),
+//!
+//! L̂_j(w) = S_j(w) + 2π Σ_± f̃_j(±ω_m, w) E_±\[j\]/A_j,
+//!
+//! in place of the Phong (or Gouraud) estimate, where E_± is what j
+//! received in this iteration's sweep and S_j the term the transfer starts
+//! from ([`transfer::reflect_onto`]): L̂_j(w) is the radiance that patch j
+//! sends toward w one transfer later, built exactly as the bundles build
+//! L\[j\](ω_{m+1}), only in the direction of x instead of ω_{m+1}. Its
+//! expectation over ω_m and the light samples is the patch solution's
+//! radiance leaving j toward x, so the gather is an unbiased one-sample
+//! estimate of ∫ f L_patch cos dω at the exact point x, and the image
+//! average over iterations converges to the same patch solution as without
+//! it (up to the receiver: the gather reads the field at x, the Phong
+//! estimate averages it over x's patch). Nothing is counted twice, because
+//! S_j and the escape term take exactly what the pixel's other terms leave
+//! out:
+//!
+//! - paper's form (`--direct bundles`): the pixel has no light sample; S_j
+//!   is j's emission L_j^e(−wi) and a gather ray that leaves the scene
+//!   brings the sky, as the bundles carry both. The pixel is Le(x) plus
+//!   L_gather.
+//! - first shot (`--direct nee`): the pixel's light sample already holds
+//!   all light that travels straight from an emitter (or the sky) to x, so
+//!   the gather must bring only light that left a surface after at least
+//!   one bounce. S_j is then j's first shot — the light j reflects of what
+//!   reaches it straight from the emitters, by one light sample from a
+//!   uniform point of j ([`transfer::direct`]), as for the patches — and
+//!   not its emission; the reflected term carries what the bundles carry
+//!   (light of non-emitting patches only); an escaping ray brings nothing.
+//!   The pixel is Le(x) + L_direct(x) + L_gather: emission, one bounce,
+//!   two bounces and more, each once.
+//!
+//! Pixels without a glossy lobe keep the Phong or Gouraud estimate. The
+//! gather costs one ray per glossy pixel and iteration, plus the first
+//! shot's shadow ray; its stream is its own, so `--gather off` gives the
+//! image of the code without it, bit for bit. The paper's form is
+//! `--direct bundles --positions fixed --gather off`.
+//!
 //! The image converges to the exact image up to the patch and map
 //! discretisation: radiance is constant over a patch in each direction
 //! (eq. (23)), and the painter's sort by centroid can misorder overlapping
@@ -106,6 +152,23 @@ pub struct Settings {
     /// default), or carried by the bundles as the paper does.
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "nee"))]
     pub direct: Direct,
+    /// Final gather: pixels whose visible point is glossy take their
+    /// bounced light through one BSDF-sampled ray into the patch solution
+    /// (the default), or from the bundles' direction pair as the paper does.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "glossy"))]
+    pub gather: Gather,
+}
+
+/// Which pixels take their bounced light by a final gather.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Gather {
+    /// Pixels whose visible point has a glossy lobe ([`crate::bsdf::Bsdf::has_glossy`]):
+    /// one BSDF-sampled ray per pixel and iteration, reading the patch
+    /// solution where it lands.
+    Glossy,
+    /// None: every pixel reflects the bundles' direction pair (the paper).
+    Off,
 }
 
 /// How light that arrives straight from the emitters is computed.
@@ -169,6 +232,7 @@ impl Default for Settings {
             centre_rr: true,
             positions: Positions::Jittered,
             direct: Direct::Nee,
+            gather: Gather::Glossy,
         }
     }
 }
@@ -256,6 +320,7 @@ impl Bundle {
             settings.seed,
             settings.positions,
             settings.direct == Direct::Nee,
+            settings.gather == Gather::Glossy,
         );
         let rays = view.rays;
         let n = patches.len();
