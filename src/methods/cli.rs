@@ -29,6 +29,21 @@ pub fn parse_count(s: &str) -> Result<u64, String> {
     Ok(n as u64)
 }
 
+/// A finite number > 0 (`--spp`, `--time`): NaN, infinities, zero and
+/// negative values are refused when the command line is read, before any
+/// loading or rendering.
+pub fn parse_positive(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a number, got '{s}'"))?;
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("expected a finite number > 0, got '{s}'"))
+    }
+}
+
 /// [`parse_count`] for sizes held in a `usize`.
 pub fn parse_usize(s: &str) -> Result<usize, String> {
     let n = parse_count(s)?;

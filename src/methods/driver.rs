@@ -21,6 +21,30 @@ pub struct Budget {
     pub passes: Option<u64>,
 }
 
+impl Budget {
+    /// Rejects limits that could never be reached or make no sense: a
+    /// sample count or time that is not a finite number > 0 (NaN would run
+    /// for ever: no comparison with it is ever true), or a ray or pass
+    /// count of 0.
+    pub fn validate(&self) -> Result<(), MethodError> {
+        for (name, v) in [("--spp", self.spp), ("--time", self.time)] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(MethodError(format!(
+                        "{name} must be a finite number > 0, got {v}"
+                    )));
+                }
+            }
+        }
+        for (name, v) in [("--rays", self.rays), ("passes", self.passes)] {
+            if v == Some(0) {
+                return Err(MethodError(format!("{name} must be at least 1, got 0")));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A row of the convergence log.
 #[derive(Clone, Copy, Debug)]
 pub struct LogRow {
@@ -92,6 +116,7 @@ impl Driver<'_> {
         world: &World,
         mut on_progress: impl FnMut(&Progress),
     ) -> Result<RenderResult, MethodError> {
+        self.budget.validate()?;
         let start = Instant::now();
         let mut excluded = 0.0f64; // time spent on logging, not rendering
                                    // Setup runs inside the clock and its rays count toward the budget

@@ -150,8 +150,24 @@ fn bad_values_are_refused_before_rendering() {
         ("density", "--c1", "0"),
         ("light", "--variant", "nope"),
         ("light", "--camera-pass", "maybe"),
+        // budgets that could never be reached: NaN compares false with
+        // everything, so a NaN limit would run for ever
+        ("path", "--spp", "nan"),
+        ("path", "--time", "nan"),
+        ("path", "--spp", "0"),
+        ("plb", "--time", "-1"),
+        ("light", "--spp", "inf"),
     ] {
-        let o = kalos(&["render", "--method", method, flag, value, "-o", "x.pfm"]);
+        let o = kalos(&[
+            "render",
+            "--method",
+            method,
+            flag,
+            value,
+            "-o",
+            "x.pfm",
+            "--dry-run",
+        ]);
         assert!(!o.status.success(), "{method} {flag} {value} was accepted");
         assert!(stderr(&o).contains(flag), "{}", stderr(&o));
     }
@@ -172,6 +188,7 @@ fn bad_values_are_refused_before_rendering() {
             "5",
         ],
         &["--method", "light", "--camera-pass", "off"],
+        &["--method", "path", "--spp", "0.5", "--time", "2"],
     ] {
         let mut all = vec!["render"];
         all.extend_from_slice(args);

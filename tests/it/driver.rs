@@ -80,3 +80,63 @@ fn a_cancelled_render_returns_what_it_has() {
     assert!(r.image.data.iter().any(|p| p.x > 0.0));
     assert!(r.image.data.iter().all(|p| p.is_finite()));
 }
+
+/// Limits that could never be reached are refused before anything runs:
+/// a NaN sample count or time (no comparison with NaN is ever true, so the
+/// render would never stop), zero, or a negative time.
+#[test]
+fn unreachable_budgets_are_refused() {
+    let world = World::new(cbox());
+    let bad = [
+        Budget {
+            spp: Some(f64::NAN),
+            ..Default::default()
+        },
+        Budget {
+            time: Some(f64::NAN),
+            ..Default::default()
+        },
+        Budget {
+            spp: Some(0.0),
+            ..Default::default()
+        },
+        Budget {
+            time: Some(-1.0),
+            ..Default::default()
+        },
+        Budget {
+            rays: Some(0),
+            ..Default::default()
+        },
+    ];
+    for budget in bad {
+        let mut m = MethodConfig::Path(Default::default())
+            .create(&world, &Common::default())
+            .expect("method");
+        let driver = Driver {
+            budget,
+            cancel: None,
+            reference: None,
+            log_every: 1.0,
+        };
+        let err = driver
+            .run(m.as_mut(), &world, |_| {})
+            .err()
+            .unwrap_or_else(|| panic!("{budget:?} was accepted"));
+        eprintln!("{budget:?}: {err}");
+    }
+    // and a reachable one runs
+    let mut m = MethodConfig::Path(Default::default())
+        .create(&world, &Common::default())
+        .expect("method");
+    let ok = Driver {
+        budget: Budget {
+            passes: Some(1),
+            ..Default::default()
+        },
+        cancel: None,
+        reference: None,
+        log_every: 1.0,
+    };
+    assert!(ok.run(m.as_mut(), &world, |_| {}).is_ok());
+}

@@ -31,10 +31,10 @@ pub struct RenderArgs {
     output: PathBuf,
     /// Samples per pixel (light paths per pixel for the light-based
     /// methods). Default 16 when no budget is given.
-    #[arg(long)]
+    #[arg(long, value_parser = mcli::parse_positive)]
     spp: Option<f64>,
     /// Time budget in seconds.
-    #[arg(long)]
+    #[arg(long, value_parser = mcli::parse_positive)]
     time: Option<f64>,
     /// Ray budget (closest-hit and shadow rays together); accepts 30M, 2G.
     #[arg(long, value_parser = mcli::parse_count)]
