@@ -9,7 +9,7 @@
 //! - The reflective models (everything but `dielectric` and `thindielectric`)
 //!   are one-sided, as in Mitsuba: they are zero (and `sample` returns `None`)
 //!   when `wo.z <= 0` or `wi.z <= 0`. For `twosided` materials the integrator
-//!   flips the frame before calling ([`Material::is_two_sided`]).
+//!   flips the frame before calling ([`crate::scene::Material::is_two_sided`]).
 //! - Dielectrics work from both sides: `eta` is interior over exterior, and
 //!   from inside (`wo.z < 0`) the relative index inverts.
 //! - `eval` returns f(wo, wi) **without** the cosine, and zero for delta lobes;
@@ -35,6 +35,7 @@
 
 pub mod coat;
 pub mod fresnel;
+mod material;
 pub mod microfacet;
 
 use glam::{Vec2, Vec3};
@@ -42,7 +43,7 @@ use std::f32::consts::{FRAC_1_PI, PI};
 
 use crate::geometry::{reflect_local, Frame};
 use crate::sampling::{cosine_hemisphere, cosine_hemisphere_pdf};
-use crate::scene::{luminance, Material, Rgb, Texture};
+use crate::scene::{luminance, Rgb};
 
 use coat::CoatTable;
 use fresnel::{fresnel_conductor, fresnel_dielectric, fresnel_diffuse_reflectance, reflect};
@@ -791,169 +792,6 @@ fn thin_reflectance(cos: f32, eta: f32) -> f32 {
         r + t * t * r / (1.0 - r * r)
     } else {
         1.0
-    }
-}
-
-/// A cheap mean of a texture for lobe-selection weights: the texture's mean
-/// where that costs nothing (constants, checkerboards, as Mitsuba's
-/// `Texture::mean`), but the local value for bitmaps, whose mean would be a
-/// pass over every pixel at every hit. Only the noise depends on this choice.
-fn sampling_mean(tex: &Texture, uv: Vec2) -> f32 {
-    let c = match tex {
-        Texture::Bitmap { .. } => tex.eval(uv),
-        _ => tex.mean(),
-    };
-    (c.x + c.y + c.z) / 3.0
-}
-
-/// Mitsuba's weight steering samples to the coat: s̄ / (ρ̄ + s̄).
-fn coat_sampling_weight(diffuse: &Texture, specular: &Texture, uv: Vec2) -> f32 {
-    let d = sampling_mean(diffuse, uv).max(0.0);
-    let s = sampling_mean(specular, uv).max(0.0);
-    if d + s > 0.0 {
-        s / (d + s)
-    } else {
-        0.5
-    }
-}
-
-impl Material {
-    /// Resolves the textures at `uv` into a plain BSDF. `twosided` resolves to
-    /// its inner material (the integrator flips the frame, see
-    /// [`Material::is_two_sided`]).
-    ///
-    /// Scene-file forms (Mitsuba 3 parameter names):
-    ///
-    /// ```xml
-    /// <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>
-    /// <bsdf type="phong">  <!-- kalos's own -->
-    ///     <rgb name="diffuse_reflectance" value="0.3"/>
-    ///     <rgb name="specular_reflectance" value="0.6"/>
-    ///     <float name="exponent" value="40"/>
-    /// </bsdf>
-    /// <bsdf type="conductor"><string name="material" value="Au"/></bsdf>
-    /// <bsdf type="roughconductor">
-    ///     <string name="distribution" value="ggx"/><float name="alpha" value="0.2"/>
-    /// </bsdf>
-    /// <bsdf type="plastic"><float name="int_ior" value="1.49"/></bsdf>
-    /// <bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf>
-    /// <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
-    /// <bsdf type="thindielectric"><float name="int_ior" value="1.5"/></bsdf>
-    /// <bsdf type="twosided"><bsdf type="diffuse"/></bsdf>
-    /// ```
-    pub fn bsdf(&self, uv: Vec2) -> Bsdf {
-        match self {
-            Material::Diffuse { reflectance } => Bsdf::Diffuse {
-                r: reflectance.eval(uv),
-            },
-            Material::Phong {
-                diffuse_reflectance,
-                specular_reflectance,
-                exponent,
-            } => Bsdf::Phong {
-                kd: diffuse_reflectance.eval(uv),
-                ks: specular_reflectance.eval(uv),
-                n: exponent.max(0.0),
-            },
-            Material::Conductor {
-                eta,
-                k,
-                specular_reflectance,
-            } => Bsdf::Conductor {
-                eta: *eta,
-                k: *k,
-                s: specular_reflectance.eval(uv),
-            },
-            Material::RoughConductor {
-                distribution,
-                alpha,
-                eta,
-                k,
-                specular_reflectance,
-            } => Bsdf::RoughConductor {
-                dist: Microfacet::new(*distribution, *alpha),
-                eta: *eta,
-                k: *k,
-                s: specular_reflectance.eval(uv),
-            },
-            Material::Plastic {
-                diffuse_reflectance,
-                specular_reflectance,
-                eta,
-                nonlinear,
-            } => Bsdf::Plastic {
-                rho: diffuse_reflectance.eval(uv),
-                s: specular_reflectance.eval(uv),
-                eta: *eta,
-                fdr_int: fresnel_diffuse_reflectance(1.0 / *eta),
-                nonlinear: *nonlinear,
-                spec_weight: coat_sampling_weight(diffuse_reflectance, specular_reflectance, uv),
-            },
-            Material::RoughPlastic {
-                diffuse_reflectance,
-                specular_reflectance,
-                distribution,
-                alpha,
-                eta,
-                nonlinear,
-            } => {
-                let dist = Microfacet::new(*distribution, *alpha);
-                Bsdf::RoughPlastic {
-                    rho: diffuse_reflectance.eval(uv),
-                    s: specular_reflectance.eval(uv),
-                    dist,
-                    eta: *eta,
-                    nonlinear: *nonlinear,
-                    spec_weight: coat_sampling_weight(
-                        diffuse_reflectance,
-                        specular_reflectance,
-                        uv,
-                    ),
-                    table: CoatTable::get(dist, *eta),
-                }
-            }
-            Material::Dielectric {
-                eta,
-                specular_reflectance,
-                specular_transmittance,
-            } => Bsdf::Dielectric {
-                eta: *eta,
-                r: specular_reflectance.eval(uv),
-                t: specular_transmittance.eval(uv),
-            },
-            Material::ThinDielectric {
-                eta,
-                specular_reflectance,
-                specular_transmittance,
-            } => Bsdf::ThinDielectric {
-                eta: *eta,
-                r: specular_reflectance.eval(uv),
-                t: specular_transmittance.eval(uv),
-            },
-            Material::TwoSided(inner) => inner.bsdf(uv),
-        }
-    }
-
-    /// True when the integrator should flip the shading frame to the side of
-    /// `wo` before calling the BSDF: `twosided` around a reflective model.
-    /// False for everything else, including glass: the dielectrics handle both
-    /// sides themselves, and flipping them would lose which side is inside.
-    pub fn is_two_sided(&self) -> bool {
-        match self {
-            Material::TwoSided(inner) => !matches!(
-                inner.base(),
-                Material::Dielectric { .. } | Material::ThinDielectric { .. }
-            ),
-            _ => false,
-        }
-    }
-
-    /// The material under any `twosided` wrappers.
-    fn base(&self) -> &Material {
-        match self {
-            Material::TwoSided(inner) => inner.base(),
-            m => m,
-        }
     }
 }
 
