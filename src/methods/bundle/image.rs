@@ -314,98 +314,90 @@ impl View {
         iter: u64,
         sum: &mut [DVec3],
     ) -> u64 {
-        match mode {
-            ImageMode::Phong => sum
-                .par_iter_mut()
-                .enumerate()
-                .map(|(pix, acc)| {
-                    let (s, rays) = self.sample(world, patches, pix, iter);
-                    let (ld, shadow) = self.direct(world, &s, pix, iter);
-                    let mut l = s.le + ld;
-                    let gather = self.gather(world, patches, &s, pix, iter, d, e_plus, e_minus);
-                    if let Some((lg, g_rays)) = gather {
-                        l += lg;
-                        if l.is_finite() {
-                            *acc += l.as_dvec3();
-                        }
-                        return rays + shadow + g_rays;
-                    }
-                    if s.patch != NO_PATCH {
-                        let i = s.patch as usize;
-                        let p = &patches.p[i];
-                        let k = 2.0 * std::f32::consts::PI / p.area;
-                        let mut r = Rgb::ZERO;
-                        if e_plus[i] != Rgb::ZERO {
-                            r += transfer::brdf(p, s.ns, d, s.wo) * e_plus[i];
-                        }
-                        if e_minus[i] != Rgb::ZERO {
-                            r += transfer::brdf(p, s.ns, -d, s.wo) * e_minus[i];
-                        }
-                        l += s.thr * r * k;
-                    }
-                    if l.is_finite() {
-                        *acc += l.as_dvec3();
-                    }
-                    rays + shadow
-                })
-                .sum(),
-            ImageMode::Gouraud => {
-                // L^eye[i] of §5, reflected part only (emission is exact per pixel)
-                let eye = world.camera.position();
-                let leye: Vec<Rgb> = patches
-                    .p
-                    .par_iter()
-                    .enumerate()
-                    .map(|(i, p)| {
-                        let w = (eye - p.centroid()).normalize_or(p.ng);
-                        (transfer::reflect(p, d, e_plus[i], e_minus[i], w) - p.le(w)) * p.area
-                    })
-                    .collect();
-                let vert: Vec<Rgb> = (0..patches.vertex_count)
-                    .into_par_iter()
-                    .map(|v| {
-                        let (a, b) = (self.vstart[v] as usize, self.vstart[v + 1] as usize);
-                        let (mut s, mut wsum) = (Rgb::ZERO, 0.0f32);
-                        for &p in &self.vpatch[a..b] {
-                            s += leye[p as usize];
-                            wsum += patches.p[p as usize].area;
-                        }
-                        if wsum > 0.0 {
-                            s / wsum
-                        } else {
-                            Rgb::ZERO
-                        }
-                    })
-                    .collect();
-                sum.par_iter_mut()
-                    .enumerate()
-                    .map(|(pix, acc)| {
-                        let (s, rays) = self.sample(world, patches, pix, iter);
-                        let (ld, shadow) = self.direct(world, &s, pix, iter);
-                        let mut l = s.le + ld;
-                        let gather = self.gather(world, patches, &s, pix, iter, d, e_plus, e_minus);
-                        if let Some((lg, g_rays)) = gather {
-                            l += lg;
-                            if l.is_finite() {
-                                *acc += l.as_dvec3();
+        // Gouraud: L^eye of §5 at the mesh vertices, reflected part only
+        // (emission is exact per pixel)
+        let vert = (mode == ImageMode::Gouraud)
+            .then(|| self.eye_vertices(world, patches, d, e_plus, e_minus));
+        sum.par_iter_mut()
+            .enumerate()
+            .map(|(pix, acc)| {
+                let (s, rays) = self.sample(world, patches, pix, iter);
+                let (ld, shadow) = self.direct(world, &s, pix, iter);
+                let mut l = s.le + ld;
+                let mut traced = rays + shadow;
+                let gather = self.gather(world, patches, &s, pix, iter, d, e_plus, e_minus);
+                if let Some((lg, g_rays)) = gather {
+                    l += lg;
+                    traced += g_rays;
+                } else if s.patch != NO_PATCH {
+                    let i = s.patch as usize;
+                    match &vert {
+                        // Phong: the patch's reflection of the pair ±d
+                        None => {
+                            let p = &patches.p[i];
+                            let k = 2.0 * std::f32::consts::PI / p.area;
+                            let mut r = Rgb::ZERO;
+                            if e_plus[i] != Rgb::ZERO {
+                                r += transfer::brdf(p, s.ns, d, s.wo) * e_plus[i];
                             }
-                            return rays + shadow + g_rays;
+                            if e_minus[i] != Rgb::ZERO {
+                                r += transfer::brdf(p, s.ns, -d, s.wo) * e_minus[i];
+                            }
+                            l += s.thr * r * k;
                         }
-                        if s.patch != NO_PATCH {
-                            let vid = patches.vid[s.patch as usize];
+                        Some(vert) => {
+                            let vid = patches.vid[i];
                             let r = vert[vid[0] as usize] * s.w.x
                                 + vert[vid[1] as usize] * s.w.y
                                 + vert[vid[2] as usize] * s.w.z;
                             l += s.thr * r;
                         }
-                        if l.is_finite() {
-                            *acc += l.as_dvec3();
-                        }
-                        rays + shadow
-                    })
-                    .sum()
-            }
-        }
+                    }
+                }
+                if l.is_finite() {
+                    *acc += l.as_dvec3();
+                }
+                traced
+            })
+            .sum()
+    }
+
+    /// L^eye\[i\] of §5 (the radiance each patch reflects toward the eye of
+    /// the pair ±d, without emission), area-averaged at each mesh vertex.
+    fn eye_vertices(
+        &self,
+        world: &World,
+        patches: &Patches,
+        d: Vec3,
+        e_plus: &[Rgb],
+        e_minus: &[Rgb],
+    ) -> Vec<Rgb> {
+        let eye = world.camera.position();
+        let leye: Vec<Rgb> = patches
+            .p
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let w = (eye - p.centroid()).normalize_or(p.ng);
+                (transfer::reflect(p, d, e_plus[i], e_minus[i], w) - p.le(w)) * p.area
+            })
+            .collect();
+        (0..patches.vertex_count)
+            .into_par_iter()
+            .map(|v| {
+                let (a, b) = (self.vstart[v] as usize, self.vstart[v + 1] as usize);
+                let (mut s, mut wsum) = (Rgb::ZERO, 0.0f32);
+                for &p in &self.vpatch[a..b] {
+                    s += leye[p as usize];
+                    wsum += patches.p[p as usize].area;
+                }
+                if wsum > 0.0 {
+                    s / wsum
+                } else {
+                    Rgb::ZERO
+                }
+            })
+            .collect()
     }
 }
 
