@@ -460,9 +460,24 @@ fn tilted_floor() -> Scene {
 /// the shading correction bundle gave 0.0795 (−23 %), and the test failed.
 #[test]
 fn shading_normals_vs_path() {
-    let scene = tilted_floor();
-    let (p1, _) = common::render(&scene, &common::path(), 21, 4096);
-    let (p2, _) = common::render(&scene, &common::path(), 22, 4096);
+    mean_matches_path("tilted floor", &tilted_floor(), (21, 22, 4096), 200, 2000);
+}
+
+/// bundle's image mean (channel 0) against path's on `scene`, with the
+/// bound of [`shading_normals_vs_path`]: 8 replicas of bundle with
+/// `patches` patches and `iters` iterations, path rendered with the two
+/// seeds and passes of `path_runs`, and the discretisation bound from one
+/// render with a quarter of the patches (same seed).
+fn mean_matches_path(
+    name: &str,
+    scene: &Scene,
+    path_runs: (u64, u64, u64),
+    patches: usize,
+    iters: u64,
+) {
+    let (seed1, seed2, passes) = path_runs;
+    let (p1, _) = common::render(scene, &common::path(), seed1, passes);
+    let (p2, _) = common::render(scene, &common::path(), seed2, passes);
     let n = p1.data.len() as f64;
     let mp = p1
         .data
@@ -487,22 +502,23 @@ fn shading_normals_vs_path() {
         })
     };
     let k = 8;
-    let iters = 2000;
-    let mean_of = |o: &MethodConfig, seed| {
-        common::mean_and_se(&common::render(&scene, o, seed, iters).0, 0).0
-    };
-    let means: Vec<f64> = (0..k).map(|seed| mean_of(&bo(200), seed)).collect();
+    let mean_of =
+        |o: &MethodConfig, seed| common::mean_and_se(&common::render(scene, o, seed, iters).0, 0).0;
+    let means: Vec<f64> = (0..k).map(|seed| mean_of(&bo(patches), seed)).collect();
     let m = means.iter().sum::<f64>() / k as f64;
     let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k as f64 - 1.0);
     let se_b = (var / k as f64).sqrt();
-    let m2h = mean_of(&bo(50), 0);
+    let m2h = mean_of(&bo(patches / 4), 0);
     let disc = (m2h - means[0]).abs();
     let tol = 5.41 * (se_b * se_b + se_p * se_p).sqrt() + disc;
     eprintln!(
-        "tilted floor: bundle {m:.5} ± {se_b:.5} (replicas {means:?}), path {mp:.5} ± {se_p:.5}, \
+        "{name}: bundle {m:.5} ± {se_b:.5} (replicas {means:?}), path {mp:.5} ± {se_p:.5}, \
          quarter patches {m2h:.5}; tolerance {tol:.5}"
     );
-    assert!((m - mp).abs() <= tol, "bundle {m} vs path {mp} ± {tol}");
+    assert!(
+        (m - mp).abs() <= tol,
+        "{name}: bundle {m} vs path {mp} ± {tol}"
+    );
 }
 
 /// The smooth-conductor stand-in of the transfer is a mirror: for every
@@ -635,49 +651,7 @@ fn sky_floor() -> Scene {
 /// of the patches and the same seed.
 #[test]
 fn first_shot_sky_vs_path() {
-    let scene = sky_floor();
-    let (p1, _) = common::render(&scene, &common::path(), 31, 1024);
-    let (p2, _) = common::render(&scene, &common::path(), 32, 1024);
-    let n = p1.data.len() as f64;
-    let mp = p1
-        .data
-        .iter()
-        .zip(&p2.data)
-        .map(|(a, b)| (a.x + b.x) as f64 / 2.0)
-        .sum::<f64>()
-        / n;
-    let se_p = (p1
-        .data
-        .iter()
-        .zip(&p2.data)
-        .map(|(a, b)| ((a.x - b.x) as f64).powi(2) / 4.0)
-        .sum::<f64>()
-        / (n * n))
-        .sqrt();
-    let bo = |patches| {
-        MethodConfig::Bundle(bundle::Settings {
-            patches,
-            map_res: Some(128),
-            ..Default::default()
-        })
-    };
-    let k = 8;
-    let iters = 300;
-    let mean_of = |o: &MethodConfig, seed| {
-        common::mean_and_se(&common::render(&scene, o, seed, iters).0, 0).0
-    };
-    let means: Vec<f64> = (0..k).map(|seed| mean_of(&bo(400), seed)).collect();
-    let m = means.iter().sum::<f64>() / k as f64;
-    let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k as f64 - 1.0);
-    let se_b = (var / k as f64).sqrt();
-    let m2h = mean_of(&bo(100), 0);
-    let disc = (m2h - means[0]).abs();
-    let tol = 5.41 * (se_b * se_b + se_p * se_p).sqrt() + disc;
-    eprintln!(
-        "sky floor: bundle {m:.5} ± {se_b:.5} (replicas {means:?}), path {mp:.5} ± {se_p:.5}, \
-         quarter patches {m2h:.5}; tolerance {tol:.5}"
-    );
-    assert!((m - mp).abs() <= tol, "bundle {m} vs path {mp} ± {tol}");
+    mean_matches_path("sky floor", &sky_floor(), (31, 32, 1024), 400, 300);
 }
 
 /// A glossy floor (Phong kd 0.1, ks 0.7, n 30) that mirrors a white back
