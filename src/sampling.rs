@@ -211,6 +211,29 @@ pub fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
     }
 }
 
+/// The complementary error function, |relative error| < 1.2e-7: the
+/// Chebyshev-type fit in Press et al., Numerical Recipes, 2nd ed., §6.2.
+/// (The Smith masking of Beckmann coats and the statistical tests' normal
+/// tail use it.)
+pub fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let poly = -z * z - 1.26551223
+        + t * (1.00002368
+            + t * (0.37409196
+                + t * (0.09678418
+                    + t * (-0.18628806
+                        + t * (0.27886807
+                            + t * (-1.13520398
+                                + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
+    let r = t * poly.exp();
+    if x >= 0.0 {
+        r
+    } else {
+        2.0 - r
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -209,20 +209,9 @@ fn smith_g1_exact(dist: Microfacet, v: Vec3, m: Vec3) -> f32 {
     }
 }
 
-/// The error function, |error| < 1.2e-7: the Chebyshev-type fit of erfc
-/// in Press et al., Numerical Recipes, 2nd ed., §6.2.
+/// The error function, |error| < 1.2e-7 ([`crate::sampling::erfc`]).
 fn erf(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let poly = -z * z - 1.26551223
-        + t * (1.00002368
-            + t * (0.37409196
-                + t * (0.09678418
-                    + t * (-0.18628806
-                        + t * (0.27886807
-                            + t * (-1.13520398
-                                + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
-    let erfc = t * poly.exp();
+    let erfc = crate::sampling::erfc(x.abs());
     if x >= 0.0 {
         1.0 - erfc
     } else {

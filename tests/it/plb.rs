@@ -367,7 +367,7 @@ fn inflation(x1: &Image, x2: &Image, stats: &[Option<([f64; 3], [f64; 3])>], b: 
 /// erfc(z/√2)/2, which is exact enough for a threshold.
 fn sidak_z(alpha: f64, n: usize) -> f64 {
     let target = alpha / n as f64;
-    let tail = |z: f64| 0.5 * erfc(z / std::f64::consts::SQRT_2);
+    let tail = |z: f64| 0.5 * kalos::sampling::erfc(z / std::f64::consts::SQRT_2);
     let (mut lo, mut hi) = (0.0f64, 10.0f64);
     for _ in 0..100 {
         let mid = 0.5 * (lo + hi);
@@ -378,28 +378,6 @@ fn sidak_z(alpha: f64, n: usize) -> f64 {
         }
     }
     0.5 * (lo + hi)
-}
-
-/// The complementary error function (Numerical Recipes' erfcc, relative
-/// error below 1.2e-7).
-fn erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t
-        * (-z * z - 1.26551223
-            + t * (1.00002368
-                + t * (0.37409196
-                    + t * (0.09678418
-                        + t * (-0.18628806
-                            + t * (0.27886807
-                                + t * (-1.13520398
-                                    + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
-            .exp();
-    if x >= 0.0 {
-        r
-    } else {
-        2.0 - r
-    }
 }
 
 #[test]
