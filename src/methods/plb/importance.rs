@@ -43,7 +43,10 @@ const GRID_PRIOR: f64 = 4.0;
 /// every hit keeps a positive selection probability (E[T*L] = TL).
 const GRID_FLOOR: f64 = 0.05;
 
-/// Pooled importance (`--variant pooled`, not in the paper): a uniform grid
+/// Pooled importance (`--variant pooled` and `guided`, not in the paper;
+/// guided's r also counts what the landing point passes on,
+/// `iterate::landing_value`, and its lights record into [`LIGHT_SLOT`]):
+/// a uniform grid
 /// over the scene's bounds. Each cell keeps Σr and the count of the rays
 /// spawned from hits inside it, where r = Lum(child's image contribution) /
 /// Lum(child's power) is the image impact per unit power of where the ray
