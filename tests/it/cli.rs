@@ -255,3 +255,123 @@ fn a_failed_density_bake_exits_non_zero_with_the_reason() {
     );
     assert!(!out.exists(), "no image from a failed bake");
 }
+
+/// A scene file that does not exist: an error that mentions it shows that
+/// kalos got as far as loading.
+const NO_SCENE: &str = "/nonexistent/kalos-test-scene.xml";
+
+#[test]
+fn a_bad_output_fails_before_the_scene_is_loaded() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = dir.path().join("file");
+    std::fs::write(&file, b"x").expect("write");
+    let missing = dir.path().join("no-such-folder").join("x.exr");
+    let under_file = file.join("x.png");
+    let log = dir.path().join("no-such-folder").join("log.csv");
+    let ok = dir.path().join("ok.exr");
+    for (args, words) in [
+        (
+            vec!["-o", missing.to_str().expect("utf-8")],
+            "does not exist",
+        ),
+        (
+            vec!["-o", under_file.to_str().expect("utf-8")],
+            "not a folder",
+        ),
+        (vec!["-o", "x.tiff"], ".exr, .pfm or .png"),
+        (
+            vec![
+                "-o",
+                ok.to_str().expect("utf-8"),
+                "--log",
+                log.to_str().expect("utf-8"),
+            ],
+            "does not exist",
+        ),
+    ] {
+        let mut all = vec!["render", NO_SCENE];
+        all.extend_from_slice(&args);
+        let o = kalos(&all);
+        assert!(!o.status.success(), "{args:?} was accepted");
+        let e = stderr(&o);
+        assert!(e.contains(words), "{args:?}: {e}");
+        assert!(!e.contains("kalos-test-scene"), "loaded first: {e}");
+        assert!(!e.contains(".tmp-"), "names a temporary file: {e}");
+    }
+    // bake checks its output the same way
+    let o = kalos(&[
+        "bake",
+        NO_SCENE,
+        "-o",
+        missing.with_extension("glb").to_str().expect("utf-8"),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("does not exist"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read_dir(dir.path()).expect("read_dir").count(),
+        1,
+        "only 'file' is left"
+    );
+}
+
+#[test]
+fn bad_budgets_fail_before_the_scene_is_loaded() {
+    // without --dry-run too: the budget is refused before the (missing)
+    // scene is looked at
+    for (flag, value) in [
+        ("--spp", "nan"),
+        ("--time", "nan"),
+        ("--spp", "0"),
+        ("--rays", "0"),
+    ] {
+        let o = kalos(&["render", NO_SCENE, flag, value, "-o", "x.pfm"]);
+        assert!(!o.status.success(), "{flag} {value} was accepted");
+        let e = stderr(&o);
+        assert!(e.contains(flag) && !e.contains("kalos-test-scene"), "{e}");
+    }
+    let o = kalos(&["render", "--res", "0x10", "-o", "x.pfm", "--dry-run"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--res"), "{}", stderr(&o));
+}
+
+#[test]
+fn an_os_error_is_reported_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("missing.pfm");
+    let out = dir.path().join("x.pfm");
+    let o = kalos(&[
+        "render",
+        "--ref",
+        missing.to_str().expect("utf-8"),
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("missing.pfm"), "{e}");
+    assert_eq!(e.matches("os error").count(), 1, "{e}");
+}
+
+#[test]
+fn a_read_only_output_is_refused_and_kept() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("keep.pfm");
+    std::fs::write(&out, b"not replaced").expect("write");
+    let mut perm = std::fs::metadata(&out).expect("meta").permissions();
+    perm.set_readonly(true);
+    std::fs::set_permissions(&out, perm).expect("chmod");
+    let o = kalos(&[
+        "render",
+        "--res",
+        "8x8",
+        "--spp",
+        "1",
+        "-q",
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert!(!o.status.success(), "a read-only output was replaced");
+    let e = stderr(&o);
+    assert!(e.contains("keep.pfm") && e.contains("read-only"), "{e}");
+    assert_eq!(std::fs::read(&out).expect("read"), b"not replaced");
+}

@@ -9,7 +9,7 @@ use clap::Args;
 
 use kalos::methods::{density, World};
 
-use crate::{extension, load_scene, say, set_threads};
+use crate::{check_output, load_scene, say, set_threads};
 
 /// The flags of `kalos bake`.
 #[derive(Args)]
@@ -51,9 +51,9 @@ fn peak_memory() -> Option<u64> {
 
 /// Runs `kalos bake`.
 pub fn run(a: BakeArgs) -> Result<()> {
-    let ext = extension(&a.output);
-    if ext != "glb" {
-        bail!("output '{}' must end in .glb", a.output.display());
+    check_output(&a.output, &["glb"])?;
+    if let Some(p) = &a.ply {
+        check_output(p, &["ply"])?;
     }
     let s = density::Settings {
         seed: a.seed,

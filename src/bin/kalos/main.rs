@@ -8,7 +8,7 @@ use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use kalos::image_io::{self, PngOptions, Tonemap};
@@ -194,9 +194,44 @@ fn main() {
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
     };
     if let Err(e) = r {
-        eprintln!("error: {e:#}");
+        eprintln!("error: {}", error_text(&e));
         std::process::exit(1);
     }
+}
+
+/// The error and its causes on one line, each cause once: a library error
+/// that already quotes its source (`"x.exr: Permission denied"`) is not
+/// followed by the same words again, as `{:#}` would print them.
+fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let s = cause.to_string();
+        if text.contains(&s) {
+            continue;
+        }
+        if !text.is_empty() {
+            text += ": ";
+        }
+        text += &s;
+    }
+    text
+}
+
+/// Checks an output file before any work: its extension is one of `exts`
+/// (lower case, without the dot), and it can be written there
+/// ([`image_io::check_writable`]).
+fn check_output(path: &Path, exts: &[&str]) -> Result<()> {
+    let ext = extension(path);
+    if !exts.contains(&ext.as_str()) {
+        let list: Vec<String> = exts.iter().map(|e| format!(".{e}")).collect();
+        let list = match list.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => list.join(""),
+        };
+        bail!("output '{}' must end in {list}", path.display());
+    }
+    image_io::check_writable(path)?;
+    Ok(())
 }
 
 /// The lower-case extension of `path` ("" when it has none).
@@ -229,15 +264,22 @@ fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
             r.rel_mse.map(|e| format!("{e:.6e}")).unwrap_or_default()
         );
     }
-    // atomic: a temporary file beside the target, then a rename
-    let tmp = path.with_extension(format!("csv.tmp-{}", std::process::id()));
-    std::fs::write(&tmp, text.as_bytes())
-        .and_then(|_| std::fs::rename(&tmp, path))
-        .with_context(|| format!("writing {}", path.display()))?;
+    // atomic, like the images: a temporary file beside the target, then a rename
+    image_io::write_atomic(path, |w| {
+        use std::io::Write as _;
+        w.write_all(text.as_bytes())
+            .map_err(|source| image_io::ImageIoError::Io {
+                path: path.to_path_buf(),
+                source,
+            })
+    })?;
     Ok(())
 }
 
 fn compare(a: CompareArgs) -> Result<()> {
+    if let Some(out) = &a.error_image {
+        check_output(out, &["png", "exr", "pfm"])?;
+    }
     let img = image_io::read_image(&a.image)?;
     let r = image_io::read_image(&a.reference)?;
     say!("{}", metrics::Comparison::new(&img, &r)?);
@@ -261,6 +303,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
         XArg::Rays => XAxis::Rays,
         XArg::Spp => XAxis::Spp,
     };
+    check_output(&a.output, &["png"])?;
     let mut series = Vec::new();
     for spec in &a.logs {
         let (label, file) = match spec.split_once('=') {

@@ -18,7 +18,7 @@ use kalos::methods::{self, cli as mcli, Budget, Common, World};
 use kalos::metrics;
 use kalos::render::Render;
 
-use crate::{extension, load_scene, parse_res, set_threads, write_log, TonemapArg};
+use crate::{check_output, load_scene, parse_res, set_threads, write_log, TonemapArg};
 
 /// The flags every method shares.
 #[derive(Args)]
@@ -128,19 +128,32 @@ pub fn parse(args: Vec<OsString>) -> Result<(RenderArgs, methods::MethodConfig)>
 
 /// Runs `kalos render`.
 pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
-    // Check what can be checked before spending any time.
-    let ext = extension(&a.output);
-    if !matches!(ext.as_str(), "exr" | "pfm" | "png") {
-        bail!(
-            "output '{}' must end in .exr, .pfm or .png",
-            a.output.display()
-        );
-    }
+    // Check what can be checked before spending any time: the settings,
+    // the budget, the files to write (format, folder, permissions) and the
+    // reference, so that a bad path fails now and not after the render.
     let common = Common {
         seed: a.seed,
         max_depth: a.max_depth,
     };
     cfg.check(&common)?;
+    let mut budget = Budget {
+        spp: a.spp,
+        time: a.time,
+        rays: a.rays,
+        passes: None,
+    };
+    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
+        budget.spp = Some(16.0);
+    }
+    budget.validate()?;
+    check_output(&a.output, &["exr", "pfm", "png"])?;
+    if let Some(log) = &a.log {
+        check_output(log, &["csv"])?;
+    }
+    let reference = match &a.reference {
+        Some(p) => Some(image_io::read_image(p)?),
+        None => None,
+    };
     if a.dry_run {
         crate::say!("{}: arguments accepted", cfg.name());
         return Ok(());
@@ -151,36 +164,24 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     if let Some((w, h)) = a.res {
         scene.set_resolution(w, h);
     }
-    let reference = match &a.reference {
-        Some(p) => {
-            let r = image_io::read_image(p)?;
-            if (r.width, r.height) != (scene.camera.width, scene.camera.height) {
-                bail!(
-                    "reference {} is {}x{} but the render is {}x{}",
-                    p.display(),
-                    r.width,
-                    r.height,
-                    scene.camera.width,
-                    scene.camera.height
-                );
-            }
-            Some(r)
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    if w == 0 || h == 0 {
+        bail!("the film is {w}x{h}: an image needs at least one pixel (set --res)");
+    }
+    if let (Some(r), Some(p)) = (&reference, &a.reference) {
+        if (r.width, r.height) != (w, h) {
+            bail!(
+                "reference {} is {}x{} but the render is {w}x{h}",
+                p.display(),
+                r.width,
+                r.height,
+            );
         }
-        None => None,
-    };
+    }
     let world = World::new(scene);
     let load_s = t0.elapsed().as_secs_f64();
     if world.lights.is_empty() {
         eprintln!("warning: the scene has no emitters; the image will be black");
-    }
-    let mut budget = Budget {
-        spp: a.spp,
-        time: a.time,
-        rays: a.rays,
-        passes: None,
-    };
-    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
-        budget.spp = Some(16.0);
     }
 
     let cancel = Arc::new(AtomicBool::new(false));
