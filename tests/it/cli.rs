@@ -375,3 +375,44 @@ fn a_read_only_output_is_refused_and_kept() {
     assert!(e.contains("keep.pfm") && e.contains("read-only"), "{e}");
     assert_eq!(std::fs::read(&out).expect("read"), b"not replaced");
 }
+
+#[test]
+fn a_film_past_the_memory_limit_is_an_error_not_an_abort() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // the r6 reproducer: a 65536 × 65536 film, past any machine's memory
+    let scene = dir.path().join("r6.xml");
+    std::fs::write(
+        &scene,
+        r#"<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">
+        <integer name="width" value="65536"/><integer name="height" value="65536"/>
+        </film></sensor><shape type="sphere"><emitter type="area"/></shape></scene>"#,
+    )
+    .expect("write");
+    let out = dir.path().join("x.exr");
+    let out = out.to_str().expect("utf-8");
+    let o = kalos(&["render", scene.to_str().expect("utf-8"), "-o", out]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("65536×65536") && e.contains("--max-memory"),
+        "{e}"
+    );
+    // --res 16384x16384 under an 8 GB limit, for the path tracer and bundle
+    for method in ["path", "bundle"] {
+        let o = kalos(&[
+            "render",
+            "--method",
+            method,
+            "--res",
+            "16384x16384",
+            "--max-memory",
+            "8G",
+            "-o",
+            out,
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{method}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(e.contains("16384×16384") && e.contains("8.0 GB"), "{e}");
+    }
+    assert!(!dir.path().join("x.exr").exists());
+}

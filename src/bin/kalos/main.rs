@@ -217,6 +217,18 @@ fn error_text(e: &anyhow::Error) -> String {
     text
 }
 
+/// The memory limit of a render and where it comes from: `--max-memory`
+/// when given, else the machine's memory (Linux's `/proc/meminfo`), else
+/// none.
+fn memory_limit(flag: Option<u64>) -> Option<(u64, String)> {
+    if let Some(m) = flag {
+        return Some((m, "--max-memory".into()));
+    }
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let total = kalos::render::mem_total(&text)?;
+    Some((total, "this machine's memory".into()))
+}
+
 /// Checks an output file before any work: its extension is one of `exts`
 /// (lower case, without the dot), and it can be written there
 /// ([`image_io::check_writable`]).

@@ -16,9 +16,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kalos::image_io::{self, PngOptions};
 use kalos::methods::{self, cli as mcli, Budget, Common, World};
 use kalos::metrics;
-use kalos::render::Render;
+use kalos::render::{self, Render};
 
-use crate::{check_output, load_scene, parse_res, set_threads, write_log, TonemapArg};
+use crate::{
+    check_output, load_scene, memory_limit, parse_res, set_threads, write_log, TonemapArg,
+};
 
 /// The flags every method shares.
 #[derive(Args)]
@@ -67,6 +69,11 @@ pub struct RenderArgs {
     /// PNG tone mapping.
     #[arg(long, value_enum, default_value = "clamp")]
     tonemap: TonemapArg,
+    /// Most memory the render may plan to use, checked before anything
+    /// large is allocated; accepts 8G, 500M (default: this machine's
+    /// memory).
+    #[arg(long, value_parser = mcli::parse_count)]
+    max_memory: Option<u64>,
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
@@ -167,6 +174,9 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     let (w, h) = (scene.camera.width, scene.camera.height);
     if w == 0 || h == 0 {
         bail!("the film is {w}x{h}: an image needs at least one pixel (set --res)");
+    }
+    if let Some((limit, source)) = memory_limit(a.max_memory) {
+        render::check_memory(&render::memory_estimate(&cfg, w, h), limit, &source)?;
     }
     if let (Some(r), Some(p)) = (&reference, &a.reference) {
         if (r.width, r.height) != (w, h) {
