@@ -416,3 +416,65 @@ fn a_film_past_the_memory_limit_is_an_error_not_an_abort() {
     }
     assert!(!dir.path().join("x.exr").exists());
 }
+
+/// Starts a render on a long budget, sends it `signal` with the `kill`
+/// command once it has had time to start, and returns its exit code and
+/// whether it wrote a valid image. A signal that arrives before the
+/// handler is installed (the process ends by the signal, without a code)
+/// or before the first pass (nothing written) is retried with a longer
+/// wait, so that a slow start on a loaded machine does not fail the test.
+#[cfg(unix)]
+fn interrupt_render(signal: &str) -> (Option<i32>, Option<kalos::film::Image>) {
+    use std::time::{Duration, Instant};
+    let mut last = (None, None);
+    for wait_s in [1.0, 3.0, 8.0] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("s.pfm");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kalos"))
+            .args(["render", "--res", "16x16", "--time", "600", "-q", "-o"])
+            .arg(&out)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("kalos starts");
+        std::thread::sleep(Duration::from_secs_f64(wait_s));
+        let sent = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .expect("kill runs");
+        assert!(sent.success(), "kill {signal} failed");
+        // Generous bound, only so that a render that ignores the signal
+        // fails the test instead of hanging it (the budget is 600 s).
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let status = loop {
+            if let Some(s) = child.try_wait().expect("wait") {
+                break s;
+            }
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("kalos did not stop within 60 s of {signal}");
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        let image = kalos::image_io::read_image(&out).ok();
+        last = (status.code(), image);
+        if last.0.is_some() && last.1.is_some() {
+            break;
+        }
+    }
+    last
+}
+
+#[cfg(unix)]
+#[test]
+fn sigterm_and_sigint_save_the_image_and_exit_143_and_130() {
+    for (signal, code) in [("-TERM", 143), ("-INT", 130)] {
+        let (exit, image) = interrupt_render(signal);
+        assert_eq!(exit, Some(code), "{signal}");
+        let image = image.unwrap_or_else(|| panic!("{signal}: no valid image"));
+        assert_eq!((image.width, image.height), (16, 16));
+        assert!(image.data.iter().all(|p| p.is_finite()), "{signal}");
+        assert!(image.data.iter().any(|p| p.x > 0.0), "{signal}: black");
+    }
+}

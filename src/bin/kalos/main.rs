@@ -3,6 +3,7 @@
 
 mod bake;
 mod render;
+mod signals;
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -184,6 +185,9 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
 
 fn main() {
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Render { .. } | Command::Bake(_)) {
+        signals::install();
+    }
     let r = match cli.command {
         Command::Render { args } => render::parse(args).and_then(|(a, m)| render::run(a, m)),
         Command::Compare(a) => compare(a),
@@ -193,9 +197,15 @@ fn main() {
         Command::Bake(a) => bake::run(*a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
     };
+    // An interrupted command exits with the signal's code (130, 143),
+    // after it has saved what it had.
+    let interrupted = signals::exit_code();
     if let Err(e) = r {
         eprintln!("error: {}", error_text(&e));
-        std::process::exit(1);
+        std::process::exit(interrupted.unwrap_or(1));
+    }
+    if let Some(code) = interrupted {
+        std::process::exit(code);
     }
 }
 

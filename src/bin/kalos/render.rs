@@ -4,8 +4,7 @@
 
 use std::ffi::OsString;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -190,19 +189,13 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     }
     let world = World::new(scene);
     let load_s = t0.elapsed().as_secs_f64();
+    let cancel = crate::signals::cancel_flag();
+    if cancel.load(Ordering::SeqCst) {
+        eprintln!("interrupted while loading: nothing rendered, nothing written");
+        return Ok(());
+    }
     if world.lights.is_empty() {
         eprintln!("warning: the scene has no emitters; the image will be black");
-    }
-
-    let cancel = Arc::new(AtomicBool::new(false));
-    {
-        let c = cancel.clone();
-        // A second Ctrl-C while saving is left to the default handler.
-        let _ = ctrlc::set_handler(move || {
-            if c.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-        });
     }
     let bar = if a.quiet {
         ProgressBar::hidden()
@@ -220,7 +213,7 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         .method(cfg)
         .common(common)
         .budget(budget)
-        .cancel(&cancel);
+        .cancel(cancel);
     if let Some(r) = &reference {
         render = render.reference(r, if a.log.is_some() { a.log_every } else { 0.0 });
     }
@@ -235,6 +228,11 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     });
     bar.finish_and_clear();
     let result = result.context("rendering")?;
+    if result.interrupted && result.passes == 0 {
+        // Nothing to save, and a black image must not replace a good one.
+        eprintln!("interrupted before the first pass: nothing written");
+        return Ok(());
+    }
 
     let png = PngOptions {
         exposure: a.exposure,
