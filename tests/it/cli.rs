@@ -478,3 +478,50 @@ fn sigterm_and_sigint_save_the_image_and_exit_143_and_130() {
         assert!(image.data.iter().any(|p| p.x > 0.0), "{signal}: black");
     }
 }
+
+#[test]
+fn compare_refuses_display_images_mismatched_sizes_and_nan() {
+    use glam::Vec3;
+    use kalos::film::Image;
+    use kalos::image_io::{write_image, PngOptions};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let flat = |w: u32, h: u32, v: f32| Image {
+        width: w,
+        height: h,
+        data: vec![Vec3::splat(v); (w * h) as usize],
+    };
+    let o = PngOptions::default();
+    write_image(dir.path().join("ref.pfm").as_path(), &flat(4, 4, 0.5), &o).expect("write");
+    write_image(dir.path().join("a.pfm").as_path(), &flat(4, 4, 0.4), &o).expect("write");
+    write_image(dir.path().join("a.png").as_path(), &flat(4, 4, 0.4), &o).expect("write");
+    write_image(dir.path().join("big.pfm").as_path(), &flat(8, 8, 0.4), &o).expect("write");
+    let mut nan = flat(4, 4, 0.4);
+    nan.data[3] = Vec3::new(f32::NAN, 0.0, 0.0);
+    nan.data[7] = Vec3::splat(f32::INFINITY);
+    write_image(dir.path().join("nan.pfm").as_path(), &nan, &o).expect("write");
+
+    // a fine pair is compared
+    let ok = kalos(&["compare", &p("a.pfm"), &p("ref.pfm")]);
+    assert!(ok.status.success(), "{}", stderr(&ok));
+    assert!(stdout(&ok).contains("relMSE"));
+    for (image, reference, words) in [
+        ("a.png", "ref.pfm", vec!["a.png", "HDR"]),
+        ("ref.pfm", "a.png", vec!["a.png", "HDR"]),
+        (
+            "big.pfm",
+            "ref.pfm",
+            vec!["big.pfm", "8x8", "ref.pfm", "4x4"],
+        ),
+        ("nan.pfm", "ref.pfm", vec!["nan.pfm", "2 of its 16"]),
+        ("a.pfm", "nan.pfm", vec!["nan.pfm", "2 of its 16"]),
+    ] {
+        let o = kalos(&["compare", &p(image), &p(reference)]);
+        assert_eq!(o.status.code(), Some(1), "{image} {reference}");
+        let e = stderr(&o);
+        for w in words {
+            assert!(e.contains(w), "{image} {reference}: {e}");
+        }
+        assert!(!stdout(&o).contains("NaN"), "{}", stdout(&o));
+    }
+}

@@ -533,3 +533,18 @@ fn convergence_csv_is_read_and_plotted() {
         e => panic!("unexpected {e}"),
     }
 }
+
+#[test]
+fn a_comparison_is_never_nan() {
+    use kalos::metrics::{non_finite_pixels, Comparison};
+    let r = img2([1.0, 1.0, 1.0], [0.5, 0.5, 0.5]);
+    let nan = img2([f32::NAN, 1.0, 1.0], [0.5, 0.5, 0.5]);
+    // the largest f32 squared still fits an f64 sum: finite figures
+    let huge = img2([3e38, 1.0, 1.0], [0.5, 0.5, 0.5]);
+    assert_eq!(non_finite_pixels(&nan), 1);
+    assert_eq!(non_finite_pixels(&huge), 0);
+    let err = Comparison::new(&nan, &r).unwrap_err();
+    assert!(matches!(err, MetricsError::NotFinite(_)), "{err}");
+    assert!(Comparison::new(&huge, &r).is_ok());
+    assert!(Comparison::new(&r, &r).is_ok());
+}

@@ -298,12 +298,47 @@ fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
     Ok(())
 }
 
+/// Reads an image to measure or to measure against: linear radiance only
+/// (EXR, PFM, Radiance HDR; a PNG or JPEG holds tone-mapped display values,
+/// whose error against radiance means nothing), every pixel finite.
+fn read_hdr(path: &Path) -> Result<kalos::film::Image> {
+    let ext = extension(path);
+    if !matches!(ext.as_str(), "exr" | "pfm" | "hdr") {
+        bail!(
+            "{}: not a linear HDR image; comparisons need .exr, .pfm or .hdr (a .{ext} holds \
+             tone-mapped display values, not radiance)",
+            path.display()
+        );
+    }
+    let img = image_io::read_image(path)?;
+    let bad = metrics::non_finite_pixels(&img);
+    if bad > 0 {
+        bail!(
+            "{}: {bad} of its {} pixels are NaN or infinite, so every figure would be NaN",
+            path.display(),
+            img.data.len()
+        );
+    }
+    Ok(img)
+}
+
 fn compare(a: CompareArgs) -> Result<()> {
     if let Some(out) = &a.error_image {
         check_output(out, &["png", "exr", "pfm"])?;
     }
-    let img = image_io::read_image(&a.image)?;
-    let r = image_io::read_image(&a.reference)?;
+    let img = read_hdr(&a.image)?;
+    let r = read_hdr(&a.reference)?;
+    if (img.width, img.height) != (r.width, r.height) {
+        bail!(
+            "{} is {}x{} but the reference {} is {}x{}",
+            a.image.display(),
+            img.width,
+            img.height,
+            a.reference.display(),
+            r.width,
+            r.height
+        );
+    }
     say!("{}", metrics::Comparison::new(&img, &r)?);
     if let Some(out) = &a.error_image {
         let e = metrics::false_color_error(&img, &r)?;

@@ -18,7 +18,7 @@ use kalos::metrics;
 use kalos::render::{self, Render};
 
 use crate::{
-    check_output, load_scene, memory_limit, parse_res, set_threads, write_log, TonemapArg,
+    check_output, load_scene, memory_limit, parse_res, read_hdr, set_threads, write_log, TonemapArg,
 };
 
 /// The flags every method shares.
@@ -157,7 +157,7 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         check_output(log, &["csv"])?;
     }
     let reference = match &a.reference {
-        Some(p) => Some(image_io::read_image(p)?),
+        Some(p) => Some(read_hdr(p)?),
         None => None,
     };
     if a.dry_run {
