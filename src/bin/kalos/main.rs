@@ -185,9 +185,6 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
 
 fn main() {
     let cli = Cli::parse();
-    if matches!(cli.command, Command::Render { .. } | Command::Bake(_)) {
-        signals::install();
-    }
     let r = match cli.command {
         Command::Render { args } => render::parse(args).and_then(|(a, m)| render::run(a, m)),
         Command::Compare(a) => compare(a),

@@ -4,7 +4,6 @@
 
 use std::ffi::OsString;
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -189,11 +188,10 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     }
     let world = World::new(scene);
     let load_s = t0.elapsed().as_secs_f64();
+    // From here on the first SIGINT or SIGTERM saves what is rendered;
+    // while loading there is nothing to save, and they end kalos at once.
+    crate::signals::install();
     let cancel = crate::signals::cancel_flag();
-    if cancel.load(Ordering::SeqCst) {
-        eprintln!("interrupted while loading: nothing rendered, nothing written");
-        return Ok(());
-    }
     if world.lights.is_empty() {
         eprintln!("warning: the scene has no emitters; the image will be black");
     }

@@ -5,8 +5,11 @@
 //! SIGINT, 143 after SIGTERM, so that a script can tell an interrupted
 //! render from a finished one.
 //!
-//! `render` hands [`cancel_flag`] to the driver, which stops after the
-//! current pass; `bake` can hand the same flag to the density bake.
+//! `render` installs the handlers once the scene is loaded (while loading
+//! there is nothing to save, and a signal ends kalos at once) and hands
+//! [`cancel_flag`] to the driver, which stops after the current pass. A
+//! command that installs them must watch the flag: `bake` can, once the
+//! density bake takes a cancel flag.
 //!
 //! On Unix the handler is installed with the C library's `signal`, which
 //! every Unix C library has and which `std` already links: the `ctrlc`
