@@ -525,3 +525,23 @@ fn compare_refuses_display_images_mismatched_sizes_and_nan() {
         assert!(!stdout(&o).contains("NaN"), "{}", stdout(&o));
     }
 }
+
+#[test]
+fn a_bake_past_the_memory_limit_is_refused_before_it_starts() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("x.glb");
+    let o = kalos(&[
+        "bake",
+        NO_SCENE,
+        "--chunk-hits",
+        "5M",
+        "--max-memory",
+        "10M",
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("hit chunk") && e.contains("--chunk-hits"), "{e}");
+    assert!(!e.contains("kalos-test-scene"), "loaded first: {e}");
+}

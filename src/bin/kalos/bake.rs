@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use kalos::methods::{density, World};
+use kalos::methods::{density, MethodConfig, World};
 
 use crate::{check_output, load_scene, say, set_threads};
 
@@ -32,6 +32,10 @@ pub struct BakeArgs {
     /// only); default unlimited.
     #[arg(long)]
     max_depth: Option<u32>,
+    /// Most memory the bake may plan to use; accepts 8G, 500M (default:
+    /// this machine's memory).
+    #[arg(long, value_parser = kalos::methods::cli::parse_count)]
+    max_memory: Option<u64>,
     /// Print particles, hits, bytes per hit, time per phase, peak memory,
     /// triangles before and after decimation.
     #[arg(long)]
@@ -61,6 +65,11 @@ pub fn run(a: BakeArgs) -> Result<()> {
         ..a.density.clone()
     };
     s.validate()?;
+    if let Some((limit, source)) = crate::memory_limit(a.max_memory) {
+        // no film: only the bake's own buffers
+        let items = kalos::render::memory_estimate(&MethodConfig::Density(s.clone()), 0, 0);
+        kalos::render::check_memory(&items, limit, &source)?;
+    }
     if a.max_depth == Some(0) {
         bail!("--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)");
     }
