@@ -57,6 +57,17 @@ pub enum ImageIoError {
         /// What was wrong.
         reason: String,
     },
+    /// An output that cannot be written where it is asked for: its folder
+    /// is missing or not writable, or an existing file there is read-only.
+    /// Found by [`check_writable`] before any work, and again before the
+    /// rename that would replace an existing file.
+    #[error("cannot write '{path}': {reason}", path = .path.display())]
+    Unwritable {
+        /// The user's path (never the temporary file beside it).
+        path: PathBuf,
+        /// What stands in the way.
+        reason: String,
+    },
     /// The image to write is inconsistent (pixel count differs from
     /// width × height) or empty.
     #[error("{path}: cannot write image: {reason}", path = .path.display())]
@@ -80,6 +91,13 @@ impl ImageIoError {
         ImageIoError::Codec {
             path: path.to_path_buf(),
             source,
+        }
+    }
+
+    fn unwritable(path: &Path, reason: impl Into<String>) -> Self {
+        ImageIoError::Unwritable {
+            path: path.to_path_buf(),
+            reason: reason.into(),
         }
     }
 
@@ -227,11 +245,117 @@ fn check_image(path: &Path, img: &Image) -> Result<(), ImageIoError> {
     })
 }
 
+/// The folder a file at `path` goes into ("." for a bare file name).
+fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
+/// The operating system's words for an error, without the path that some
+/// wrappers (`tempfile`) add, so that a message names only the user's file.
+fn os_words(e: &std::io::Error) -> String {
+    std::io::Error::from(e.kind()).to_string()
+}
+
+/// Why an existing file at `path` must not be replaced, if it must not: it
+/// is a folder, it is read-only (no write permission for anyone: the rename
+/// would replace it all the same, since only the folder's permission
+/// counts), or this user may not write it (a file of another user).
+fn existing_refusal(path: &Path) -> Option<String> {
+    let meta = std::fs::metadata(path).ok()?;
+    if meta.is_dir() {
+        return Some("it is a folder".into());
+    }
+    if meta.permissions().readonly() {
+        return Some("the existing file is read-only, and kalos does not replace it".into());
+    }
+    // Opening for writing (without truncating) changes nothing in the file.
+    match std::fs::OpenOptions::new().write(true).open(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => Some(format!(
+            "the existing file is not writable by this user ({}), and kalos does not replace it",
+            os_words(&e)
+        )),
+        _ => None,
+    }
+}
+
+/// Checks, before any work, that a file can be written at `path`: it has a
+/// file name, its folder exists and is a folder, a file can be created
+/// there (a probe file is created and removed), and an existing file at
+/// `path` is neither a folder, nor read-only, nor another user's. The error
+/// names `path`, never the probe.
+pub fn check_writable(path: &Path) -> Result<(), ImageIoError> {
+    if path.file_name().is_none() {
+        return Err(ImageIoError::unwritable(path, "the path has no file name"));
+    }
+    let dir = folder_of(path);
+    match std::fs::metadata(dir) {
+        Ok(m) if m.is_dir() => {}
+        Ok(_) => {
+            return Err(ImageIoError::unwritable(
+                path,
+                format!("'{}' is not a folder", dir.display()),
+            ))
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(ImageIoError::unwritable(
+                path,
+                format!("the folder '{}' does not exist", dir.display()),
+            ))
+        }
+        Err(e) => {
+            return Err(ImageIoError::unwritable(
+                path,
+                format!(
+                    "the folder '{}' cannot be read ({})",
+                    dir.display(),
+                    os_words(&e)
+                ),
+            ))
+        }
+    }
+    if let Some(reason) = existing_refusal(path) {
+        return Err(ImageIoError::unwritable(path, reason));
+    }
+    // The probe is removed when it is dropped.
+    tempfile::Builder::new()
+        .prefix(".kalos-probe-")
+        .tempfile_in(dir)
+        .map(drop)
+        .map_err(|e| {
+            ImageIoError::unwritable(
+                path,
+                format!(
+                    "the folder '{}' is not writable ({})",
+                    dir.display(),
+                    os_words(&e)
+                ),
+            )
+        })
+}
+
+/// Checks an image output before any work: a format [`write_image`]
+/// writes (`.exr`, `.pfm`, `.png`), then [`check_writable`].
+pub fn check_image_output(path: &Path) -> Result<(), ImageIoError> {
+    match format_of(path) {
+        Some(Format::Exr | Format::Pfm | Format::Png) => check_writable(path),
+        _ => Err(ImageIoError::UnknownFormat {
+            path: path.to_path_buf(),
+            expected: ".exr, .pfm or .png",
+        }),
+    }
+}
+
 /// Writes `path` atomically: `write` fills a temporary file
 /// `.<name>.tmp-<pid>-<n>` in the same directory, which is then renamed over
 /// `path`. On any error the temporary file is removed and `path` is left as
-/// it was. (No fsync: this protects against errors and interrupted runs, not
-/// against power loss.)
+/// it was. An existing `path` that is read-only or not writable by this
+/// user is refused, not replaced (checked again just before the rename,
+/// since the file may have changed while the render ran). Errors name
+/// `path`, never the temporary file. (No fsync: this protects against
+/// errors and interrupted runs, not against power loss.)
 pub fn write_atomic<F>(path: &Path, write: F) -> Result<(), ImageIoError>
 where
     F: FnOnce(&mut BufWriter<File>) -> Result<(), ImageIoError>,
@@ -245,10 +369,7 @@ where
             std::io::Error::new(std::io::ErrorKind::InvalidInput, "path has no file name"),
         )
     })?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
     let tmp = dir.join(format!(
         ".{}.tmp-{}-{}",
@@ -259,11 +380,14 @@ where
 
     // Write, flush and close the temporary file, then rename it into place.
     let result = (|| {
-        let file = File::create(&tmp).map_err(|e| ImageIoError::io(&tmp, e))?;
+        let file = File::create(&tmp).map_err(|e| ImageIoError::io(path, e))?;
         let mut w = BufWriter::new(file);
         write(&mut w)?;
-        w.flush().map_err(|e| ImageIoError::io(&tmp, e))?;
+        w.flush().map_err(|e| ImageIoError::io(path, e))?;
         drop(w);
+        if let Some(reason) = existing_refusal(path) {
+            return Err(ImageIoError::unwritable(path, reason));
+        }
         std::fs::rename(&tmp, path).map_err(|e| ImageIoError::io(path, e))
     })();
     if result.is_err() {

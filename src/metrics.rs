@@ -41,6 +41,17 @@ pub enum MetricsError {
     /// two images, or a relative error where every reference value is 0).
     #[error("not enough data: {0}")]
     NotEnoughData(&'static str),
+    /// A figure came out NaN or infinite (an image holds a NaN or
+    /// infinite pixel: the f64 sums cannot overflow from f32 values): it is
+    /// refused rather than reported.
+    #[error("{0} is not a finite number (an image holds NaN or infinite pixels)")]
+    NotFinite(&'static str),
+}
+
+/// The number of pixels of `img` with a NaN or infinite channel: an image
+/// that holds any cannot be compared (every mean over it is NaN).
+pub fn non_finite_pixels(img: &Image) -> usize {
+    img.data.iter().filter(|p| !p.is_finite()).count()
 }
 
 fn check_one(img: &Image) -> Result<(), MetricsError> {
@@ -351,15 +362,29 @@ pub struct Comparison {
 }
 
 impl Comparison {
-    /// Compares `img` with `reference` (same size).
+    /// Compares `img` with `reference` (same size). A figure that is not
+    /// finite (from a NaN or infinite pixel, or an overflow) is an error,
+    /// never a NaN to report.
     pub fn new(img: &Image, reference: &Image) -> Result<Self, MetricsError> {
-        Ok(Comparison {
+        let c = Comparison {
             rel_mse: rel_mse(img, reference)?,
             rmse: rmse(img, reference)?,
             rel_l1: rel_l1(img, reference)?,
             means: channel_means(img),
             reference_means: channel_means(reference),
-        })
+        };
+        for (name, v) in [
+            ("relMSE", c.rel_mse),
+            ("RMSE", c.rmse),
+            ("relL1", c.rel_l1),
+            ("the image's mean", c.means.element_sum()),
+            ("the reference's mean", c.reference_means.element_sum()),
+        ] {
+            if !v.is_finite() {
+                return Err(MetricsError::NotFinite(name));
+            }
+        }
+        Ok(c)
     }
 }
 

@@ -140,3 +140,63 @@ fn unreachable_budgets_are_refused() {
     };
     assert!(ok.run(m.as_mut(), &world, |_| {}).is_ok());
 }
+
+/// The memory check refuses a render whose film alone cannot fit, before
+/// the film is allocated (a failed allocation would abort the process),
+/// naming what is too large, its estimate and the limit.
+#[test]
+fn a_render_past_the_memory_limit_is_refused_before_allocating() {
+    use kalos::methods::{bundle, light};
+    use kalos::render::{check_memory, mem_total, memory_estimate, Render};
+
+    // 65536² pixels of f64 RGB alone are 103 GB: allocating it here would
+    // abort the test process, so reaching the asserts shows nothing was.
+    let mut scene = cbox();
+    scene.set_resolution(65536, 65536);
+    let world = World::new(scene);
+    let err = Render::new(&world)
+        .max_memory(8_000_000_000)
+        .run(|_| {})
+        .err()
+        .expect("a 65536² film was accepted under 8 GB");
+    let text = err.to_string();
+    assert!(text.contains("65536×65536"), "{text}");
+    assert!(text.contains("8.0 GB") && text.contains("--res"), "{text}");
+
+    // The estimate counts every per-pixel buffer: one film per lane.
+    let px = 512u64 * 512;
+    let path = memory_estimate(&MethodConfig::Path(Default::default()), 512, 512);
+    assert!(path[0].bytes >= px * 24, "{path:?}");
+    let light8 = memory_estimate(&MethodConfig::Light(Default::default()), 512, 512);
+    let one = light::Settings {
+        lanes: 1,
+        ..Default::default()
+    };
+    let light1 = memory_estimate(&MethodConfig::Light(one), 512, 512);
+    assert!(
+        light8[0].bytes >= light1[0].bytes + 7 * px * 24,
+        "{light8:?} {light1:?}"
+    );
+    // bundle's map grows with --map-res, and it is what is named when it
+    // is the largest
+    let big_map = MethodConfig::Bundle(bundle::Settings {
+        map_res: Some(16384),
+        ..Default::default()
+    });
+    let items = memory_estimate(&big_map, 64, 64);
+    let err = check_memory(&items, 1_000_000_000, "test").unwrap_err();
+    assert!(
+        err.to_string().contains("visibility map 16384×16384"),
+        "{err}"
+    );
+    assert!(err.to_string().contains("--map-res"), "{err}");
+    // and a small render passes
+    check_memory(&path, 1_000_000_000, "test").expect("512² fits in 1 GB");
+
+    assert_eq!(
+        mem_total("MemTotal:       24684096 kB\nMemFree: 1 kB\n"),
+        Some(24684096 * 1024)
+    );
+    assert_eq!(mem_total("MemFree: 1 kB\n"), None);
+    assert_eq!(mem_total("MemTotal: lots kB\n"), None);
+}

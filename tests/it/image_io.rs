@@ -241,7 +241,7 @@ fn a_failed_write_leaves_the_old_file_and_no_temporary() {
     fs::create_dir(&blocker).unwrap();
     fs::write(blocker.join("inside"), b"x").unwrap();
     let err = write_image(&blocker, &old, &PngOptions::default()).unwrap_err();
-    assert!(matches!(err, ImageIoError::Io { .. }), "{err}");
+    assert!(matches!(err, ImageIoError::Unwritable { .. }), "{err}");
     assert_eq!(names_in(&dir), vec!["blocked.png", "keep.pfm"]);
     assert_eq!(names_in(&blocker), vec!["inside"]);
 }
@@ -274,6 +274,55 @@ fn an_unwritable_directory_is_an_error_and_keeps_the_existing_file() {
     let err =
         write_image(&dir.join("no/such/dir/x.png"), &old, &PngOptions::default()).unwrap_err();
     assert!(matches!(err, ImageIoError::Io { .. }), "{err}");
+}
+
+#[test]
+fn a_read_only_existing_file_is_not_replaced() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("keep.pfm");
+    write_image(&path, &gradient(3, 2), &PngOptions::default()).unwrap();
+    let old_bytes = fs::read(&path).unwrap();
+    let mut perm = fs::metadata(&path).unwrap().permissions();
+    perm.set_readonly(true);
+    fs::set_permissions(&path, perm).unwrap();
+
+    // Refused before any work, and by the writer itself at the rename (the
+    // file may turn read-only while a render runs); the rename would
+    // replace it otherwise, whatever its permissions, even for root.
+    let err = kalos::image_io::check_writable(&path).unwrap_err();
+    assert!(matches!(err, ImageIoError::Unwritable { .. }), "{err}");
+    assert!(err.to_string().contains("read-only"), "{err}");
+    let err = write_image(&path, &gradient(4, 4), &PngOptions::default()).unwrap_err();
+    assert!(matches!(err, ImageIoError::Unwritable { .. }), "{err}");
+    assert!(err.to_string().contains("keep.pfm"), "{err}");
+    assert!(
+        !err.to_string().contains(".tmp-"),
+        "names the temporary: {err}"
+    );
+    assert_eq!(fs::read(&path).unwrap(), old_bytes);
+    assert_eq!(names_in(dir.path()), vec!["keep.pfm"]);
+}
+
+#[test]
+fn check_writable_names_the_users_path_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    // a fine place: accepted, and the probe file is gone
+    let ok = dir.path().join("a.exr");
+    kalos::image_io::check_writable(&ok).unwrap();
+    assert!(names_in(dir.path()).is_empty());
+    // a missing folder, a file where the folder should be
+    let file = dir.path().join("file");
+    fs::write(&file, b"x").unwrap();
+    for (path, words) in [
+        (dir.path().join("no/such/x.exr"), "does not exist"),
+        (file.join("x.exr"), "not a folder"),
+    ] {
+        let err = kalos::image_io::check_writable(&path).unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains(&*path.to_string_lossy()), "{text}");
+        assert!(text.contains(words), "{text}");
+    }
+    assert_eq!(names_in(dir.path()), vec!["file"]);
 }
 
 // ---------------------------------------------------------------- metrics
@@ -483,4 +532,19 @@ fn convergence_csv_is_read_and_plotted() {
         PlotError::Csv { line, .. } => assert_eq!(line, 3),
         e => panic!("unexpected {e}"),
     }
+}
+
+#[test]
+fn a_comparison_is_never_nan() {
+    use kalos::metrics::{non_finite_pixels, Comparison};
+    let r = img2([1.0, 1.0, 1.0], [0.5, 0.5, 0.5]);
+    let nan = img2([f32::NAN, 1.0, 1.0], [0.5, 0.5, 0.5]);
+    // the largest f32 squared still fits an f64 sum: finite figures
+    let huge = img2([3e38, 1.0, 1.0], [0.5, 0.5, 0.5]);
+    assert_eq!(non_finite_pixels(&nan), 1);
+    assert_eq!(non_finite_pixels(&huge), 0);
+    let err = Comparison::new(&nan, &r).unwrap_err();
+    assert!(matches!(err, MetricsError::NotFinite(_)), "{err}");
+    assert!(Comparison::new(&huge, &r).is_ok());
+    assert!(Comparison::new(&r, &r).is_ok());
 }

@@ -7,9 +7,9 @@ use std::time::Instant;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use kalos::methods::{density, World};
+use kalos::methods::{density, MethodConfig, World};
 
-use crate::{extension, load_scene, say, set_threads};
+use crate::{check_output, load_scene, say, set_threads};
 
 /// The flags of `kalos bake`.
 #[derive(Args)]
@@ -32,6 +32,10 @@ pub struct BakeArgs {
     /// only); default unlimited.
     #[arg(long)]
     max_depth: Option<u32>,
+    /// Most memory the bake may plan to use; accepts 8G, 500M (default:
+    /// this machine's memory).
+    #[arg(long, value_parser = kalos::methods::cli::parse_count)]
+    max_memory: Option<u64>,
     /// Print particles, hits, bytes per hit, time per phase, peak memory,
     /// triangles before and after decimation.
     #[arg(long)]
@@ -51,9 +55,9 @@ fn peak_memory() -> Option<u64> {
 
 /// Runs `kalos bake`.
 pub fn run(a: BakeArgs) -> Result<()> {
-    let ext = extension(&a.output);
-    if ext != "glb" {
-        bail!("output '{}' must end in .glb", a.output.display());
+    check_output(&a.output, &["glb"])?;
+    if let Some(p) = &a.ply {
+        check_output(p, &["ply"])?;
     }
     let s = density::Settings {
         seed: a.seed,
@@ -61,6 +65,11 @@ pub fn run(a: BakeArgs) -> Result<()> {
         ..a.density.clone()
     };
     s.validate()?;
+    if let Some((limit, source)) = crate::memory_limit(a.max_memory) {
+        // no film: only the bake's own buffers
+        let items = kalos::render::memory_estimate(&MethodConfig::Density(s.clone()), 0, 0);
+        kalos::render::check_memory(&items, limit, &source)?;
+    }
     if a.max_depth == Some(0) {
         bail!("--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)");
     }

@@ -3,12 +3,13 @@
 
 mod bake;
 mod render;
+mod signals;
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use kalos::image_io::{self, PngOptions, Tonemap};
@@ -193,10 +194,63 @@ fn main() {
         Command::Bake(a) => bake::run(*a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
     };
+    // An interrupted command exits with the signal's code (130, 143),
+    // after it has saved what it had.
+    let interrupted = signals::exit_code();
     if let Err(e) = r {
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
+        eprintln!("error: {}", error_text(&e));
+        std::process::exit(interrupted.unwrap_or(1));
     }
+    if let Some(code) = interrupted {
+        std::process::exit(code);
+    }
+}
+
+/// The error and its causes on one line, each cause once: a library error
+/// that already quotes its source (`"x.exr: Permission denied"`) is not
+/// followed by the same words again, as `{:#}` would print them.
+fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let s = cause.to_string();
+        if text.contains(&s) {
+            continue;
+        }
+        if !text.is_empty() {
+            text += ": ";
+        }
+        text += &s;
+    }
+    text
+}
+
+/// The memory limit of a render and where it comes from: `--max-memory`
+/// when given, else the machine's memory (Linux's `/proc/meminfo`), else
+/// none.
+fn memory_limit(flag: Option<u64>) -> Option<(u64, String)> {
+    if let Some(m) = flag {
+        return Some((m, "--max-memory".into()));
+    }
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let total = kalos::render::mem_total(&text)?;
+    Some((total, "this machine's memory".into()))
+}
+
+/// Checks an output file before any work: its extension is one of `exts`
+/// (lower case, without the dot), and it can be written there
+/// ([`image_io::check_writable`]).
+fn check_output(path: &Path, exts: &[&str]) -> Result<()> {
+    let ext = extension(path);
+    if !exts.contains(&ext.as_str()) {
+        let list: Vec<String> = exts.iter().map(|e| format!(".{e}")).collect();
+        let list = match list.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => list.join(""),
+        };
+        bail!("output '{}' must end in {list}", path.display());
+    }
+    image_io::check_writable(path)?;
+    Ok(())
 }
 
 /// The lower-case extension of `path` ("" when it has none).
@@ -229,17 +283,59 @@ fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
             r.rel_mse.map(|e| format!("{e:.6e}")).unwrap_or_default()
         );
     }
-    // atomic: a temporary file beside the target, then a rename
-    let tmp = path.with_extension(format!("csv.tmp-{}", std::process::id()));
-    std::fs::write(&tmp, text.as_bytes())
-        .and_then(|_| std::fs::rename(&tmp, path))
-        .with_context(|| format!("writing {}", path.display()))?;
+    // atomic, like the images: a temporary file beside the target, then a rename
+    image_io::write_atomic(path, |w| {
+        use std::io::Write as _;
+        w.write_all(text.as_bytes())
+            .map_err(|source| image_io::ImageIoError::Io {
+                path: path.to_path_buf(),
+                source,
+            })
+    })?;
     Ok(())
 }
 
+/// Reads an image to measure or to measure against: linear radiance only
+/// (EXR, PFM, Radiance HDR; a PNG or JPEG holds tone-mapped display values,
+/// whose error against radiance means nothing), every pixel finite.
+fn read_hdr(path: &Path) -> Result<kalos::film::Image> {
+    let ext = extension(path);
+    if !matches!(ext.as_str(), "exr" | "pfm" | "hdr") {
+        bail!(
+            "{}: not a linear HDR image; comparisons need .exr, .pfm or .hdr (a .{ext} holds \
+             tone-mapped display values, not radiance)",
+            path.display()
+        );
+    }
+    let img = image_io::read_image(path)?;
+    let bad = metrics::non_finite_pixels(&img);
+    if bad > 0 {
+        bail!(
+            "{}: {bad} of its {} pixels are NaN or infinite, so every figure would be NaN",
+            path.display(),
+            img.data.len()
+        );
+    }
+    Ok(img)
+}
+
 fn compare(a: CompareArgs) -> Result<()> {
-    let img = image_io::read_image(&a.image)?;
-    let r = image_io::read_image(&a.reference)?;
+    if let Some(out) = &a.error_image {
+        check_output(out, &["png", "exr", "pfm"])?;
+    }
+    let img = read_hdr(&a.image)?;
+    let r = read_hdr(&a.reference)?;
+    if (img.width, img.height) != (r.width, r.height) {
+        bail!(
+            "{} is {}x{} but the reference {} is {}x{}",
+            a.image.display(),
+            img.width,
+            img.height,
+            a.reference.display(),
+            r.width,
+            r.height
+        );
+    }
     say!("{}", metrics::Comparison::new(&img, &r)?);
     if let Some(out) = &a.error_image {
         let e = metrics::false_color_error(&img, &r)?;
@@ -261,6 +357,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
         XArg::Rays => XAxis::Rays,
         XArg::Spp => XAxis::Spp,
     };
+    check_output(&a.output, &["png"])?;
     let mut series = Vec::new();
     for spec in &a.logs {
         let (label, file) = match spec.split_once('=') {

@@ -4,8 +4,6 @@
 
 use std::ffi::OsString;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -16,9 +14,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kalos::image_io::{self, PngOptions};
 use kalos::methods::{self, cli as mcli, Budget, Common, World};
 use kalos::metrics;
-use kalos::render::Render;
+use kalos::render::{self, Render};
 
-use crate::{extension, load_scene, parse_res, set_threads, write_log, TonemapArg};
+use crate::{
+    check_output, load_scene, memory_limit, parse_res, read_hdr, set_threads, write_log, TonemapArg,
+};
 
 /// The flags every method shares.
 #[derive(Args)]
@@ -67,6 +67,11 @@ pub struct RenderArgs {
     /// PNG tone mapping.
     #[arg(long, value_enum, default_value = "clamp")]
     tonemap: TonemapArg,
+    /// Most memory the render may plan to use, checked before anything
+    /// large is allocated; accepts 8G, 500M (default: this machine's
+    /// memory).
+    #[arg(long, value_parser = mcli::parse_count)]
+    max_memory: Option<u64>,
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
@@ -128,19 +133,32 @@ pub fn parse(args: Vec<OsString>) -> Result<(RenderArgs, methods::MethodConfig)>
 
 /// Runs `kalos render`.
 pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
-    // Check what can be checked before spending any time.
-    let ext = extension(&a.output);
-    if !matches!(ext.as_str(), "exr" | "pfm" | "png") {
-        bail!(
-            "output '{}' must end in .exr, .pfm or .png",
-            a.output.display()
-        );
-    }
+    // Check what can be checked before spending any time: the settings,
+    // the budget, the files to write (format, folder, permissions) and the
+    // reference, so that a bad path fails now and not after the render.
     let common = Common {
         seed: a.seed,
         max_depth: a.max_depth,
     };
     cfg.check(&common)?;
+    let mut budget = Budget {
+        spp: a.spp,
+        time: a.time,
+        rays: a.rays,
+        passes: None,
+    };
+    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
+        budget.spp = Some(16.0);
+    }
+    budget.validate()?;
+    check_output(&a.output, &["exr", "pfm", "png"])?;
+    if let Some(log) = &a.log {
+        check_output(log, &["csv"])?;
+    }
+    let reference = match &a.reference {
+        Some(p) => Some(read_hdr(p)?),
+        None => None,
+    };
     if a.dry_run {
         crate::say!("{}: arguments accepted", cfg.name());
         return Ok(());
@@ -151,47 +169,31 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     if let Some((w, h)) = a.res {
         scene.set_resolution(w, h);
     }
-    let reference = match &a.reference {
-        Some(p) => {
-            let r = image_io::read_image(p)?;
-            if (r.width, r.height) != (scene.camera.width, scene.camera.height) {
-                bail!(
-                    "reference {} is {}x{} but the render is {}x{}",
-                    p.display(),
-                    r.width,
-                    r.height,
-                    scene.camera.width,
-                    scene.camera.height
-                );
-            }
-            Some(r)
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    if w == 0 || h == 0 {
+        bail!("the film is {w}x{h}: an image needs at least one pixel (set --res)");
+    }
+    if let Some((limit, source)) = memory_limit(a.max_memory) {
+        render::check_memory(&render::memory_estimate(&cfg, w, h), limit, &source)?;
+    }
+    if let (Some(r), Some(p)) = (&reference, &a.reference) {
+        if (r.width, r.height) != (w, h) {
+            bail!(
+                "reference {} is {}x{} but the render is {w}x{h}",
+                p.display(),
+                r.width,
+                r.height,
+            );
         }
-        None => None,
-    };
+    }
     let world = World::new(scene);
     let load_s = t0.elapsed().as_secs_f64();
+    // From here on the first SIGINT or SIGTERM saves what is rendered;
+    // while loading there is nothing to save, and they end kalos at once.
+    crate::signals::install();
+    let cancel = crate::signals::cancel_flag();
     if world.lights.is_empty() {
         eprintln!("warning: the scene has no emitters; the image will be black");
-    }
-    let mut budget = Budget {
-        spp: a.spp,
-        time: a.time,
-        rays: a.rays,
-        passes: None,
-    };
-    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
-        budget.spp = Some(16.0);
-    }
-
-    let cancel = Arc::new(AtomicBool::new(false));
-    {
-        let c = cancel.clone();
-        // A second Ctrl-C while saving is left to the default handler.
-        let _ = ctrlc::set_handler(move || {
-            if c.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-        });
     }
     let bar = if a.quiet {
         ProgressBar::hidden()
@@ -209,7 +211,7 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         .method(cfg)
         .common(common)
         .budget(budget)
-        .cancel(&cancel);
+        .cancel(cancel);
     if let Some(r) = &reference {
         render = render.reference(r, if a.log.is_some() { a.log_every } else { 0.0 });
     }
@@ -224,6 +226,11 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     });
     bar.finish_and_clear();
     let result = result.context("rendering")?;
+    if result.interrupted && result.passes == 0 {
+        // Nothing to save, and a black image must not replace a good one.
+        eprintln!("interrupted before the first pass: nothing written");
+        return Ok(());
+    }
 
     let png = PngOptions {
         exposure: a.exposure,

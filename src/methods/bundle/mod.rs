@@ -237,6 +237,10 @@ impl Default for Settings {
     }
 }
 
+/// The largest visibility-map resolution chosen when `--map-res` is not
+/// given (the memory check counts a map this large).
+pub const MAX_AUTO_MAP_RES: u32 = 4096;
+
 /// Seconds spent in each phase, summed over the iterations.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Timings {
@@ -312,7 +316,7 @@ impl Bundle {
         let radius = world.lights.radius;
         let res = settings.map_res.unwrap_or_else(|| {
             let r = (8.0 * radius / edge.max(1e-9)).ceil();
-            (r.min(4096.0) as u32).max(1024)
+            (r.min(MAX_AUTO_MAP_RES as f32) as u32).max(1024)
         });
         let view = View::new(
             world,

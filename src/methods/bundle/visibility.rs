@@ -432,6 +432,19 @@ impl Band {
     }
 }
 
+/// Bytes of the visibility map at resolution `res`, all bands together:
+/// the painter's pixels, or the z-buffer's two depth and two id arrays. For
+/// the memory check before a render ([`crate::render::memory_estimate`]).
+pub fn map_bytes(res: u32, visibility: Visibility) -> u64 {
+    // the map is (res + 1)² pixels, as in `sweep`
+    let side = u64::from(res.max(1)) + 1;
+    let per_pixel = match visibility {
+        Visibility::Painter => std::mem::size_of::<Px>(),
+        Visibility::ZBuffer => 2 * std::mem::size_of::<f32>() + 2 * std::mem::size_of::<u32>(),
+    };
+    side * side * per_pixel as u64
+}
+
 /// Layers of depth the painter keeps per pixel to repair the centroid
 /// sort (see `painter_band`).
 pub const LAYERS: usize = 2;

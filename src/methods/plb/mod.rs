@@ -258,6 +258,17 @@ impl Settings {
         }
         Ok(())
     }
+
+    /// Bytes of the hit populations at their largest, for the memory check
+    /// before a render ([`crate::render::memory_estimate`]): per lane, the
+    /// cap plus the phase's new hits (each step appends one, the purge at
+    /// the phase's end brings them back to the cap), each with its prefix
+    /// sum.
+    pub fn population_bytes(&self) -> u64 {
+        let per_hit = (std::mem::size_of::<iterate::Hit>() + std::mem::size_of::<f64>()) as u64;
+        let hits = self.population as u64 + u64::from(self.phase_len);
+        self.lanes as u64 * hits * per_hit
+    }
 }
 
 /// The progressive state of light path building.
