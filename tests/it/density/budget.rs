@@ -1,0 +1,166 @@
+//! The density method within a render's budget: particles traced in
+//! batches until the ray limit, progress while the bake runs, the cancel
+//! flag.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use kalos::methods::density::{self, particles, Settings};
+use kalos::methods::{Budget, Driver, MethodConfig, World};
+use kalos::render::Render;
+
+use super::{entries, scratch_base, settings};
+use crate::common::furnace;
+
+/// The built-in Cornell box at a small resolution (one luminaire).
+fn cbox(res: u32) -> World {
+    let mut sc = kalos::scene::builtin::cornell_box().expect("built-in scene");
+    sc.set_resolution(res, res);
+    World::new(sc)
+}
+
+/// A driver with `budget` and an optional cancel flag.
+fn driver(budget: Budget, cancel: Option<&AtomicBool>) -> Driver<'_> {
+    Driver {
+        budget,
+        cancel,
+        reference: None,
+        log_every: 0.0,
+    }
+}
+
+/// A ray budget stops the tracing between batches, well short of the
+/// particles asked for, and leaves room for the view pass: the render's
+/// rays stay within the budget plus one pass. The cut depends on the rays
+/// only, so the image is the same with 1 and 2 threads. The old bake
+/// traced every particle whatever the budget.
+#[test]
+fn a_ray_budget_cuts_the_particles_the_same_way_on_any_thread_count() {
+    let world = cbox(32);
+    let st = Settings {
+        decimate: false,
+        ..settings(2_000_000, 5)
+    };
+    let budget = Budget {
+        rays: Some(1_500_000),
+        ..Default::default()
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        pool.install(|| {
+            let mut m =
+                density::Density::new(&world, st.clone()).with_storage(density::Storage::Memory);
+            let r = driver(budget, None)
+                .run(&mut m, &world, |_| {})
+                .expect("render");
+            let particles = m.bake().expect("baked").stats.particles;
+            (r, particles)
+        })
+    };
+    let (r1, n1) = run(1);
+    let (r2, n2) = run(2);
+    eprintln!("{n1} particles, {} rays, {} passes", r1.rays, r1.passes);
+    assert!(
+        n1 < st.particles / 2,
+        "the budget did not cut the tracing: {n1} particles"
+    );
+    assert!(n1 >= particles::CHUNK, "at least one chunk is traced");
+    assert_eq!(n1 % particles::CHUNK, 0, "cut between whole chunks");
+    assert!(r1.passes >= 1, "a view pass fits in the reserve");
+    // one view pass of at most ~10 rays a pixel over budget at the end
+    assert!(
+        r1.rays <= budget.rays.unwrap_or(0) + 10 * 32 * 32,
+        "{}",
+        r1.rays
+    );
+    assert_eq!(n1, n2, "the cut depends on the thread count");
+    assert_eq!(
+        r1.image.data, r2.image.data,
+        "the image depends on the threads"
+    );
+    assert!(r1.image.data.iter().all(|p| p.is_finite()));
+    let mean: f32 = r1.image.data.iter().map(|p| p.x + p.y + p.z).sum();
+    assert!(mean > 0.0, "a lit image");
+}
+
+/// The bake reports its progress while it runs: the callback sees the
+/// tracing, estimation and decimation phases before the first pass, with
+/// a fraction that grows and never steps back (the old bake reported
+/// nothing until the first pass, at 0 %). With only a pass budget, the
+/// whole bake traces every particle asked for.
+#[test]
+fn the_bake_reports_its_phases_with_a_growing_fraction() {
+    let world = cbox(16);
+    let st = settings(300_000, 2);
+    let mut seen: Vec<(Option<&'static str>, f64, u64)> = Vec::new();
+    let mut m = density::Density::new(&world, st.clone()).with_storage(density::Storage::Memory);
+    let budget = Budget {
+        passes: Some(2),
+        ..Default::default()
+    };
+    driver(budget, None)
+        .run(&mut m, &world, |p| {
+            seen.push((p.phase, p.fraction, p.passes))
+        })
+        .expect("render");
+    assert_eq!(m.bake().expect("baked").stats.particles, st.particles);
+    let phases: Vec<&str> = seen.iter().filter_map(|s| s.0).collect();
+    for want in ["tracing particles", "estimating", "decimating"] {
+        assert!(phases.contains(&want), "no {want} in {phases:?}");
+    }
+    let traced = phases.iter().filter(|p| **p == "tracing particles").count();
+    assert!(traced > 2, "tracing reported once per batch: {traced}");
+    for w in seen.windows(2) {
+        assert!(w[1].1 >= w[0].1, "the fraction stepped back: {seen:?}");
+    }
+    let last_bake = seen.iter().rev().find(|s| s.0.is_some()).expect("bake");
+    assert!(
+        last_bake.1 > 0.5,
+        "the bake is most of this render: {seen:?}"
+    );
+    assert_eq!(seen.last().map(|s| (s.1, s.2)), Some((1.0, 2)));
+}
+
+/// Setting the cancel flag from another thread stops the bake promptly:
+/// the render returns interrupted, having traced a fraction of the
+/// particles, and its scratch directory is gone. The time bound is only a
+/// "does not hang" check: the bake asked for would take minutes.
+#[test]
+fn cancelling_stops_the_bake_and_removes_its_scratch_directory() {
+    let world = World::new(furnace(0.5, 1.0, 8));
+    let (_tmp, base, _file) = scratch_base("cancel");
+    let st = Settings {
+        scratch: Some(base.clone()),
+        ..settings(400_000_000, 3)
+    };
+    let cancel = AtomicBool::new(false);
+    let t0 = Instant::now();
+    let result = std::thread::scope(|s| {
+        s.spawn(|| {
+            // cancel once the bake has written hits
+            while entries(&base).is_empty() && t0.elapsed() < Duration::from_secs(60) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            std::thread::sleep(Duration::from_millis(300));
+            cancel.store(true, Ordering::Relaxed);
+        });
+        Render::new(&world)
+            .method(MethodConfig::Density(st.clone()))
+            .seed(3)
+            .spp(4.0)
+            .cancel(&cancel)
+            .run(|_| {})
+    });
+    let r = result.expect("a cancelled render is not an error");
+    assert!(r.interrupted);
+    assert!(
+        r.rays > 0 && t0.elapsed() < Duration::from_secs(120),
+        "stopped after {:?}",
+        t0.elapsed()
+    );
+    assert!(r.image.data.iter().all(|p| p.is_finite()));
+    assert_eq!(entries(&base), Vec::<std::path::PathBuf>::new());
+}
