@@ -1,7 +1,8 @@
 //! The density method within a render's budget: particles traced in
 //! batches until the ray limit, progress while the bake runs, the cancel
-//! flag.
+//! flag, and `kalos bake`'s progress, signals and scratch files.
 
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -163,4 +164,91 @@ fn cancelling_stops_the_bake_and_removes_its_scratch_directory() {
     );
     assert!(r.image.data.iter().all(|p| p.is_finite()));
     assert_eq!(entries(&base), Vec::<std::path::PathBuf>::new());
+}
+
+/// `kalos bake` shows each phase on stderr (one line per finished phase
+/// when stderr is not a terminal), nothing with `-q`; a bake whose hit file
+/// cannot be kept fails naming the path and leaves no scratch files.
+#[test]
+fn kalos_bake_shows_its_phases_and_leaves_nothing_on_error() {
+    let (tmp, base, file) = scratch_base("cli");
+    let out = tmp.path().join("o.glb");
+    let bake = |extra: &[&str]| {
+        let mut args = vec![
+            "bake".to_string(),
+            "-o".into(),
+            out.display().to_string(),
+            "--particles".into(),
+            "100k".into(),
+            "--scratch".into(),
+            base.display().to_string(),
+        ];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        Command::new(env!("CARGO_BIN_EXE_kalos"))
+            .args(&args)
+            .output()
+            .expect("kalos runs")
+    };
+    let o = bake(&[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    for phase in [
+        "tracing particles",
+        "grouping hits",
+        "estimating",
+        "decimating",
+        "writing",
+    ] {
+        assert!(err.contains(phase), "no {phase} in {err}");
+    }
+    let o = bake(&["-q"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && !err.contains("tracing"), "{err}");
+
+    let kept = file.join("hits.bin");
+    let o = bake(&["--hits", &kept.display().to_string()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains(&file.display().to_string()), "{err}");
+    assert_eq!(entries(&base), Vec::<std::path::PathBuf>::new());
+}
+
+/// SIGINT and SIGTERM stop `kalos bake` with exit code 130 once its scratch
+/// files are removed (the old bake died with them on disk). The signal is
+/// sent once the scratch directory holds files, so the handler is set.
+#[cfg(unix)]
+#[test]
+fn kalos_bake_removes_its_scratch_files_on_sigint_and_sigterm() {
+    for signal in ["-INT", "-TERM"] {
+        let (tmp, base, _file) = scratch_base("signal");
+        let out = tmp.path().join("o.glb");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kalos"))
+            .args(["bake", "-q", "--particles", "400M", "-o"])
+            .arg(&out)
+            .arg("--scratch")
+            .arg(&base)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("kalos runs");
+        let t0 = Instant::now();
+        let has_files = || {
+            entries(&base)
+                .first()
+                .is_some_and(|d| std::fs::read_dir(d).is_ok_and(|mut e| e.next().is_some()))
+        };
+        while !has_files() && t0.elapsed() < Duration::from_secs(60) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert!(has_files(), "the bake wrote no scratch files");
+        let sent = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .expect("kill runs");
+        assert!(sent.success());
+        let status = child.wait().expect("the bake exits");
+        assert_eq!(status.code(), Some(130), "{signal}");
+        assert_eq!(entries(&base), Vec::<std::path::PathBuf>::new(), "{signal}");
+        assert!(!out.exists());
+    }
 }
