@@ -6,11 +6,17 @@ use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use kalos::methods::density::{self, particles, Settings};
+use std::f32::consts::PI;
+
+use glam::Vec3;
+use kalos::methods::density::control::{Control, Limits};
+use kalos::methods::density::surfaces::SurfaceId;
+use kalos::methods::density::{self, particles, Settings, Storage};
 use kalos::methods::{Budget, Driver, MethodConfig, World};
 use kalos::render::Render;
+use kalos::scene::{Material, Texture};
 
-use super::{entries, scratch_base, settings};
+use super::{closed_form, entries, floor_scene, scratch_base, settings};
 use crate::common::furnace;
 
 /// The built-in Cornell box at a small resolution (one luminaire).
@@ -250,5 +256,78 @@ fn kalos_bake_removes_its_scratch_files_on_sigint_and_sigterm() {
         assert_eq!(status.code(), Some(130), "{signal}");
         assert_eq!(entries(&base), Vec::<std::path::PathBuf>::new(), "{signal}");
         assert!(!out.exists());
+    }
+}
+
+/// A run cut by the budget is fair to every luminaire: two lamps of power
+/// 1 : 4 over a black floor, the tracing stopped by a ray limit at a
+/// fraction of the particles asked for, and the irradiance under each lamp
+/// and between them against the sum of the two closed forms, with φ =
+/// Φ/(particles traced). The paper's allocation (all of one lamp's
+/// particles, then the other's) would have left the brighter lamp, second
+/// in the list, with no particles at this cut.
+///
+/// Tolerance: that of `irradiance_under_small_square_emitter` (kernel bias
+/// and mesh interpolation from the Laplacian, 4σ of the kernel variance),
+/// with the Laplacian of the sum.
+#[test]
+fn a_cut_run_lights_every_luminaire_in_proportion() {
+    let (s, d) = (0.2f32, 1.0f32);
+    let mut sc = floor_scene(s, d);
+    let black = sc.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::ZERO),
+    });
+    let (h, x0) = (s / 2.0, 2.0);
+    let lamp = [
+        Vec3::new(x0 - h, d, -h),
+        Vec3::new(x0 + h, d, -h),
+        Vec3::new(x0 + h, d, h),
+        Vec3::new(x0 - h, d, h),
+    ];
+    sc.add_mesh(
+        "lamp2",
+        &lamp,
+        None,
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        black,
+        Some(Vec3::splat(4.0)),
+    );
+    let world = World::new(sc);
+    let st = Settings {
+        decimate: false,
+        ..settings(20_000_000, 9)
+    };
+    let limits = Limits {
+        rays: Some(3_000_000),
+        ..Default::default()
+    };
+    let mut ctl = Control::new(Instant::now(), limits, None);
+    let bake = density::bake_within(&world, &st, Storage::Memory, &mut ctl).expect("bake");
+    let n = bake.stats.particles;
+    eprintln!("{n} particles traced of {}", st.particles);
+    assert!(n < st.particles / 4, "the ray limit did not cut: {n}");
+    let exact = |x: f32, z: f32| closed_form(x, z, s, d) + 4.0 * closed_form(x - x0, z, s, d);
+    let mesh = &bake.mesh.planar[0];
+    assert_eq!(mesh.surface, SurfaceId::front(0), "the floor records hits");
+    let phi = 5.0 * (PI * s * s) as f64 / n as f64;
+    let bw = mesh.bandwidth as f64;
+    let g = st.c2 as f64 * (64.0 / mesh.hits as f64).sqrt();
+    let rk = 9.0 / (5.0 * std::f64::consts::PI);
+    for (x, z) in [(0.0, 0.0), (0.3, 0.1), (1.0, 0.5), (2.0, 0.0), (2.3, -0.1)] {
+        let e = 1e-2f32;
+        let ex = exact(x, z);
+        let lap = (exact(x + e, z) + exact(x - e, z) + exact(x, z + e) + exact(x, z - e)
+            - 4.0 * ex)
+            / (e as f64 * e as f64);
+        let tol = 2.0 * bw * bw * lap.abs() / 16.0
+            + g * g * lap.abs() / 8.0
+            + 4.0 * (phi * ex * rk / (bw * bw)).sqrt();
+        let got = bake
+            .mesh
+            .irradiance(&bake.surfaces, 0, 0.0, 0.0, Vec3::new(x, 0.0, z), false)
+            .x as f64;
+        eprintln!("({x}, {z}): H {got:.5e} exact {ex:.5e} tol {tol:.2e}");
+        assert!((got - ex).abs() <= tol, "at ({x}, {z}): {got} vs {ex}");
     }
 }
