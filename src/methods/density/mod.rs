@@ -593,7 +593,9 @@ impl Method for Density {
 
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
         let Some(bk) = &self.bake else {
-            // cancelled during the bake: nothing to show
+            // cancelled during the bake: nothing to show, but the pass
+            // counts, so that a budget of passes still ends
+            self.passes += 1;
             return StepStats::default();
         };
         let mut film = std::mem::replace(&mut self.film, Film::new(0, 0));
