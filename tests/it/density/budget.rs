@@ -331,3 +331,28 @@ fn a_cut_run_lights_every_luminaire_in_proportion() {
         assert!((got - ex).abs() <= tol, "at ({x}, {z}): {got} vs {ex}");
     }
 }
+
+/// A time budget ends the render although the particles asked for would
+/// take many minutes: the bake stops tracing early, estimates what it
+/// traced, and the image is lit. The bound on the wall time is a generous
+/// "does not hang" check (the finding: the old bake ignored
+/// `--time`); how close to the budget it ends is measured in BENCHMARKS.md.
+#[test]
+fn a_time_budget_ends_a_render_that_asked_for_too_many_particles() {
+    let world = cbox(16);
+    let st = settings(400_000_000, 4);
+    let mut m = density::Density::new(&world, st.clone());
+    let budget = Budget {
+        time: Some(1.0),
+        ..Default::default()
+    };
+    let r = driver(budget, None)
+        .run(&mut m, &world, |_| {})
+        .expect("render");
+    let n = m.bake().expect("baked").stats.particles;
+    eprintln!("{n} particles, {:.2} s, {} passes", r.seconds, r.passes);
+    assert!(n < st.particles / 10, "{n} particles");
+    assert!(r.seconds < 60.0, "took {} s", r.seconds);
+    assert!(r.image.data.iter().all(|p| p.is_finite()));
+    assert!(r.image.data.iter().any(|p| p.x > 0.0), "a lit image");
+}
