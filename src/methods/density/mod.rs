@@ -580,7 +580,9 @@ impl Method for Density {
             // phase 1's rays
             let bake_s = t.elapsed / f.max(1e-3);
             let view_s = passes * limits.view_rays as f64 * t.elapsed / t.rays.max(1) as f64;
-            let whole = if t.rays > 0 {
+            // (without a spp or pass budget the driver's own time and
+            // ray fractions are the progress)
+            let whole = if t.rays > 0 && passes > 0.0 {
                 t.elapsed / (bake_s + view_s)
             } else {
                 0.0
