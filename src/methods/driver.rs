@@ -69,6 +69,59 @@ pub struct Progress {
     pub elapsed: f64,
     /// Fraction of the budget used, in [0, 1].
     pub fraction: f64,
+    /// What a method's setup is doing, while it runs ([`Setup::report`]:
+    /// density's bake names its phases); None during the passes.
+    pub phase: Option<&'static str>,
+}
+
+/// What a method's setup sees of the driver, for a setup that must itself
+/// obey the budget and the cancel flag and show its progress (density's
+/// bake traces particles until the budget says stop): see
+/// [`Method::prepare_within`](super::Method::prepare_within).
+pub struct Setup<'a> {
+    /// The render's budget.
+    pub budget: Budget,
+    /// When the driver's clock started.
+    pub start: Instant,
+    /// The cancel flag, when the caller gave one.
+    pub cancel: Option<&'a AtomicBool>,
+    on_progress: &'a mut dyn FnMut(&Progress),
+    last: f64,
+}
+
+impl Setup<'_> {
+    /// Seconds since the driver's clock started.
+    pub fn elapsed(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+
+    /// True once the cancel flag is set.
+    pub fn cancelled(&self) -> bool {
+        self.cancel.is_some_and(|c| c.load(Ordering::Relaxed))
+    }
+
+    /// Reports progress during the setup: `rays` so far, the method's own
+    /// guess of the fraction of the whole render done (the driver takes the
+    /// larger of it and the time and ray fractions it measures itself), and
+    /// the phase.
+    pub fn report(&mut self, rays: u64, fraction: f64, phase: &'static str) {
+        let elapsed = self.elapsed();
+        let mut f = fraction;
+        if let Some(t) = self.budget.time {
+            f = f.max(elapsed / t);
+        }
+        if let Some(r) = self.budget.rays {
+            f = f.max(rays as f64 / r as f64);
+        }
+        self.last = self.last.max(f.clamp(0.0, 1.0));
+        (self.on_progress)(&Progress {
+            passes: 0,
+            rays,
+            elapsed,
+            fraction: self.last,
+            phase: Some(phase),
+        });
+    }
 }
 
 /// The outcome of a render.
@@ -119,8 +172,19 @@ impl Driver<'_> {
         self.budget.validate()?;
         let start = Instant::now();
         let mut excluded = 0.0f64; // time spent on logging, not rendering
-                                   // Setup runs inside the clock and its rays count toward the budget
-        let mut rays = method.prepare(world)?.rays;
+
+        // Setup runs inside the clock and its rays count toward the budget
+        let mut setup = Setup {
+            budget: self.budget,
+            start,
+            cancel: self.cancel,
+            on_progress: &mut on_progress,
+            last: 0.0,
+        };
+        let mut rays = method.prepare_within(world, &mut setup)?.rays;
+        // The bar does not step back when the passes take over from a setup
+        // that reported its own progress
+        let shown = setup.last;
         let mut pass = 0u64;
         let mut log = Vec::new();
         let mut next_log = self.log_every;
@@ -152,7 +216,8 @@ impl Driver<'_> {
                 passes: pass,
                 rays,
                 elapsed,
-                fraction: fraction.min(1.0),
+                fraction: fraction.max(shown).min(1.0),
+                phase: None,
             });
             if fraction >= 1.0 {
                 break;

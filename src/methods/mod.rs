@@ -22,7 +22,7 @@ pub mod light;
 pub mod path;
 pub mod plb;
 
-pub use driver::{Budget, Driver, LogRow, Progress, RenderResult};
+pub use driver::{Budget, Driver, LogRow, Progress, RenderResult, Setup};
 
 use crate::film::Image;
 pub use crate::world::World;
@@ -45,6 +45,16 @@ pub trait Method: Send {
     /// comparisons include it.
     fn prepare(&mut self, _world: &World) -> Result<StepStats, MethodError> {
         Ok(StepStats::default())
+    }
+    /// [`Method::prepare`] for a setup that must itself obey the budget,
+    /// honour the cancel flag and report progress (density's bake): the
+    /// driver calls this one. The default runs [`Method::prepare`].
+    fn prepare_within(
+        &mut self,
+        world: &World,
+        _setup: &mut Setup<'_>,
+    ) -> Result<StepStats, MethodError> {
+        self.prepare(world)
     }
     /// Adds one pass of work; `pass` counts from 0 and keys the random streams.
     fn step(&mut self, world: &World, pass: u64) -> StepStats;

@@ -1,6 +1,8 @@
 //! Tests of the density-estimation method (`--method density`, `kalos bake`).
 
 use crate::common;
+#[path = "density/budget.rs"]
+mod budget;
 #[path = "density/storage.rs"]
 mod storage;
 

@@ -6,7 +6,10 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
 
+use kalos::methods::density::control::{Control, Limits, Phase, Tick};
+use kalos::methods::density::{DensityError, Storage};
 use kalos::methods::{density, MethodConfig, World};
 
 use crate::{check_output, load_scene, say, set_threads};
@@ -40,6 +43,9 @@ pub struct BakeArgs {
     /// triangles before and after decimation.
     #[arg(long)]
     stats: bool,
+    /// No progress on stderr.
+    #[arg(short, long)]
+    quiet: bool,
     /// The density method's settings.
     #[command(flatten)]
     density: density::Settings,
@@ -80,7 +86,32 @@ pub fn run(a: BakeArgs) -> Result<()> {
     if world.lights.is_empty() {
         bail!("the scene has no emitters: nothing to bake");
     }
-    let b = density::bake(&world, &s)?;
+
+    // Ctrl-C and SIGTERM stop the bake between units of work, so that its
+    // scratch directory is removed before the process exits (with 128 + the
+    // signal); a second one exits at once
+    crate::signals::install();
+    let cancel = crate::signals::cancel_flag();
+    let mut bars = PhaseBars::new(a.quiet);
+    let mut on_tick = |t: &Tick| bars.tick(t);
+    let mut ctl =
+        Control::new(Instant::now(), Limits::default(), Some(cancel)).on_tick(&mut on_tick);
+    let baked = density::bake_within(&world, &s, Storage::Disk, &mut ctl);
+    let b = match baked {
+        Ok(b) => b,
+        Err(DensityError::Cancelled { .. }) => {
+            bars.clear();
+            eprintln!(
+                "interrupted: the bake was stopped and its scratch files removed; nothing written"
+            );
+            std::process::exit(crate::signals::exit_code().unwrap_or(130));
+        }
+        Err(e) => {
+            bars.clear();
+            return Err(e.into());
+        }
+    };
+    bars.start("writing", 0, "");
     let t1 = Instant::now();
     let (lit, other) = b.baked_meshes(&world.scene);
     kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0)?;
@@ -88,6 +119,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
         kalos::bake::ply::write_ply(p, &lit)?;
     }
     let write_s = t1.elapsed().as_secs_f64();
+    bars.finish();
     let st = &b.stats;
     say!(
         "{}: {} triangles ({} before decimation), white point {:.4e} W/(m²·sr)",
@@ -111,4 +143,70 @@ pub fn run(a: BakeArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// One progress bar per phase of the bake, on stderr (hidden with `-q` or
+/// when stderr is not a terminal); a finished phase leaves one line.
+struct PhaseBars {
+    quiet: bool,
+    bar: Option<(ProgressBar, &'static str, Instant)>,
+}
+
+impl PhaseBars {
+    fn new(quiet: bool) -> Self {
+        PhaseBars { quiet, bar: None }
+    }
+
+    /// Starts a bar for `name`, of `len` units (a spinner when 0).
+    fn start(&mut self, name: &'static str, len: u64, unit: &str) {
+        self.finish();
+        if self.quiet {
+            return;
+        }
+        let template = if len > 0 {
+            format!("{{spinner}} {name:<18} [{{elapsed_precise}}] {{bar:40}} {{pos}}/{{len}} {unit} (ETA {{eta}})")
+        } else {
+            format!("{{spinner}} {name:<18} [{{elapsed_precise}}]")
+        };
+        let bar = ProgressBar::new(len);
+        bar.set_style(
+            ProgressStyle::with_template(&template)
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar.enable_steady_tick(std::time::Duration::from_millis(200));
+        self.bar = Some((bar, name, Instant::now()));
+    }
+
+    /// Moves the bar of the tick's phase, starting it on a new phase.
+    fn tick(&mut self, t: &Tick) {
+        let name = t.phase.name();
+        if self.bar.as_ref().is_none_or(|b| b.1 != name) {
+            let unit = match t.phase {
+                Phase::Trace => "particles",
+                Phase::Group => "",
+                Phase::Estimate => "hits",
+                Phase::Decimate => "surfaces",
+            };
+            let len = if t.phase == Phase::Group { 0 } else { t.total };
+            self.start(name, len, unit);
+        }
+        if let Some((bar, ..)) = &self.bar {
+            bar.set_position(t.done);
+        }
+    }
+
+    /// Leaves the current phase as one line with its time.
+    fn finish(&mut self) {
+        if let Some((bar, name, t0)) = self.bar.take() {
+            bar.finish_and_clear();
+            eprintln!("{name:<18} {:.2} s", t0.elapsed().as_secs_f64());
+        }
+    }
+
+    /// Removes the current bar without a line.
+    fn clear(&mut self) {
+        if let Some((bar, ..)) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+    }
 }

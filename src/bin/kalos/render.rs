@@ -222,7 +222,10 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         } else {
             0.0
         };
-        bar.set_message(format!("{} passes, {:.2} Mrays/s", p.passes, mrays));
+        bar.set_message(match p.phase {
+            Some(phase) => format!("{phase}, {:.2} Mrays/s", mrays),
+            None => format!("{} passes, {:.2} Mrays/s", p.passes, mrays),
+        });
     });
     bar.finish_and_clear();
     let result = result.context("rendering")?;

@@ -30,10 +30,15 @@
 //! one), and a purely glossy material (`roughconductor`, `phong` with
 //! kd = 0) has no view-independent part at all: it is ray-traced only.
 //!
-//! The [`Density`] method bakes in [`Method::prepare`], inside the driver's
-//! clock with the particle rays counted (a failed bake is the render's
-//! error); every step then adds one jittered sample per pixel of the view
-//! pass.
+//! The [`Density`] method bakes in [`Method::prepare_within`], inside the
+//! driver's clock with the particle rays counted (a failed bake is the
+//! render's error); every step then adds one jittered sample per pixel of
+//! the view pass. The budget ([`control`]): `--time` and `--rays` stop the
+//! tracing between batches of particles when the rest of the bake and one
+//! view pass would not fit, and the estimate is made from the particles
+//! traced; `--spp` counts view passes (what a sample per pixel is for the
+//! camera), so a spp budget bakes every particle of `--particles`. The
+//! cancel flag stops the bake between units of work.
 //!
 //! Colour: one RGB pass. Every particle carries RGB power (its luminaire's
 //! colour, tinted by every reflection), so the three channels of the estimate
@@ -50,6 +55,7 @@
 //! ```
 
 pub mod baked;
+pub mod control;
 pub mod decimate;
 pub mod hitfile;
 pub mod hits;
@@ -66,13 +72,14 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::{Method, MethodError, StepStats, World};
+use super::{Method, MethodError, Setup, StepStats, World};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
 use crate::transport::orient;
+use control::{Control, Phase};
 use hitfile::HitFileError;
 use hits::{HitSink, HitSource, MemoryWriter, HIT_BYTES};
 use mesh::DisplayMesh;
@@ -93,6 +100,10 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(skip))]
     pub max_depth: Option<u32>,
     /// Particles n traced (per channel run with `per_channel`); accepts 4M.
+    /// The most the bake traces: --time and --rays stop it sooner, leaving
+    /// room for the estimate and a view pass. --spp counts the samples per
+    /// pixel of the view pass after the bake (its camera rays), not
+    /// particles, so --spp alone traces all n.
     #[cfg_attr(feature = "cli", arg(long, default_value = "4M", value_parser = super::cli::parse_count))]
     pub particles: u64,
     /// Kernel width factor C1 of h = C1·√(A/n); the paper found 10–40 useful.
@@ -307,6 +318,12 @@ pub enum DensityError {
     /// Bad settings.
     #[error(transparent)]
     Settings(#[from] MethodError),
+    /// The cancel flag was set ([`control::Control`]); nothing is kept.
+    #[error("the bake was cancelled")]
+    Cancelled {
+        /// Rays traced before it stopped.
+        rays: u64,
+    },
 }
 
 /// Where the hits wait between phase 1 and phase 2.
@@ -329,6 +346,18 @@ pub fn bake(world: &World, s: &Settings) -> Result<Bake, DensityError> {
 /// Runs the phases of [`pipeline`] in order: trace and group the hits,
 /// estimate the irradiance, decimate the over-mesh into the display mesh.
 pub fn bake_with(world: &World, s: &Settings, storage: Storage) -> Result<Bake, DensityError> {
+    bake_within(world, s, storage, &mut Control::none())
+}
+
+/// [`bake_with`] steered by `ctl`: tracing within its limits, progress by
+/// phase, and [`DensityError::Cancelled`] soon after its cancel flag is
+/// set. Whatever way it returns or unwinds, the scratch directory is gone.
+pub fn bake_within(
+    world: &World,
+    s: &Settings,
+    storage: Storage,
+    ctl: &mut Control,
+) -> Result<Bake, DensityError> {
     s.check()?;
     let scene = &world.scene;
     let surfaces = surfaces::build(scene);
@@ -344,7 +373,7 @@ pub fn bake_with(world: &World, s: &Settings, storage: Storage) -> Result<Bake, 
         Storage::Disk => {
             let scratch = ScratchDir::new(s)?;
             let sink = pipeline::file_sink(&surfaces, s, &scratch)?;
-            trace_and_estimate(world, &surfaces, s, sink, &mut stats)?
+            trace_and_estimate(world, &surfaces, s, sink, &mut stats, ctl)?
         }
         Storage::Memory => {
             if let Some(p) = &s.keep_hits {
@@ -354,7 +383,7 @@ pub fn bake_with(world: &World, s: &Settings, storage: Storage) -> Result<Bake, 
                 ))
                 .into());
             }
-            trace_and_estimate(world, &surfaces, s, MemoryWriter::new(), &mut stats)?
+            trace_and_estimate(world, &surfaces, s, MemoryWriter::new(), &mut stats, ctl)?
         }
     };
     let pipeline::Estimated { planar, curved, .. } = estimated;
@@ -365,7 +394,7 @@ pub fn bake_with(world: &World, s: &Settings, storage: Storage) -> Result<Bake, 
     let w0 = pipeline::white_point(scene, &surfaces, &planar);
     let t = Instant::now();
     let planar = if s.decimate {
-        let (planar, d) = pipeline::decimate(scene, &surfaces, planar, w0, s.epsilon);
+        let (planar, d) = pipeline::decimate_within(scene, &surfaces, planar, w0, s.epsilon, ctl)?;
         stats.max_brightness_error = d.max_error;
         stats.mean_brightness_error = d.mean_error;
         planar
@@ -390,11 +419,14 @@ fn trace_and_estimate<S: HitSink>(
     s: &Settings,
     mut sink: S,
     stats: &mut BakeStats,
+    ctl: &mut Control,
 ) -> Result<pipeline::Estimated, DensityError> {
     // Phase 1: particle tracing, then the grouping by surface
     let t = Instant::now();
-    let traced = pipeline::trace(world, surfaces, s, &mut sink)?;
+    let traced = pipeline::trace_within(world, surfaces, s, &mut sink, ctl)?;
+    ctl.tick(Phase::Group, 0, 1);
     let hits = pipeline::group(sink)?;
+    ctl.check()?;
     stats.particles = traced.particles;
     stats.hits = traced.hits;
     stats.rays = traced.rays;
@@ -404,7 +436,7 @@ fn trace_and_estimate<S: HitSink>(
 
     // Phase 2: density estimation, streamed from the store
     let t = Instant::now();
-    let estimated = pipeline::estimate(&world.scene, surfaces, s, &hits, traced.phi)?;
+    let estimated = pipeline::estimate_within(&world.scene, surfaces, s, &hits, traced.phi, ctl)?;
     stats.max_hits_in_memory = estimated.max_hits_in_memory;
     stats.t_estimate = t.elapsed().as_secs_f64();
     Ok(estimated)
@@ -458,31 +490,26 @@ fn error_chain(e: &dyn std::error::Error) -> String {
     line
 }
 
-impl Method for Density {
-    fn name(&self) -> &'static str {
-        "density"
+impl Density {
+    /// The bake steered by `ctl`; a cancelled bake leaves no bake and
+    /// counts the rays it traced.
+    fn bake_steered(&mut self, world: &World, ctl: &mut Control) -> Result<StepStats, MethodError> {
+        match bake_within(world, &self.settings, self.storage, ctl) {
+            Ok(b) => {
+                let rays = b.stats.rays;
+                self.bake = Some(b);
+                Ok(StepStats { rays })
+            }
+            Err(DensityError::Cancelled { rays }) => Ok(StepStats { rays }),
+            Err(e) => Err(MethodError(format!("density bake: {}", error_chain(&e)))),
+        }
     }
 
-    /// The bake: its particle rays are the rays of the setup, and a failed
-    /// bake (an unwritable scratch directory, a full disk) is the render's
-    /// error, with its reason.
-    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
-        let b = bake_with(world, &self.settings, self.storage)
-            .map_err(|e| MethodError(format!("density bake: {}", error_chain(&e))))?;
-        let rays = b.stats.rays;
-        self.bake = Some(b);
-        Ok(StepStats { rays })
-    }
-
-    fn step(&mut self, world: &World, pass: u64) -> StepStats {
-        let Some(bk) = &self.bake else {
-            panic!("Density::step before Density::prepare (the driver runs prepare first)");
-        };
+    /// One view pass, pass index `pass`, added to `film`; returns its rays.
+    fn view_pass(&self, world: &World, bk: &Bake, film: &mut Film, pass: u64) -> u64 {
         let w = world.camera.width as usize;
         let seed = self.settings.seed;
-        let rays = self
-            .film
-            .sum
+        film.sum
             .par_chunks_mut(w)
             .enumerate()
             .map(|(y, row)| {
@@ -500,13 +527,115 @@ impl Method for Density {
                 }
                 r
             })
-            .sum::<u64>();
+            .sum::<u64>()
+    }
+}
+
+/// The rays a view pass is expected to trace: a camera ray per pixel, and
+/// as many again for the specular surfaces it follows.
+fn view_pass_rays(world: &World) -> u64 {
+    2 * world.camera.width as u64 * world.camera.height as u64
+}
+
+impl Method for Density {
+    fn name(&self) -> &'static str {
+        "density"
+    }
+
+    /// The bake: its particle rays are the rays of the setup, and a failed
+    /// bake (an unwritable scratch directory, a full disk) is the render's
+    /// error, with its reason.
+    fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        self.bake_steered(world, &mut Control::none())
+    }
+
+    /// The bake within the render's budget: the particles are traced in
+    /// batches while the time and ray limits leave room for phases 2 and 3
+    /// and one view pass (at most `--particles`), the bake's phases are
+    /// shown, and the cancel flag stops it between batches (the image is
+    /// then black: nothing was estimated).
+    fn prepare_within(
+        &mut self,
+        world: &World,
+        setup: &mut Setup<'_>,
+    ) -> Result<StepStats, MethodError> {
+        let budget = setup.budget;
+        let limits = control::Limits {
+            time: budget.time,
+            rays: budget.rays,
+            view_rays: view_pass_rays(world),
+        };
+        // The view passes a spp or pass budget asks for, to guess how much
+        // of the render the bake is
+        let passes = match (budget.spp, budget.passes) {
+            (Some(a), Some(b)) => a.min(b as f64),
+            (Some(a), None) => a,
+            (None, Some(b)) => b as f64,
+            (None, None) => 0.0,
+        };
+        let (cancel, start) = (setup.cancel, setup.start);
+        let mut on_tick = |t: &control::Tick| {
+            let f = t.bake_fraction();
+            // seconds for the whole bake, and for the passes at the rate of
+            // phase 1's rays
+            let bake_s = t.elapsed / f.max(1e-3);
+            let view_s = passes * limits.view_rays as f64 * t.elapsed / t.rays.max(1) as f64;
+            // (without a spp or pass budget the driver's own time and
+            // ray fractions are the progress)
+            let whole = if t.rays > 0 && passes > 0.0 {
+                t.elapsed / (bake_s + view_s)
+            } else {
+                0.0
+            };
+            setup.report(t.rays, whole, t.phase.name());
+        };
+        let mut ctl = Control::new(start, limits, cancel).on_tick(&mut on_tick);
+        self.bake_steered(world, &mut ctl)
+    }
+
+    fn step(&mut self, world: &World, pass: u64) -> StepStats {
+        let Some(bk) = &self.bake else {
+            // cancelled during the bake: nothing to show, but the pass
+            // counts, so that a budget of passes still ends
+            self.passes += 1;
+            return StepStats::default();
+        };
+        let mut film = std::mem::replace(&mut self.film, Film::new(0, 0));
+        let rays = self.view_pass(world, bk, &mut film, pass);
+        self.film = film;
         self.passes += 1;
         StepStats { rays }
     }
 
-    fn image(&self, _world: &World) -> Image {
-        self.film.mean(self.passes)
+    /// The mean of the view passes; when the budget ended with the bake,
+    /// before any pass, one pass made here (pass 0, as the first step's).
+    fn image(&self, world: &World) -> Image {
+        match &self.bake {
+            Some(bk) if self.passes == 0 => {
+                let mut film = Film::new(world.camera.width, world.camera.height);
+                self.view_pass(world, bk, &mut film, 0);
+                film.mean(1)
+            }
+            _ => self.film.mean(self.passes),
+        }
+    }
+
+    /// The bake's particles and phase times.
+    fn report(&self) -> Option<String> {
+        let st = &self.bake.as_ref()?.stats;
+        let runs = if self.settings.per_channel { 3 } else { 1 };
+        Some(format!(
+            "density bake: {} of {} particles, {} hits; trace {:.2} s, estimate {:.2} s, \
+             decimate {:.2} s ({} of {} triangles kept)",
+            st.particles,
+            self.settings.particles * runs,
+            st.hits,
+            st.t_trace,
+            st.t_estimate,
+            st.t_decimate,
+            st.tris_after,
+            st.tris_before
+        ))
     }
 
     fn spp(&self) -> f64 {

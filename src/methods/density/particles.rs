@@ -1,8 +1,8 @@
 //! Phase 1, particle tracing (§3.1, §4.1).
 //!
 //! The total power Φ of the luminaires is summed; luminaire i sends an
-//! expected N_i = nΦ_i/Φ particles, ⌊N_i⌋ plus one with probability
-//! N_i − ⌊N_i⌋, from uniform points with cosine-distributed directions (the
+//! expected N_i = nΦ_i/Φ particles (stratified chunk by chunk, see
+//! [`Tracer`]), from uniform points with cosine-distributed directions (the
 //! pdf ∝ L_e cos θ of a diffuse luminaire). The environment (constant or
 //! map) is one more luminaire, of power π R² ∫ L dω: its particles enter
 //! the scene as parallel rays from a disk of the bounding radius R, as in
@@ -17,11 +17,15 @@
 //! Parallelism and determinism: particles are numbered globally and cut in
 //! chunks of [`CHUNK`]; chunk c draws from the stream keyed (seed, c), chunks
 //! of a batch run in parallel and are appended to the hit file in chunk
-//! order. The file depends on the seed only, not on the thread count.
+//! order. The file depends on the seed only, not on the thread count nor
+//! on the batch size. A [`Tracer`] may stop after any chunk (the render's
+//! budget): each chunk samples the luminaires in proportion to their power
+//! on its own, so the particles traced so far are always a fair run.
 
 use std::f32::consts::PI;
 
 use std::ops::ControlFlow;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use rayon::prelude::*;
 
@@ -39,6 +43,9 @@ use crate::transport::{light_walk, Spectrum};
 pub const CHUNK: u64 = 1 << 14;
 /// Chunks traced in parallel before their hits are appended.
 pub const BATCH: u64 = 64;
+/// Chunks per batch when a budget may stop the tracing between batches
+/// ([`super::pipeline::trace_within`]).
+pub const BUDGET_BATCH: u64 = 16;
 
 /// One luminaire of §3.1.
 #[derive(Clone, Debug)]
@@ -130,7 +137,162 @@ pub fn phi_unit(lums: &[Luminaire], n: u64) -> f64 {
     lums.iter().map(|l| luminance(l.phi) as f64).sum::<f64>() / n.max(1) as f64
 }
 
-/// Traces `n` particles (per channel run) and streams their hits to `out`,
+/// A run of `n` particles of one [`Channel`], traced chunk by chunk: any
+/// prefix of whole chunks is a valid run of fewer particles (the budget
+/// may stop tracing between batches, [`super::pipeline::trace`]).
+///
+/// The luminaire of each particle: within chunk c, particle j takes the
+/// luminaire whose slice of the power CDF holds (j + ξ_c)/len, ξ_c one
+/// number of the chunk's own stream. Every chunk is thus a stratified
+/// sample of §3.1's allocation N_i = nΦ_i/Φ (its expected share of
+/// luminaire i is exactly Φ_i/Φ), so that a run cut after any chunk still
+/// covers every luminaire in proportion; the paper's allocation, all of
+/// luminaire 0's particles then all of luminaire 1's, would be biased by a
+/// cut. With one luminaire the two are the same particles.
+pub struct Tracer<'a> {
+    world: &'a World,
+    surfaces: &'a Surfaces,
+    lums: &'a [Luminaire],
+    /// Cumulative weights of the luminaires, normalised to end at 1.
+    cdf: Vec<f64>,
+    /// Starting power of a particle of each luminaire, relative to φ.
+    power: Vec<Rgb>,
+    n: u64,
+    channel: Channel,
+    seed: u64,
+    salt: u64,
+    max_depth: Option<u32>,
+}
+
+impl<'a> Tracer<'a> {
+    /// A run of `n` particles; None when the luminaires emit nothing in
+    /// `channel` or `n` is 0.
+    pub fn new(
+        world: &'a World,
+        surfaces: &'a Surfaces,
+        lums: &'a [Luminaire],
+        n: u64,
+        channel: Channel,
+        seed: u64,
+        max_depth: Option<u32>,
+    ) -> Option<Self> {
+        let weight = |c: Rgb| match channel {
+            Channel::Rgb => luminance(c) as f64,
+            Channel::Single(k) => c[k] as f64,
+        };
+        let phi_total: f64 = lums.iter().map(|l| weight(l.phi)).sum();
+        if phi_total.is_nan() || phi_total <= 0.0 || n == 0 {
+            return None;
+        }
+        // The records are relative to φ = Φ/n with Φ the luminance power:
+        // the factor Φ_channel/Φ does not depend on n, so a cut run's
+        // records stay valid with φ = Φ/(particles traced)
+        let rel = lums.iter().map(|l| luminance(l.phi) as f64).sum::<f64>();
+        let scale = phi_total / rel;
+        let cdf = lums
+            .iter()
+            .scan(0.0, |acc, l| {
+                *acc += weight(l.phi) / phi_total;
+                Some(*acc)
+            })
+            .collect();
+        // Every particle starts with φ = Φ/n, coloured as its luminaire (for
+        // the environment, the factor that turns the power of one emission
+        // sample, whose weight is Φ_env, into that of one of N_env particles)
+        let power = lums
+            .iter()
+            .map(|l| {
+                let LuminaireKind::Area { le, .. } = &l.kind else {
+                    return Rgb::splat((scale / weight(l.phi)) as f32);
+                };
+                let w = weight(*le) as f32;
+                let c = match channel {
+                    Channel::Rgb => *le / w.max(1e-30),
+                    Channel::Single(k) => {
+                        let mut v = Rgb::ZERO;
+                        v[k] = 1.0;
+                        v
+                    }
+                };
+                c * scale as f32
+            })
+            .collect();
+        let salt = match channel {
+            Channel::Rgb => 0xD0,
+            Channel::Single(k) => 0xD1 + k as u64,
+        };
+        Some(Tracer {
+            world,
+            surfaces,
+            lums,
+            cdf,
+            power,
+            n,
+            channel,
+            seed,
+            salt,
+            max_depth,
+        })
+    }
+
+    /// Chunks in the whole run.
+    pub fn chunks(&self) -> u64 {
+        self.n.div_ceil(CHUNK)
+    }
+
+    /// Particles in chunks `c0..c1`.
+    pub fn particles_in(&self, c0: u64, c1: u64) -> u64 {
+        (c1 * CHUNK).min(self.n).saturating_sub(c0 * CHUNK)
+    }
+
+    /// Traces chunks `c0..c1` in parallel; returns each chunk's hits and
+    /// rays, in chunk order. Once `cancel` is set, chunks not yet begun
+    /// trace nothing (the caller discards the batch).
+    pub fn trace_chunks(
+        &self,
+        c0: u64,
+        c1: u64,
+        cancel: Option<&AtomicBool>,
+    ) -> Vec<(Vec<Hit>, u64)> {
+        (c0..c1)
+            .into_par_iter()
+            .map(|c| {
+                if cancel.is_some_and(|f| f.load(Ordering::Relaxed)) {
+                    return (Vec::new(), 0);
+                }
+                let mut rng = Pcg32::keyed(&[self.seed, c, self.salt]);
+                let (a, b) = (c * CHUNK, ((c + 1) * CHUNK).min(self.n));
+                let xi = if self.lums.len() > 1 {
+                    Pcg32::keyed(&[self.seed, c, self.salt, 0x4e]).next_f64()
+                } else {
+                    0.0
+                };
+                let mut hits = Vec::new();
+                let mut rays = 0;
+                for j in 0..b - a {
+                    let u = (j as f64 + xi) / (b - a) as f64;
+                    let li = self
+                        .cdf
+                        .partition_point(|&p| p <= u)
+                        .min(self.lums.len() - 1);
+                    rays += trace_one(
+                        self.world,
+                        self.surfaces,
+                        &self.lums[li],
+                        self.power[li],
+                        self.channel,
+                        self.max_depth,
+                        &mut rng,
+                        &mut hits,
+                    );
+                }
+                (hits, rays)
+            })
+            .collect()
+    }
+}
+
+/// Traces `n` particles (one channel run) and streams their hits to `out`,
 /// in particle order.
 #[allow(clippy::too_many_arguments)]
 pub fn trace(
@@ -143,93 +305,18 @@ pub fn trace(
     max_depth: Option<u32>,
     out: &mut impl HitSink,
 ) -> Result<TraceStats, HitFileError> {
-    let weight = |c: Rgb| match channel {
-        Channel::Rgb => luminance(c) as f64,
-        Channel::Single(k) => c[k] as f64,
-    };
-    let phi_total: f64 = lums.iter().map(|l| weight(l.phi)).sum();
-    let phi_ref = phi_unit(lums, n);
-    if phi_total <= 0.0 || n == 0 {
+    let Some(t) = Tracer::new(world, surfaces, lums, n, channel, seed, max_depth) else {
         return Ok(TraceStats::default());
-    }
-    let salt = match channel {
-        Channel::Rgb => 0xD0,
-        Channel::Single(k) => 0xD1 + k as u64,
     };
-
-    // N_i = nΦ_i/Φ: ⌊N_i⌋ and one more with probability N_i − ⌊N_i⌋
-    let mut counts = Vec::with_capacity(lums.len());
-    for (i, l) in lums.iter().enumerate() {
-        let ni = n as f64 * weight(l.phi) / phi_total;
-        let mut rng = Pcg32::keyed(&[seed, i as u64, salt, 0x4e]);
-        let extra = u64::from(rng.next_f64() < ni - ni.floor());
-        counts.push(ni.floor() as u64 + extra);
-    }
-    let total: u64 = counts.iter().sum();
-    let starts: Vec<u64> = counts
-        .iter()
-        .scan(0u64, |s, &c| {
-            let v = *s;
-            *s += c;
-            Some(v)
-        })
-        .collect();
-
-    // Every particle starts with φ = Φ/n, coloured as its luminaire (for
-    // the environment, the factor that turns the power of one emission
-    // sample, whose luminance is Φ_env, into that of one of N_env particles)
-    let power: Vec<Rgb> = lums
-        .iter()
-        .map(|l| {
-            let LuminaireKind::Area { le, .. } = &l.kind else {
-                return Rgb::splat((phi_total / n as f64 / phi_ref / weight(l.phi)) as f32);
-            };
-            let le = *le;
-            let w = weight(le) as f32;
-            let c = match channel {
-                Channel::Rgb => le / w.max(1e-30),
-                Channel::Single(k) => {
-                    let mut v = Rgb::ZERO;
-                    v[k] = 1.0;
-                    v
-                }
-            };
-            c * (phi_total / n as f64 / phi_ref) as f32
-        })
-        .collect();
-
-    let chunks = total.div_ceil(CHUNK);
     let mut stats = TraceStats {
-        particles: total,
+        particles: n,
         ..Default::default()
     };
+    let chunks = t.chunks();
     let mut c0 = 0;
     while c0 < chunks {
         let c1 = (c0 + BATCH).min(chunks);
-        let results: Vec<(Vec<Hit>, u64)> = (c0..c1)
-            .into_par_iter()
-            .map(|c| {
-                let mut rng = Pcg32::keyed(&[seed, c, salt]);
-                let mut hits = Vec::new();
-                let mut rays = 0;
-                let (a, b) = (c * CHUNK, ((c + 1) * CHUNK).min(total));
-                let mut li = starts.partition_point(|&s| s <= a).saturating_sub(1);
-                for k in a..b {
-                    while li + 1 < lums.len() && k >= starts[li + 1] {
-                        li += 1;
-                    }
-                    if counts[li] == 0 {
-                        continue;
-                    }
-                    rays += trace_one(
-                        world, surfaces, &lums[li], power[li], channel, max_depth, &mut rng,
-                        &mut hits,
-                    );
-                }
-                (hits, rays)
-            })
-            .collect();
-        for (hits, rays) in results {
+        for (hits, rays) in t.trace_chunks(c0, c1, None) {
             stats.hits += hits.len() as u64;
             stats.rays += rays;
             out.push(&hits)?;

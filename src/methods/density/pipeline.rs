@@ -14,10 +14,12 @@
 
 use std::collections::HashMap;
 use std::f32::consts::PI;
+use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
 
+use super::control::{Control, Phase};
 use super::decimate::{self as decimation, Report};
 use super::hitfile::HitWriter;
 use super::hits::{decode_rgb9e5, from_fixed, HitSink, HitSource, Run, HIT_BYTES};
@@ -71,31 +73,76 @@ pub fn trace(
     s: &Settings,
     sink: &mut impl HitSink,
 ) -> Result<Traced, DensityError> {
+    trace_within(world, surfaces, s, sink, &mut Control::none())
+}
+
+/// [`trace`] in batches of whole chunks while `ctl` allows (the render's
+/// budget, the cancel flag), reporting progress after each. At least one
+/// batch is traced, so that there is an estimate to make; the channel runs
+/// of [`Settings::per_channel`] are traced batch by batch together, so
+/// that every channel has the same particles. φ = Φ/(particles traced).
+pub fn trace_within(
+    world: &World,
+    surfaces: &Surfaces,
+    s: &Settings,
+    sink: &mut impl HitSink,
+    ctl: &mut Control,
+) -> Result<Traced, DensityError> {
     let lums = particles::luminaires(world);
     let channels: Vec<Channel> = if s.per_channel {
         (0..3).map(Channel::Single).collect()
     } else {
         vec![Channel::Rgb]
     };
-    let mut traced = Traced {
-        phi: particles::phi_unit(&lums, s.particles),
-        ..Default::default()
+    let tracers: Vec<_> = channels
+        .into_iter()
+        .filter_map(|ch| {
+            particles::Tracer::new(world, surfaces, &lums, s.particles, ch, s.seed, s.max_depth)
+        })
+        .collect();
+    let mut traced = Traced::default();
+    let Some(first) = tracers.first() else {
+        traced.phi = particles::phi_unit(&lums, s.particles);
+        return Ok(traced);
     };
-    for ch in channels {
-        let t = particles::trace(
-            world,
-            surfaces,
-            &lums,
-            s.particles,
-            ch,
-            s.seed,
-            s.max_depth,
-            sink,
-        )?;
-        traced.particles += t.particles;
-        traced.hits += t.hits;
-        traced.rays += t.rays;
+    // Batches small enough to stop near a deadline; a fixed number of
+    // chunks, so that a ray limit stops at the same particle whatever the
+    // thread count (the chunks, not the batches, key the streams)
+    let batch = particles::BUDGET_BATCH;
+    let chunks = first.chunks();
+    let mut per_run = 0u64;
+    let (mut batch_rays, mut batch_secs) = (0u64, 0.0f64);
+    let mut c0 = 0;
+    ctl.start_tracing();
+    ctl.tick(Phase::Trace, 0, s.particles);
+    while c0 < chunks {
+        if c0 > 0 && !ctl.may_trace(traced.rays, batch_rays, batch_secs) {
+            break;
+        }
+        let t = Instant::now();
+        let c1 = (c0 + batch).min(chunks);
+        let before = traced.rays;
+        for tr in &tracers {
+            let results = tr.trace_chunks(c0, c1, ctl.cancel_flag());
+            if ctl.cancelled() {
+                // the batch is dropped, but its rays were traced
+                let rays = traced.rays + results.iter().map(|r| r.1).sum::<u64>();
+                return Err(DensityError::Cancelled { rays });
+            }
+            for (hits, rays) in results {
+                traced.hits += hits.len() as u64;
+                traced.rays += rays;
+                sink.push(&hits)?;
+            }
+            traced.particles += tr.particles_in(c0, c1);
+        }
+        per_run += first.particles_in(c0, c1);
+        (batch_rays, batch_secs) = (traced.rays - before, t.elapsed().as_secs_f64());
+        ctl.set_rays(traced.rays);
+        ctl.tick(Phase::Trace, per_run, s.particles);
+        c0 = c1;
     }
+    traced.phi = particles::phi_unit(&lums, per_run);
     Ok(traced)
 }
 
@@ -128,6 +175,25 @@ pub fn estimate(
     hits: &impl HitSource,
     phi: f64,
 ) -> Result<Estimated, DensityError> {
+    estimate_within(scene, surfaces, s, hits, phi, &mut Control::none())
+}
+
+/// [`estimate`], reporting the hits read and stopping between reads once
+/// `ctl` is cancelled.
+pub fn estimate_within(
+    scene: &Scene,
+    surfaces: &Surfaces,
+    s: &Settings,
+    hits: &impl HitSource,
+    phi: f64,
+    ctl: &mut Control,
+) -> Result<Estimated, DensityError> {
+    let mut read = Reads {
+        done: 0,
+        total: hits.hit_count(),
+        ctl,
+    };
+    read.ctl.tick(Phase::Estimate, 0, read.total);
     let params = Params {
         c1: s.c1,
         c2: s.c2,
@@ -135,8 +201,10 @@ pub fn estimate(
         max_verts: s.max_verts,
     };
     let cap = s.chunk_hits.max(1) as u64;
-    let (mut planar, in_memory_planar) = estimate_planar(scene, surfaces, hits, &params, cap)?;
-    let (curved, in_memory_curved) = estimate_curved(scene, surfaces, s.c1, hits, phi, cap)?;
+    let (mut planar, in_memory_planar) =
+        estimate_planar(scene, surfaces, hits, &params, cap, &mut read)?;
+    let (curved, in_memory_curved) =
+        estimate_curved(scene, surfaces, s.c1, hits, phi, cap, &mut read)?;
     add_black_fronts(scene, surfaces, &params, &mut planar);
     planar.sort_by_key(|m| m.surface);
     Ok(Estimated {
@@ -144,6 +212,34 @@ pub fn estimate(
         curved,
         max_hits_in_memory: in_memory_planar.max(in_memory_curved),
     })
+}
+
+/// Phase 2's reads of the hits: how many so far, for the progress, and
+/// the control to check before each.
+struct Reads<'c, 'a> {
+    done: u64,
+    total: u64,
+    ctl: &'c mut Control<'a>,
+}
+
+impl Reads<'_, '_> {
+    /// Reads `count` records from `start`, once the control allows.
+    fn read<'h, H: HitSource>(
+        &mut self,
+        hits: &'h H,
+        start: u64,
+        count: u64,
+    ) -> Result<std::borrow::Cow<'h, [super::hits::Hit]>, DensityError> {
+        self.ctl.check()?;
+        let chunk = hits.read(start, count)?;
+        self.done += count;
+        Ok(chunk)
+    }
+
+    /// Reports the hits read, once their estimate is made.
+    fn tick(&mut self) {
+        self.ctl.tick(Phase::Estimate, self.done, self.total);
+    }
 }
 
 /// The planar surfaces of phase 2, in the order of `hits`' runs; returns
@@ -154,6 +250,7 @@ fn estimate_planar(
     hits: &impl HitSource,
     params: &Params,
     cap: u64,
+    reads: &mut Reads,
 ) -> Result<(Vec<PlanarMesh>, u64), DensityError> {
     let is_planar = |id: SurfaceId| surfaces.get(id).is_some_and(|s| s.kind == Kind::Planar);
     let new_estimator = |run: &Run| {
@@ -182,9 +279,10 @@ fn estimate_planar(
             let mut done = 0;
             while done < run.count {
                 let m = (run.count - done).min(cap);
-                let chunk = hits.read(run.start + done, m)?;
+                let chunk = reads.read(hits, run.start + done, m)?;
                 max_in_memory = max_in_memory.max(m);
                 est.add(&chunk);
+                reads.tick();
                 done += m;
             }
             planar.push(finish(&run, est));
@@ -203,7 +301,7 @@ fn estimate_planar(
             total += runs[j].count;
             j += 1;
         }
-        let chunk = hits.read(runs[i].start, total)?;
+        let chunk = reads.read(hits, runs[i].start, total)?;
         max_in_memory = max_in_memory.max(total);
         let base = runs[i].start;
         let meshes: Vec<PlanarMesh> = runs[i..j]
@@ -216,6 +314,7 @@ fn estimate_planar(
             })
             .collect();
         planar.extend(meshes);
+        reads.tick();
         i = j;
     }
     Ok((planar, max_in_memory))
@@ -233,6 +332,7 @@ fn estimate_curved(
     hits: &impl HitSource,
     phi: f64,
     cap: u64,
+    reads: &mut Reads,
 ) -> Result<(Vec<CurvedMesh>, u64), DensityError> {
     // The runs of every (shape, back side), in the order of `hits`
     let mut keys: Vec<((u32, bool), Vec<Run>)> = Vec::new();
@@ -288,7 +388,7 @@ fn estimate_curved(
             let mut done = 0;
             while done < run.count {
                 let m = (run.count - done).min(cap - buf.len() as u64);
-                let chunk = hits.read(run.start + done, m)?;
+                let chunk = reads.read(hits, run.start + done, m)?;
                 for hh in chunk.iter() {
                     let sp = scene.surface_point(surf.tris[0], from_fixed(hh.u), from_fixed(hh.v));
                     buf.push((sp.p, side(sp.frame.n), decode_rgb9e5(hh.rgb)));
@@ -297,11 +397,13 @@ fn estimate_curved(
                 done += m;
                 if buf.len() as u64 >= cap {
                     flush(&mut buf, &mut sum);
+                    reads.tick();
                 }
             }
         }
         if !buf.is_empty() {
             flush(&mut buf, &mut sum);
+            reads.tick();
         }
         curved.push(CurvedMesh {
             shape,
@@ -379,21 +481,47 @@ pub struct Decimated {
 
 /// Phase 3 (§3.3, §4.3): every planar over-mesh decimated in parallel as a
 /// height field of Stevens brightness against white point `w0`, within
-/// error bound `epsilon`.
+/// error bound `epsilon` (never fails: [`decimate_within`] without a
+/// cancel flag or a limit).
 pub fn decimate(
     scene: &Scene,
     surfaces: &Surfaces,
     planar: Vec<PlanarMesh>,
     w0: f32,
     epsilon: f32,
-) -> (Vec<PlanarMesh>, Decimated) {
-    let out: Vec<(PlanarMesh, Report)> = planar
-        .into_par_iter()
-        .map(|m| {
+) -> Result<(Vec<PlanarMesh>, Decimated), DensityError> {
+    decimate_within(scene, surfaces, planar, w0, epsilon, &mut Control::none())
+}
+
+/// [`decimate`] in slices of surfaces, reporting after each: stops once
+/// `ctl` is cancelled, and leaves the surfaces of the slices after the
+/// time limit's deadline over-meshed ([`Control::may_decimate`]).
+pub fn decimate_within(
+    scene: &Scene,
+    surfaces: &Surfaces,
+    planar: Vec<PlanarMesh>,
+    w0: f32,
+    epsilon: f32,
+    ctl: &mut Control,
+) -> Result<(Vec<PlanarMesh>, Decimated), DensityError> {
+    let total = planar.len() as u64;
+    let slice = 4 * rayon::current_num_threads().max(1);
+    let mut todo = planar.into_iter().peekable();
+    let mut out: Vec<(PlanarMesh, Report)> = Vec::with_capacity(total as usize);
+    ctl.tick(Phase::Decimate, 0, total);
+    while todo.peek().is_some() {
+        ctl.check()?;
+        if !ctl.may_decimate() {
+            out.extend(todo.by_ref().map(|m| (m, Report::default())));
+            break;
+        }
+        let part: Vec<PlanarMesh> = todo.by_ref().take(slice).collect();
+        out.par_extend(part.into_par_iter().map(|m| {
             let r = reflectance(scene, surfaces, &m);
             decimation::decimate_planar(m, &r, w0, epsilon)
-        })
-        .collect();
+        }));
+        ctl.tick(Phase::Decimate, out.len() as u64, total);
+    }
     let mut max_error = 0.0f32;
     let mut sum_error = 0.0f64;
     let mut removed = 0u64;
@@ -409,11 +537,11 @@ pub fn decimate(
     } else {
         0.0
     };
-    (
+    Ok((
         planar,
         Decimated {
             max_error,
             mean_error,
         },
-    )
+    ))
 }
