@@ -30,8 +30,10 @@ use glam::{Mat3, Mat4, Vec2, Vec3};
 use super::shapes::MeshData;
 use super::{CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, TexImage, Texture};
 
-/// Largest number of nodes visited (a guard against cyclic node graphs).
-const MAX_NODES: usize = 1 << 20;
+/// Largest number of node instances visited: a node referenced from many
+/// parents is walked once per path to it, so a small file can describe an
+/// exponentially large tree.
+const MAX_NODES: u64 = 1 << 20;
 
 /// Loads a glTF 2.0 file as a scene.
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
@@ -155,14 +157,10 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         .default_scene()
         .or_else(|| doc.scenes().next())
         .ok_or_else(|| err("glTF file has no scene".into()))?;
+    check_instancing(&doc, &gscene, path)?;
     let mut stack: Vec<(gltf::Node, Mat4)> = gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
-    let mut visited = 0usize;
     let mut camera_seen = false;
     while let Some((node, parent)) = stack.pop() {
-        visited += 1;
-        if visited > MAX_NODES {
-            return Err(err("glTF node graph too large or cyclic".into()));
-        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
             for (k, prim) in mesh.primitives().enumerate() {
@@ -254,6 +252,99 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         super::obj::synthesise_camera(&mut scene, path);
     }
     Ok(scene)
+}
+
+/// Refuses a node graph that is not a forest of finite size before any
+/// mesh is instanced: a node that is its own ancestor (the walk would never
+/// end), or a DAG whose shared nodes multiply into more than
+/// [`super::MAX_TRIANGLES`] triangles or [`MAX_NODES`] node instances.
+fn check_instancing(
+    doc: &gltf::Document,
+    gscene: &gltf::Scene,
+    path: &Path,
+) -> Result<(), SceneError> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    // Triangles of one instance of each mesh, from the accessor counts alone
+    let mesh_tris: Vec<u64> = doc
+        .meshes()
+        .map(|m| {
+            m.primitives()
+                .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
+                .map(|p| {
+                    let n = match p.indices() {
+                        Some(a) => a.count(),
+                        None => p.get(&gltf::Semantic::Positions).map_or(0, |a| a.count()),
+                    };
+                    n as u64 / 3
+                })
+                .sum()
+        })
+        .collect();
+
+    // Post-order walk with colours: grey nodes are on the current path, so
+    // meeting one again is a cycle; black nodes carry their subtree totals
+    // (triangles, node instances), summed with saturation
+    let nodes: Vec<gltf::Node> = doc.nodes().collect();
+    let mut total: Vec<Option<(u64, u64)>> = vec![None; nodes.len()];
+    let mut grey = vec![false; nodes.len()];
+    for root in gscene.nodes() {
+        let mut stack = vec![(root.index(), false)];
+        while let Some((i, expanded)) = stack.pop() {
+            if expanded {
+                let node = &nodes[i];
+                let own = node.mesh().map_or(0, |m| mesh_tris[m.index()]);
+                let (mut tris, mut count) = (own, 1u64);
+                for c in node.children() {
+                    let (t, n) = total[c.index()].unwrap_or((0, 0));
+                    tris = tris.saturating_add(t);
+                    count = count.saturating_add(n);
+                }
+                total[i] = Some((tris, count));
+                grey[i] = false;
+                continue;
+            }
+            if total[i].is_some() {
+                continue;
+            }
+            grey[i] = true;
+            stack.push((i, true));
+            for c in nodes[i].children() {
+                let j = c.index();
+                if grey[j] {
+                    let what = if j == i {
+                        format!("glTF node {j} is its own child")
+                    } else {
+                        format!("glTF node {j} is its own ancestor (through node {i})")
+                    };
+                    return Err(err(format!(
+                        "{what}: the node graph must be a tree (or a DAG), not a cycle"
+                    )));
+                }
+                if total[j].is_none() {
+                    stack.push((j, false));
+                }
+            }
+        }
+    }
+    let (tris, count) = gscene
+        .nodes()
+        .filter_map(|n| total[n.index()])
+        .fold((0u64, 0u64), |(t, c), (a, b)| {
+            (t.saturating_add(a), c.saturating_add(b))
+        });
+    if tris > super::MAX_TRIANGLES {
+        return Err(err(format!(
+            "glTF scene instances {tris} triangles (shared nodes multiply their meshes); \
+             kalos loads at most {}",
+            super::MAX_TRIANGLES
+        )));
+    }
+    if count > MAX_NODES {
+        return Err(err(format!(
+            "glTF scene instances {count} nodes (shared nodes multiply); kalos walks at most {MAX_NODES}"
+        )));
+    }
+    Ok(())
 }
 
 fn name_of(m: &gltf::Material) -> String {

@@ -23,6 +23,12 @@ pub use material::{Material, MicrofacetKind, TexImage, Texture};
 pub use shapes::MeshData;
 pub use summary::Summary;
 
+/// Most triangles a loader produces for one scene, instances included. A
+/// guard against files whose few bytes describe a huge scene (glTF nodes
+/// shared by many parents, Mitsuba includes that fan out): past it, loading
+/// stops with an error naming the count instead of exhausting memory.
+pub const MAX_TRIANGLES: u64 = 1 << 26;
+
 /// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
 /// `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a camera is synthesised)
 /// or `.ply` (one mesh, default material, synthesised camera).
