@@ -38,6 +38,7 @@ const MAX_NODES: u64 = 1 << 20;
 /// Loads a glTF 2.0 file as a scene.
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
+    check_glb_lengths(path)?;
     let (doc, buffers, images) =
         gltf::import(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
     let mut scene = Scene::empty(path.display().to_string());
@@ -137,7 +138,20 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         } else {
             material
         };
-        let e = Rgb::from(m.emissive_factor());
+        // KHR_materials_emissive_strength scales the [0, 1] factor (Blender
+        // writes emission strengths above 1 this way)
+        let e = Rgb::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+        if !(e.is_finite() && e.min_element() >= 0.0) {
+            return Err(err(format!(
+                "material {} `{}`: emission (emissiveFactor × emissiveStrength) must be finite \
+                 and non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(&m),
+                e.x,
+                e.y,
+                e.z
+            )));
+        }
         let emission = (e.max_element() > 0.0).then_some(e);
         if emission.is_some() {
             warn(
@@ -176,9 +190,22 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
                 }
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
                 let Some(positions) = reader.read_positions() else {
+                    warn(
+                        &mut scene,
+                        format!(
+                            "mesh {} primitive {k}: no readable POSITION (missing, or outside \
+                             its buffer): skipped",
+                            mesh.index()
+                        ),
+                    );
                     continue;
                 };
                 let positions: Vec<Vec3> = positions.map(Vec3::from).collect();
+                super::check_finite(
+                    path,
+                    &format!("mesh {} primitive {k}", mesh.index()),
+                    &positions,
+                )?;
                 let n = positions.len();
                 let normals: Option<Vec<Vec3>> = reader
                     .read_normals()
@@ -251,7 +278,49 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     if !camera_seen {
         super::obj::synthesise_camera(&mut scene, path);
     }
+    scene.light_if_dark(path);
     Ok(scene)
+}
+
+/// Checks a binary glTF's header and chunk lengths against the file's size
+/// before the `gltf` crate sizes a buffer from them (it trusts the header:
+/// a claimed 4 GB aborted on the allocation). A file that does not start
+/// with the GLB magic is left to the JSON parser.
+fn check_glb_lengths(path: &Path) -> Result<(), SceneError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let io = |e: std::io::Error| err(format!("cannot read glTF file: {e}"));
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let size = f.metadata().map_err(io)?.len();
+    let mut header = [0u8; 12];
+    if size < 12 || f.read_exact(&mut header).is_err() || &header[..4] != b"glTF" {
+        return Ok(());
+    }
+    let word = |b: &[u8], i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+    let claimed = word(&header, 8) as u64;
+    if claimed > size {
+        return Err(err(format!(
+            "GLB header claims {claimed} bytes, but the file has {size}: truncated or corrupt"
+        )));
+    }
+    // Each chunk: length, type, then `length` bytes, all inside the claimed size
+    let mut at = 12u64;
+    let mut k = 0;
+    while at + 8 <= claimed {
+        let mut chunk = [0u8; 8];
+        f.seek(SeekFrom::Start(at)).map_err(io)?;
+        f.read_exact(&mut chunk).map_err(io)?;
+        let len = word(&chunk, 0) as u64;
+        if at + 8 + len > claimed {
+            return Err(err(format!(
+                "GLB chunk {k} at byte {at} claims {len} bytes, but only {} remain of the {claimed} the header gives",
+                claimed - at - 8
+            )));
+        }
+        at += 8 + len;
+        k += 1;
+    }
+    Ok(())
 }
 
 /// Refuses a node graph that is not a forest of finite size before any

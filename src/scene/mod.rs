@@ -33,13 +33,20 @@ pub const MAX_TRIANGLES: u64 = 1 << 26;
 /// `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a camera is synthesised)
 /// or `.ply` (one mesh, default material, synthesised camera).
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    load_with(path, &[])
+}
+
+/// [`load`] with Mitsuba-style `-D name=value` parameters, which fill the
+/// `$name`s of a Mitsuba scene (overriding its `<default>`s). Other formats
+/// have no parameters: there, any is a warning.
+pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene, SceneError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     match ext.as_str() {
-        "xml" => mitsuba::load(path),
+        "xml" => return mitsuba::load_with(path, defines),
         "obj" => obj::load_obj_scene(path),
         "ply" => ply::load_ply_scene(path),
         "gltf" | "glb" => gltf::load_gltf(path),
@@ -49,12 +56,35 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
             "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
         )),
     }
+    .map(|mut s| {
+        for (n, v) in defines {
+            s.warnings.push(format!(
+                "{}: -D {n}={v} is unused: only Mitsuba XML scenes have parameters",
+                path.display()
+            ));
+        }
+        s
+    })
 }
 
 /// Loads a Mitsuba 3 scene from a string; relative paths in it resolve
 /// against `base_dir`, and `name` stands for the file in messages.
 pub fn load_str(xml: &str, base_dir: &Path, name: &str) -> Result<Scene, SceneError> {
     mitsuba::load_str(xml, base_dir, name)
+}
+
+/// An error naming the first non-finite position of `what` in `path`: a NaN
+/// or infinite vertex would make its triangles vanish silently, or poison
+/// the scene's bounds.
+pub(crate) fn check_finite(path: &Path, what: &str, positions: &[Vec3]) -> Result<(), SceneError> {
+    match positions.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(SceneError::new(
+            path,
+            0,
+            format!("vertex {i} of {what} is not finite ({})", positions[i]),
+        )),
+    }
 }
 
 /// Linear RGB colour (radiance, reflectance, power...).
@@ -223,6 +253,12 @@ pub struct Scene {
     /// Things the loader skipped or approximated (an `integrator` block, a
     /// non-box reconstruction filter, a synthesised camera...), one per line.
     pub warnings: Vec<String>,
+    /// Things the loader added or chose that are not problems but change
+    /// the image (a default environment lighting a bare mesh), one per line.
+    pub notes: Vec<String>,
+    /// The scene's own sample count (Mitsuba's `<sampler>` `sample_count`),
+    /// a default budget for a render that gives none.
+    pub sample_count: Option<u32>,
 }
 
 /// A ray–surface hit with everything shading needs.
@@ -263,6 +299,23 @@ impl Scene {
             },
             source: source.into(),
             warnings: Vec::new(),
+            notes: Vec::new(),
+            sample_count: None,
+        }
+    }
+
+    /// Lights a scene that has no emitter with a constant white environment
+    /// (radiance 1), and notes it: a bare OBJ, PLY or glTF mesh would
+    /// otherwise render black. Mitsuba scenes are complete descriptions and
+    /// do not get one.
+    pub(crate) fn light_if_dark(&mut self, path: &Path) {
+        if self.emitters.is_empty() {
+            self.emitters
+                .push(EmitterDesc::Constant { radiance: Rgb::ONE });
+            self.notes.push(format!(
+                "{}: the file has no emitters; lit by a default white environment (constant radiance 1)",
+                path.display()
+            ));
         }
     }
 

@@ -97,30 +97,58 @@ type Result<T> = std::result::Result<T, SceneError>;
 
 /// Loads a Mitsuba 3 scene file.
 pub fn load(path: &Path) -> Result<Scene> {
+    load_with(path, &[])
+}
+
+/// Loads a Mitsuba 3 scene file with `-D name=value` parameters: each
+/// fills `$name`, overriding the file's `<default>`. A parameter the scene
+/// does not use is a warning in [`Scene::warnings`].
+pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| SceneError::new(path, 0, format!("cannot read scene file: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    load_impl(&text, &base, path.to_path_buf())
+    load_impl(&text, &base, path.to_path_buf(), defines)
 }
 
 /// Loads a Mitsuba 3 scene from a string (a built-in scene); relative paths
 /// resolve against `base_dir`, and `name` stands for the file in messages.
 pub fn load_str(xml: &str, base_dir: &Path, name: &str) -> Result<Scene> {
-    load_impl(xml, base_dir, PathBuf::from(name))
+    load_impl(xml, base_dir, PathBuf::from(name), &[])
 }
 
-fn load_impl(text: &str, base_dir: &Path, file: PathBuf) -> Result<Scene> {
+/// [`load_str`] with `-D name=value` parameters, as [`load_with`].
+pub fn load_str_with(
+    xml: &str,
+    base_dir: &Path,
+    name: &str,
+    defines: &[(String, String)],
+) -> Result<Scene> {
+    load_impl(xml, base_dir, PathBuf::from(name), defines)
+}
+
+fn load_impl(
+    text: &str,
+    base_dir: &Path,
+    file: PathBuf,
+    defines: &[(String, String)],
+) -> Result<Scene> {
     // Read the documents: splice includes, substitute `$name`s
     let mut reader = Reader {
         main_dir: base_dir.to_path_buf(),
         files: vec![file.clone()],
-        defaults: Vec::new(),
+        defaults: defines.to_vec(),
+        overrides: defines.iter().map(|(n, _)| n.clone()).collect(),
+        used: HashSet::new(),
         stack: vec![file.canonicalize().unwrap_or_else(|_| file.clone())],
+        includes: 0,
     };
     let mut top = Vec::new();
     reader.read_document(text, 0, 0, &mut top)?;
     let Reader {
-        main_dir, files, ..
+        main_dir,
+        files,
+        used,
+        ..
     } = reader;
 
     // Index the ids, then build the scene from the top-level elements
@@ -141,6 +169,14 @@ fn load_impl(text: &str, base_dir: &Path, file: PathBuf) -> Result<Scene> {
     }
     for el in &top {
         b.top_level(el)?;
+    }
+    for (n, v) in defines {
+        if !used.contains(n) {
+            b.scene.warnings.push(format!(
+                "{}: -D {n}={v} is unused: the scene has no `${n}` and no <default name=\"{n}\">",
+                file.display()
+            ));
+        }
     }
     if !b.camera_seen {
         let main = files.first().cloned().unwrap_or_default();
