@@ -12,8 +12,9 @@
 //!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
 //!   tinted by the base colour (glTF's F0 of a metal);
 //! - `doubleSided` → `twosided`;
-//! - a non-zero `emissiveFactor` → an area emitter with that radiance
-//!   (glTF's emission is unitless: it is read as W/(m²·sr), with a warning);
+//! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
+//!   area emitter with that radiance (glTF's emission is unitless: it is
+//!   read as W/(m²·sr), with a warning); negative emission is an error;
 //! - the first perspective camera (glTF cameras look along −z with +x to the
 //!   right; kalos's along +z with +x to the left, so the camera's world
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
@@ -21,6 +22,11 @@
 //!
 //! Skipped with a warning: non-triangle primitives, emissive and
 //! metallic-roughness textures, texture transforms, and punctual lights.
+//!
+//! Refused before anything is allocated: GLB lengths beyond the file, node
+//! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
+//! triangles. A file with no emissive material is lit by a constant white
+//! environment, with a note in [`Scene::notes`].
 
 use std::path::Path;
 use std::sync::Arc;
@@ -157,8 +163,21 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
             warn(
                 &mut scene,
                 format!(
-                    "material `{}`: glTF emission is unitless; read as radiance {e:?} W/(m²·sr)",
-                    name_of(&m)
+                    "material `{}`: glTF emission is unitless; read as radiance ({}, {}, {}) \
+                     W/(m²·sr){}",
+                    name_of(&m),
+                    e.x,
+                    e.y,
+                    e.z,
+                    if m.emissive_strength().is_none() && e.max_element() <= 1.0 {
+                        // an exporter's display white, not a lamp's output:
+                        // Blender writes lamps as KHR_lights_punctual, and
+                        // emission strengths above 1 as emissiveStrength
+                        " (at most 1, as viewers show it: a dim light; the file has no \
+                         KHR_materials_emissive_strength, and punctual lights are not read)"
+                    } else {
+                        ""
+                    }
                 ),
             );
         }

@@ -442,3 +442,104 @@ fn pfm_is_read_as_a_texture_and_an_environment_map() {
     let e = expect_error(&p, &["nan.pfm", "not finite"]);
     assert!(e.contains("nanpfm.xml:2:"), "{e}");
 }
+
+#[test]
+fn gltf_emissive_strength_scales_the_emission() {
+    let d = tmp();
+    let p = gltf_with_nodes(d.path(), "strong.gltf", &[r#"{"mesh":0}"#.into()], &[0]);
+    let text = std::fs::read_to_string(&p).unwrap().replace(
+        r#""accessors""#,
+        r#""extensionsUsed":["KHR_materials_emissive_strength"],
+        "materials":[{"emissiveFactor":[1,0.5,0.25],
+                      "extensions":{"KHR_materials_emissive_strength":{"emissiveStrength":8}}}],
+        "accessors""#,
+    );
+    let text = text.replace(
+        r#"{"attributes":{"POSITION":0}}"#,
+        r#"{"attributes":{"POSITION":0},"material":0}"#,
+    );
+    std::fs::write(&p, text).unwrap();
+    let s = scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+    let [EmitterDesc::Area { radiance, .. }] = s.emitters[..] else {
+        panic!("{:?}", s.emitters)
+    };
+    assert_eq!(radiance, glam::Vec3::new(8.0, 4.0, 2.0));
+}
+
+// ---------------------------------------------------------------------------
+// What the command line says about it
+
+fn kalos(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_kalos"))
+        .args(args)
+        .output()
+        .expect("run kalos")
+}
+
+#[test]
+fn cli_says_where_light_and_budget_come_from() {
+    let d = tmp();
+    let out = d.path().join("o.pfm");
+    let out = out.to_str().unwrap();
+    // a Mitsuba scene without emitters: refused before rendering
+    let dark = write(
+        d.path(),
+        "dark.xml",
+        "<scene version=\"3.0.0\"><shape type=\"cube\"/></scene>",
+    );
+    let o = kalos(&["render", dark.to_str().unwrap(), "--res", "8x8", "-o", out]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{e}");
+    assert!(e.contains("dark.xml") && e.contains("no emitters"), "{e}");
+    assert!(!Path::new(out).exists());
+    // a bare OBJ: rendered under the default environment, with a note
+    let obj = write(d.path(), "bare.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let o = kalos(&[
+        "render",
+        obj.to_str().unwrap(),
+        "--res",
+        "8x8",
+        "--spp",
+        "1",
+        "-o",
+        out,
+    ]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{e}");
+    assert!(
+        e.contains("note:") && e.contains("default white environment"),
+        "{e}"
+    );
+    // the scene's sample count, set by -D, is the budget, and the summary says so
+    let xml = write(
+        d.path(),
+        "spp.xml",
+        "<scene version=\"3.0.0\"><default name=\"spp\" value=\"64\"/>\
+         <sensor type=\"perspective\"><sampler type=\"independent\">\
+         <integer name=\"sample_count\" value=\"$spp\"/></sampler></sensor>\
+         <emitter type=\"constant\"/><shape type=\"cube\"/></scene>",
+    );
+    let o = kalos(&[
+        "render",
+        xml.to_str().unwrap(),
+        "-D",
+        "spp=3",
+        "-D",
+        "nothing=1",
+        "--res",
+        "8x8",
+        "-o",
+        out,
+    ]);
+    let (so, e) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "{e}");
+    assert!(so.contains("3.0 spp (the scene's sample_count 3)"), "{so}");
+    assert!(e.contains("-D nothing=1 is unused"), "{e}");
+    // a malformed -D is a usage error
+    let o = kalos(&["info", xml.to_str().unwrap(), "-D", "novalue"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("NAME=VALUE"));
+}

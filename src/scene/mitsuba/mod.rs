@@ -49,14 +49,22 @@
 //! # What is skipped, with a warning in [`Scene::warnings`]
 //!
 //! - the `integrator` block (kalos's method is chosen on the command line);
-//! - the `sampler` block and its parameters (budgets are kalos's own);
 //! - a reconstruction filter other than `box` (kalos always uses a box filter);
 //! - anisotropic roughness `alpha_u`/`alpha_v` (their mean is used);
 //! - a textured area-light radiance (its mean is used).
 //!
 //! Standard parameters that change nothing here (`far_clip`,
-//! `focus_distance`, `pixel_format`, `file_format`, `sample_count`...) are
-//! accepted silently.
+//! `focus_distance`, `pixel_format`, `file_format`...) are accepted
+//! silently. Any `sampler` type is accepted; its `sample_count` becomes
+//! [`Scene::sample_count`], the command line's default budget.
+//!
+//! # Parameters and limits
+//!
+//! `-D name=value` ([`load_with`]) fills `$name`, overriding the file's
+//! `<default>`; a `$name` with no value is an error naming it. Includes nest
+//! at most 16 deep and a scene reads at most 4096 of them; a scene holds at
+//! most [`super::MAX_TRIANGLES`] triangles. Emission must be finite and
+//! non-negative.
 //!
 //! # What is an error
 //!
