@@ -59,6 +59,16 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         let pbr = m.pbr_metallic_roughness();
         let f = pbr.base_color_factor();
         let factor = Rgb::new(f[0], f[1], f[2]);
+        if !(factor.is_finite() && factor.min_element() >= 0.0) {
+            return Err(err(format!(
+                "material {} `{}`: baseColorFactor must be non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(&m),
+                factor.x,
+                factor.y,
+                factor.z
+            )));
+        }
         let base = match pbr.base_color_texture() {
             Some(info) => {
                 let i = info.texture().source().index();

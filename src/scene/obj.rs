@@ -152,14 +152,16 @@ pub fn load_obj_scene(path: &Path) -> Result<Scene, SceneError> {
             }
         };
         mat_index.push(scene.add_material(material));
-        if let Some(e) = m.emissive.map(Rgb::from) {
-            if !(e.is_finite() && e.min_element() >= 0.0) {
+        for (key, c) in [("Kd", m.diffuse), ("Ks", m.specular), ("Ke", m.emissive)] {
+            let Some(c) = c.map(Rgb::from) else { continue };
+            if !(c.is_finite() && c.min_element() >= 0.0) {
+                let what = if key == "Ke" { "emission Ke" } else { key };
                 return Err(SceneError::new(
                     path,
                     0,
                     format!(
-                        "material `{}` (MTL): emission Ke must be finite and non-negative, found ({}, {}, {})",
-                        m.name, e.x, e.y, e.z
+                        "material `{}` (MTL): {what} must be finite and non-negative, found ({}, {}, {})",
+                        m.name, c.x, c.y, c.z
                     ),
                 ));
             }

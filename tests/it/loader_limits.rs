@@ -235,7 +235,7 @@ fn negative_emission_is_an_error_naming_the_emitter() {
         "area.xml",
         &xml("<emitter type=\"area\"><rgb name=\"radiance\" value=\"1, -1, 1\"/></emitter>"),
     );
-    let e = expect_error(&p, &["radiance", "non-negative", "area"]);
+    let e = expect_error(&p, &["`radiance`", "non-negative", "area"]);
     assert!(e.contains("area.xml:3:"), "{e}");
     let p = write(
         d.path(),
@@ -244,7 +244,7 @@ fn negative_emission_is_an_error_naming_the_emitter() {
          <rgb name=\"radiance\" value=\"-2\"/></emitter>\n</scene>",
     );
     let e = expect_error(&p, &["constant", "radiance"]);
-    assert!(e.contains("const.xml:3:"), "{e}");
+    assert!(e.contains("const.xml:4:"), "{e}");
     // non-finite numbers are refused where they are read
     let p = write(
         d.path(),
@@ -276,6 +276,26 @@ fn negative_emission_is_an_error_naming_the_emitter() {
     );
     std::fs::write(&p, text).unwrap();
     expect_error(&p, &["glow", "emission", "non-negative"]);
+}
+
+#[test]
+fn negative_reflectance_is_an_error() {
+    let d = tmp();
+    let p = write(
+        d.path(),
+        "refl.xml",
+        "<scene version=\"3.0.0\">\n<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n\
+         <rgb name=\"reflectance\" value=\"0.5, -0.1, 0.5\"/>\n</bsdf></shape>\n</scene>",
+    );
+    let e = expect_error(&p, &["`reflectance`", "diffuse", "non-negative"]);
+    assert!(e.contains("refl.xml:4:"), "{e}");
+    write(d.path(), "nan.mtl", "newmtl grey\nKd nan 0.5 0.5\n");
+    let p = write(
+        d.path(),
+        "kd.obj",
+        "mtllib nan.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl grey\nf 1 2 3\n",
+    );
+    expect_error(&p, &["grey", "Kd", "finite"]);
 }
 
 #[test]
