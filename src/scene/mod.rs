@@ -96,10 +96,10 @@ pub fn luminance(c: Rgb) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 
-/// An error in a scene file: the file, the 1-based line (0 when unknown) and
-/// what was wrong or expected.
+/// An error in a scene file: the file, the 1-based line (0 when unknown, and
+/// then not shown) and what was wrong or expected.
 #[derive(Debug, thiserror::Error)]
-#[error("{}:{line}: {msg}", file.display())]
+#[error("{}{}: {msg}", file.display(), line_suffix(*line))]
 pub struct SceneError {
     /// The file that holds the error.
     pub file: PathBuf,
@@ -107,6 +107,15 @@ pub struct SceneError {
     pub line: u32,
     /// What was wrong, and what was expected.
     pub msg: String,
+}
+
+/// `:line` for a known line, nothing for 0 (binary and JSON formats).
+fn line_suffix(line: u32) -> String {
+    if line > 0 {
+        format!(":{line}")
+    } else {
+        String::new()
+    }
 }
 
 impl SceneError {
