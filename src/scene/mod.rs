@@ -45,26 +45,25 @@ pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene, Sce
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    match ext.as_str() {
-        "xml" => return mitsuba::load_with(path, defines),
-        "obj" => obj::load_obj_scene(path),
-        "ply" => ply::load_ply_scene(path),
-        "gltf" | "glb" => gltf::load_gltf(path),
-        _ => Err(SceneError::new(
-            path,
-            0,
-            "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
-        )),
+    let mut scene =
+        match ext.as_str() {
+            "xml" => return mitsuba::load_with(path, defines),
+            "obj" => obj::load_obj_scene(path)?,
+            "ply" => ply::load_ply_scene(path)?,
+            "gltf" | "glb" => gltf::load_gltf(path)?,
+            _ => return Err(SceneError::new(
+                path,
+                0,
+                "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
+            )),
+        };
+    for (n, v) in defines {
+        scene.warnings.push(format!(
+            "{}: -D {n}={v} is unused: only Mitsuba XML scenes have parameters",
+            path.display()
+        ));
     }
-    .map(|mut s| {
-        for (n, v) in defines {
-            s.warnings.push(format!(
-                "{}: -D {n}={v} is unused: only Mitsuba XML scenes have parameters",
-                path.display()
-            ));
-        }
-        s
-    })
+    Ok(scene)
 }
 
 /// Loads a Mitsuba 3 scene from a string; relative paths in it resolve
