@@ -11,5 +11,16 @@ pub const CORNELL_BOX_XML: &str = include_str!("../../scenes/cornell-box/scene.x
 
 /// Loads the built-in Cornell box.
 pub fn cornell_box() -> Result<Scene, SceneError> {
-    super::mitsuba::load_str(CORNELL_BOX_XML, Path::new("."), "builtin:cornell-box")
+    cornell_box_with(&[])
+}
+
+/// Loads the built-in Cornell box with `-D name=value` parameters (it has
+/// `$spp`).
+pub fn cornell_box_with(defines: &[(String, String)]) -> Result<Scene, SceneError> {
+    super::mitsuba::load_str_with(
+        CORNELL_BOX_XML,
+        Path::new("."),
+        "builtin:cornell-box",
+        defines,
+    )
 }

@@ -12,8 +12,9 @@
 //!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
 //!   tinted by the base colour (glTF's F0 of a metal);
 //! - `doubleSided` → `twosided`;
-//! - a non-zero `emissiveFactor` → an area emitter with that radiance
-//!   (glTF's emission is unitless: it is read as W/(m²·sr), with a warning);
+//! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
+//!   area emitter with that radiance (glTF's emission is unitless: it is
+//!   read as W/(m²·sr), with a warning); negative emission is an error;
 //! - the first perspective camera (glTF cameras look along −z with +x to the
 //!   right; kalos's along +z with +x to the left, so the camera's world
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
@@ -21,6 +22,11 @@
 //!
 //! Skipped with a warning: non-triangle primitives, emissive and
 //! metallic-roughness textures, texture transforms, and punctual lights.
+//!
+//! Refused before anything is allocated: GLB lengths beyond the file, node
+//! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
+//! triangles. A file with no emissive material is lit by a constant white
+//! environment, with a note in [`Scene::notes`].
 
 use std::path::Path;
 use std::sync::Arc;
@@ -30,12 +36,15 @@ use glam::{Mat3, Mat4, Vec2, Vec3};
 use super::shapes::MeshData;
 use super::{CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, TexImage, Texture};
 
-/// Largest number of nodes visited (a guard against cyclic node graphs).
-const MAX_NODES: usize = 1 << 20;
+/// Largest number of node instances visited: a node referenced from many
+/// parents is walked once per path to it, so a small file can describe an
+/// exponentially large tree.
+const MAX_NODES: u64 = 1 << 20;
 
 /// Loads a glTF 2.0 file as a scene.
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
+    check_glb_lengths(path)?;
     let (doc, buffers, images) =
         gltf::import(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
     let mut scene = Scene::empty(path.display().to_string());
@@ -50,6 +59,16 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         let pbr = m.pbr_metallic_roughness();
         let f = pbr.base_color_factor();
         let factor = Rgb::new(f[0], f[1], f[2]);
+        if !(factor.is_finite() && factor.min_element() >= 0.0) {
+            return Err(err(format!(
+                "material {} `{}`: baseColorFactor must be non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(&m),
+                factor.x,
+                factor.y,
+                factor.z
+            )));
+        }
         let base = match pbr.base_color_texture() {
             Some(info) => {
                 let i = info.texture().source().index();
@@ -135,14 +154,40 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         } else {
             material
         };
-        let e = Rgb::from(m.emissive_factor());
+        // KHR_materials_emissive_strength scales the [0, 1] factor (Blender
+        // writes emission strengths above 1 this way)
+        let e = Rgb::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+        if !(e.is_finite() && e.min_element() >= 0.0) {
+            return Err(err(format!(
+                "material {} `{}`: emission (emissiveFactor × emissiveStrength) must be finite \
+                 and non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(&m),
+                e.x,
+                e.y,
+                e.z
+            )));
+        }
         let emission = (e.max_element() > 0.0).then_some(e);
         if emission.is_some() {
             warn(
                 &mut scene,
                 format!(
-                    "material `{}`: glTF emission is unitless; read as radiance {e:?} W/(m²·sr)",
-                    name_of(&m)
+                    "material `{}`: glTF emission is unitless; read as radiance ({}, {}, {}) \
+                     W/(m²·sr){}",
+                    name_of(&m),
+                    e.x,
+                    e.y,
+                    e.z,
+                    if m.emissive_strength().is_none() && e.max_element() <= 1.0 {
+                        // an exporter's display white, not a lamp's output:
+                        // Blender writes lamps as KHR_lights_punctual, and
+                        // emission strengths above 1 as emissiveStrength
+                        " (at most 1, as viewers show it: a dim light; the file has no \
+                         KHR_materials_emissive_strength, and punctual lights are not read)"
+                    } else {
+                        ""
+                    }
                 ),
             );
         }
@@ -155,14 +200,10 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         .default_scene()
         .or_else(|| doc.scenes().next())
         .ok_or_else(|| err("glTF file has no scene".into()))?;
+    check_instancing(&doc, &gscene, path)?;
     let mut stack: Vec<(gltf::Node, Mat4)> = gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
-    let mut visited = 0usize;
     let mut camera_seen = false;
     while let Some((node, parent)) = stack.pop() {
-        visited += 1;
-        if visited > MAX_NODES {
-            return Err(err("glTF node graph too large or cyclic".into()));
-        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
             for (k, prim) in mesh.primitives().enumerate() {
@@ -178,9 +219,22 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
                 }
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
                 let Some(positions) = reader.read_positions() else {
+                    warn(
+                        &mut scene,
+                        format!(
+                            "mesh {} primitive {k}: no readable POSITION (missing, or outside \
+                             its buffer): skipped",
+                            mesh.index()
+                        ),
+                    );
                     continue;
                 };
                 let positions: Vec<Vec3> = positions.map(Vec3::from).collect();
+                super::check_finite(
+                    path,
+                    &format!("mesh {} primitive {k}", mesh.index()),
+                    &positions,
+                )?;
                 let n = positions.len();
                 let normals: Option<Vec<Vec3>> = reader
                     .read_normals()
@@ -253,7 +307,142 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     if !camera_seen {
         super::obj::synthesise_camera(&mut scene, path);
     }
+    scene.light_if_dark(path);
     Ok(scene)
+}
+
+/// Checks a binary glTF's header and chunk lengths against the file's size
+/// before the `gltf` crate sizes a buffer from them (it trusts the header:
+/// a claimed 4 GB aborted on the allocation). A file that does not start
+/// with the GLB magic is left to the JSON parser.
+fn check_glb_lengths(path: &Path) -> Result<(), SceneError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let io = |e: std::io::Error| err(format!("cannot read glTF file: {e}"));
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let size = f.metadata().map_err(io)?.len();
+    let mut header = [0u8; 12];
+    if size < 12 || f.read_exact(&mut header).is_err() || &header[..4] != b"glTF" {
+        return Ok(());
+    }
+    let word = |b: &[u8], i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+    let claimed = word(&header, 8) as u64;
+    if claimed > size {
+        return Err(err(format!(
+            "GLB header claims {claimed} bytes, but the file has {size}: truncated or corrupt"
+        )));
+    }
+    // Each chunk: length, type, then `length` bytes, all inside the claimed size
+    let mut at = 12u64;
+    let mut k = 0;
+    while at + 8 <= claimed {
+        let mut chunk = [0u8; 8];
+        f.seek(SeekFrom::Start(at)).map_err(io)?;
+        f.read_exact(&mut chunk).map_err(io)?;
+        let len = word(&chunk, 0) as u64;
+        if at + 8 + len > claimed {
+            return Err(err(format!(
+                "GLB chunk {k} at byte {at} claims {len} bytes, but only {} remain of the {claimed} the header gives",
+                claimed - at - 8
+            )));
+        }
+        at += 8 + len;
+        k += 1;
+    }
+    Ok(())
+}
+
+/// Refuses a node graph that is not a forest of finite size before any
+/// mesh is instanced: a node that is its own ancestor (the walk would never
+/// end), or a DAG whose shared nodes multiply into more than
+/// [`super::MAX_TRIANGLES`] triangles or [`MAX_NODES`] node instances.
+fn check_instancing(
+    doc: &gltf::Document,
+    gscene: &gltf::Scene,
+    path: &Path,
+) -> Result<(), SceneError> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    // Triangles of one instance of each mesh, from the accessor counts alone
+    let mesh_tris: Vec<u64> = doc
+        .meshes()
+        .map(|m| {
+            m.primitives()
+                .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
+                .map(|p| {
+                    let n = match p.indices() {
+                        Some(a) => a.count(),
+                        None => p.get(&gltf::Semantic::Positions).map_or(0, |a| a.count()),
+                    };
+                    n as u64 / 3
+                })
+                .sum()
+        })
+        .collect();
+
+    // Post-order walk with colours: grey nodes are on the current path, so
+    // meeting one again is a cycle; black nodes carry their subtree totals
+    // (triangles, node instances), summed with saturation
+    let nodes: Vec<gltf::Node> = doc.nodes().collect();
+    let mut total: Vec<Option<(u64, u64)>> = vec![None; nodes.len()];
+    let mut grey = vec![false; nodes.len()];
+    for root in gscene.nodes() {
+        let mut stack = vec![(root.index(), false)];
+        while let Some((i, expanded)) = stack.pop() {
+            if expanded {
+                let node = &nodes[i];
+                let own = node.mesh().map_or(0, |m| mesh_tris[m.index()]);
+                let (mut tris, mut count) = (own, 1u64);
+                for c in node.children() {
+                    let (t, n) = total[c.index()].unwrap_or((0, 0));
+                    tris = tris.saturating_add(t);
+                    count = count.saturating_add(n);
+                }
+                total[i] = Some((tris, count));
+                grey[i] = false;
+                continue;
+            }
+            if total[i].is_some() {
+                continue;
+            }
+            grey[i] = true;
+            stack.push((i, true));
+            for c in nodes[i].children() {
+                let j = c.index();
+                if grey[j] {
+                    let what = if j == i {
+                        format!("glTF node {j} is its own child")
+                    } else {
+                        format!("glTF node {j} is its own ancestor (through node {i})")
+                    };
+                    return Err(err(format!(
+                        "{what}: the node graph must be a tree (or a DAG), not a cycle"
+                    )));
+                }
+                if total[j].is_none() {
+                    stack.push((j, false));
+                }
+            }
+        }
+    }
+    let (tris, count) = gscene
+        .nodes()
+        .filter_map(|n| total[n.index()])
+        .fold((0u64, 0u64), |(t, c), (a, b)| {
+            (t.saturating_add(a), c.saturating_add(b))
+        });
+    if tris > super::MAX_TRIANGLES {
+        return Err(err(format!(
+            "glTF scene instances {tris} triangles (shared nodes multiply their meshes); \
+             kalos loads at most {}",
+            super::MAX_TRIANGLES
+        )));
+    }
+    if count > MAX_NODES {
+        return Err(err(format!(
+            "glTF scene instances {count} nodes (shared nodes multiply); kalos walks at most {MAX_NODES}"
+        )));
+    }
+    Ok(())
 }
 
 fn name_of(m: &gltf::Material) -> String {

@@ -23,32 +23,67 @@ pub use material::{Material, MicrofacetKind, TexImage, Texture};
 pub use shapes::MeshData;
 pub use summary::Summary;
 
+/// Most triangles a loader produces for one scene, instances included. A
+/// guard against files whose few bytes describe a huge scene (glTF nodes
+/// shared by many parents, Mitsuba includes that fan out): past it, loading
+/// stops with an error naming the count instead of exhausting memory.
+pub const MAX_TRIANGLES: u64 = 1 << 26;
+
 /// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
 /// `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a camera is synthesised)
 /// or `.ply` (one mesh, default material, synthesised camera).
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    load_with(path, &[])
+}
+
+/// [`load`] with Mitsuba-style `-D name=value` parameters, which fill the
+/// `$name`s of a Mitsuba scene (overriding its `<default>`s). Other formats
+/// have no parameters: there, any is a warning.
+pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene, SceneError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    match ext.as_str() {
-        "xml" => mitsuba::load(path),
-        "obj" => obj::load_obj_scene(path),
-        "ply" => ply::load_ply_scene(path),
-        "gltf" | "glb" => gltf::load_gltf(path),
-        _ => Err(SceneError::new(
-            path,
-            0,
-            "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
-        )),
+    let mut scene =
+        match ext.as_str() {
+            "xml" => return mitsuba::load_with(path, defines),
+            "obj" => obj::load_obj_scene(path)?,
+            "ply" => ply::load_ply_scene(path)?,
+            "gltf" | "glb" => gltf::load_gltf(path)?,
+            _ => return Err(SceneError::new(
+                path,
+                0,
+                "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
+            )),
+        };
+    for (n, v) in defines {
+        scene.warnings.push(format!(
+            "{}: -D {n}={v} is unused: only Mitsuba XML scenes have parameters",
+            path.display()
+        ));
     }
+    Ok(scene)
 }
 
 /// Loads a Mitsuba 3 scene from a string; relative paths in it resolve
 /// against `base_dir`, and `name` stands for the file in messages.
 pub fn load_str(xml: &str, base_dir: &Path, name: &str) -> Result<Scene, SceneError> {
     mitsuba::load_str(xml, base_dir, name)
+}
+
+/// An error naming the first non-finite position of `what` in `path`: a NaN
+/// or infinite vertex would make its triangles vanish silently, or poison
+/// the scene's bounds.
+pub(crate) fn check_finite(path: &Path, what: &str, positions: &[Vec3]) -> Result<(), SceneError> {
+    match positions.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(SceneError::new(
+            path,
+            0,
+            format!("vertex {i} of {what} is not finite ({})", positions[i]),
+        )),
+    }
 }
 
 /// Linear RGB colour (radiance, reflectance, power...).
@@ -60,10 +95,10 @@ pub fn luminance(c: Rgb) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 
-/// An error in a scene file: the file, the 1-based line (0 when unknown) and
-/// what was wrong or expected.
+/// An error in a scene file: the file, the 1-based line (0 when unknown, and
+/// then not shown) and what was wrong or expected.
 #[derive(Debug, thiserror::Error)]
-#[error("{}:{line}: {msg}", file.display())]
+#[error("{}{}: {msg}", file.display(), line_suffix(*line))]
 pub struct SceneError {
     /// The file that holds the error.
     pub file: PathBuf,
@@ -71,6 +106,15 @@ pub struct SceneError {
     pub line: u32,
     /// What was wrong, and what was expected.
     pub msg: String,
+}
+
+/// `:line` for a known line, nothing for 0 (binary and JSON formats).
+fn line_suffix(line: u32) -> String {
+    if line > 0 {
+        format!(":{line}")
+    } else {
+        String::new()
+    }
 }
 
 impl SceneError {
@@ -217,6 +261,12 @@ pub struct Scene {
     /// Things the loader skipped or approximated (an `integrator` block, a
     /// non-box reconstruction filter, a synthesised camera...), one per line.
     pub warnings: Vec<String>,
+    /// Things the loader added or chose that are not problems but change
+    /// the image (a default environment lighting a bare mesh), one per line.
+    pub notes: Vec<String>,
+    /// The scene's own sample count (Mitsuba's `<sampler>` `sample_count`),
+    /// a default budget for a render that gives none.
+    pub sample_count: Option<u32>,
 }
 
 /// A ray–surface hit with everything shading needs.
@@ -257,6 +307,23 @@ impl Scene {
             },
             source: source.into(),
             warnings: Vec::new(),
+            notes: Vec::new(),
+            sample_count: None,
+        }
+    }
+
+    /// Lights a scene that has no emitter with a constant white environment
+    /// (radiance 1), and notes it: a bare OBJ, PLY or glTF mesh would
+    /// otherwise render black. Mitsuba scenes are complete descriptions and
+    /// do not get one.
+    pub(crate) fn light_if_dark(&mut self, path: &Path) {
+        if self.emitters.is_empty() {
+            self.emitters
+                .push(EmitterDesc::Constant { radiance: Rgb::ONE });
+            self.notes.push(format!(
+                "{}: the file has no emitters; lit by a default white environment (constant radiance 1)",
+                path.display()
+            ));
         }
     }
 

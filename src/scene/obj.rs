@@ -31,6 +31,20 @@ fn load_models(path: &Path) -> Result<ObjModels, SceneError> {
     }
     let (models, materials) = tobj::load_obj(path, &options())
         .map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
+    for m in &models {
+        if let Some(i) = m.mesh.positions.iter().position(|v| !v.is_finite()) {
+            return Err(SceneError::new(
+                path,
+                0,
+                format!(
+                    "object `{}`: vertex {} is not finite ({:?})",
+                    m.name,
+                    i / 3,
+                    &m.mesh.positions[i - i % 3..(i - i % 3 + 3).min(m.mesh.positions.len())]
+                ),
+            ));
+        }
+    }
     match materials {
         Ok(m) => Ok((models, m, None)),
         Err(e) => Ok((
@@ -138,6 +152,20 @@ pub fn load_obj_scene(path: &Path) -> Result<Scene, SceneError> {
             }
         };
         mat_index.push(scene.add_material(material));
+        for (key, c) in [("Kd", m.diffuse), ("Ks", m.specular), ("Ke", m.emissive)] {
+            let Some(c) = c.map(Rgb::from) else { continue };
+            if !(c.is_finite() && c.min_element() >= 0.0) {
+                let what = if key == "Ke" { "emission Ke" } else { key };
+                return Err(SceneError::new(
+                    path,
+                    0,
+                    format!(
+                        "material `{}` (MTL): {what} must be finite and non-negative, found ({}, {}, {})",
+                        m.name, c.x, c.y, c.z
+                    ),
+                ));
+            }
+        }
         emission.push(m.emissive.map(Rgb::from).filter(|e| e.max_element() > 0.0));
     }
     let mut default_mat = None;
@@ -175,6 +203,7 @@ pub fn load_obj_scene(path: &Path) -> Result<Scene, SceneError> {
     if scene.triangles.is_empty() {
         return Err(SceneError::new(path, 0, "OBJ file has no triangles"));
     }
+    scene.light_if_dark(path);
 
     synthesise_camera(&mut scene, path);
     Ok(scene)

@@ -65,6 +65,8 @@ struct Element {
     name: String,
     count: usize,
     props: Vec<Property>,
+    /// The header line that declares it.
+    line: u32,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -153,6 +155,7 @@ pub fn load_ply_scene(path: &Path) -> Result<Scene, SceneError> {
     if scene.triangles.is_empty() {
         return Err(SceneError::new(path, 0, "PLY file has no triangles"));
     }
+    scene.light_if_dark(path);
     super::obj::synthesise_camera(&mut scene, path);
     Ok(scene)
 }
@@ -208,6 +211,7 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
                     name: (*name).to_string(),
                     count,
                     props: Vec::new(),
+                    line: line_no,
                 });
             }
             ["property", "list", ct, it, name] => {
@@ -250,6 +254,36 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
     }
     let format = format.ok_or_else(|| err(0, "PLY header has no `format` line".into()))?;
     let body = &bytes[pos..];
+
+    // Trust no count beyond what the body can hold: every entry takes at
+    // least its scalars' bytes (binary) or one digit and a separator per
+    // value (ASCII), so a lying header is refused before anything is sized
+    // from it
+    let mut need = 0u64;
+    for el in &elements {
+        let min_entry: u64 = el
+            .props
+            .iter()
+            .map(|p| match (format, p.list) {
+                (Format::Ascii, _) => 2,
+                (_, Some(ct)) => ct.size() as u64,
+                (_, None) => p.ty.size() as u64,
+            })
+            .sum();
+        need = need.saturating_add((el.count as u64).saturating_mul(min_entry));
+        if need > body.len() as u64 + 1 {
+            return Err(err(
+                el.line,
+                format!(
+                    "element `{}` declares {} entries, but the {} bytes after the header \
+                     cannot hold them: truncated file or a wrong count",
+                    el.name,
+                    el.count,
+                    body.len()
+                ),
+            ));
+        }
+    }
     let mut reader = match format {
         Format::Ascii => Reader::Ascii(
             std::str::from_utf8(body)
@@ -362,6 +396,7 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
                     }
                 }
             }
+            _ if el.props.is_empty() => {}
             _ => {
                 // Skip an element we do not use, value by value
                 for _ in 0..el.count {
@@ -395,6 +430,7 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
                 .push([poly[0] as u32, poly[k] as u32, poly[k + 1] as u32]);
         }
     }
+    super::check_finite(path, "the PLY vertex element", &mesh.positions)?;
     if !normals.is_empty() {
         mesh.normals = Some(normals);
     }

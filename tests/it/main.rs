@@ -16,6 +16,7 @@ mod density;
 mod driver;
 mod image_io;
 mod loader;
+mod loader_limits;
 mod methods;
 mod plb;
 mod reference;

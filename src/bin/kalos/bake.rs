@@ -25,6 +25,8 @@ pub struct BakeArgs {
     /// Also write the irradiance mesh as PLY.
     #[arg(long)]
     ply: Option<PathBuf>,
+    #[command(flatten)]
+    defines: crate::Defines,
     /// Random seed: the same seed gives the same hit file whatever --threads.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -81,7 +83,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
     }
     set_threads(a.threads)?;
     let t0 = Instant::now();
-    let world = World::new(load_scene(a.scene.as_deref())?);
+    let world = World::new(load_scene(a.scene.as_deref(), &a.defines)?);
     let load_s = t0.elapsed().as_secs_f64();
     if world.lights.is_empty() {
         bail!("the scene has no emitters: nothing to bake");

@@ -58,6 +58,8 @@ enum Command {
     Info {
         /// Scene file (omit for the built-in Cornell box).
         scene: Option<PathBuf>,
+        #[command(flatten)]
+        defines: Defines,
     },
     /// Plot convergence logs (CSV from `render --log`): error against time.
     Plot(PlotArgs),
@@ -146,6 +148,8 @@ struct BenchArgs {
     /// Rays per measurement.
     #[arg(long, default_value_t = 4_000_000)]
     rays: u64,
+    #[command(flatten)]
+    defines: Defines,
     /// Triangles in the generated scene.
     #[arg(long, default_value_t = 1_000_000)]
     triangles: u64,
@@ -169,18 +173,41 @@ fn parse_res(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-fn load_scene(path: Option<&Path>) -> Result<Scene> {
-    match path {
-        None => Ok(scene::builtin::cornell_box()?),
-        Some(p) if p.as_os_str() == "builtin" => Ok(scene::builtin::cornell_box()?),
-        Some(p) => {
-            let s = scene::load(p)?;
-            for w in &s.warnings {
-                eprintln!("warning: {w}");
-            }
-            Ok(s)
-        }
+/// Mitsuba-style scene parameters, for every command that loads a scene.
+#[derive(Args, Clone, Default)]
+struct Defines {
+    /// Set a scene parameter: fills `$NAME` in a Mitsuba scene, overriding
+    /// its `<default name="NAME">` (repeatable).
+    #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = parse_define)]
+    define: Vec<(String, String)>,
+}
+
+fn parse_define(s: &str) -> Result<(String, String), String> {
+    match s.split_once('=') {
+        Some((n, v)) if !n.trim().is_empty() => Ok((n.trim().to_string(), v.to_string())),
+        _ => Err(format!("expected NAME=VALUE, got '{s}'")),
     }
+}
+
+fn load_scene(path: Option<&Path>, defines: &Defines) -> Result<Scene> {
+    let builtin = path.is_none_or(|p| p.as_os_str() == "builtin");
+    let s = match path {
+        Some(p) if !builtin => scene::load_with(p, &defines.define)?,
+        _ => scene::builtin::cornell_box_with(&defines.define)?,
+    };
+    // the built-in scene's own warnings (its skipped integrator) are known
+    // and not the user's concern; an unused -D is
+    for w in s
+        .warnings
+        .iter()
+        .filter(|w| !builtin || w.contains(": -D "))
+    {
+        eprintln!("warning: {w}");
+    }
+    for n in &s.notes {
+        eprintln!("note: {n}");
+    }
+    Ok(s)
 }
 
 fn main() {
@@ -188,7 +215,7 @@ fn main() {
     let r = match cli.command {
         Command::Render { args } => render::parse(args).and_then(|(a, m)| render::run(a, m)),
         Command::Compare(a) => compare(a),
-        Command::Info { scene } => info(scene.as_deref()),
+        Command::Info { scene, defines } => info(scene.as_deref(), &defines),
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench(a),
         Command::Bake(a) => bake::run(*a),
@@ -345,8 +372,8 @@ fn compare(a: CompareArgs) -> Result<()> {
     Ok(())
 }
 
-fn info(path: Option<&Path>) -> Result<()> {
-    let s = load_scene(path)?;
+fn info(path: Option<&Path>, defines: &Defines) -> Result<()> {
+    let s = load_scene(path, defines)?;
     say!("{}", scene::Summary(&s));
     Ok(())
 }
@@ -382,7 +409,7 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
 
 fn bench(a: BenchArgs) -> Result<()> {
     let scene = match &a.scene {
-        Some(p) => load_scene(Some(p))?,
+        Some(p) => load_scene(Some(p), &a.defines)?,
         None => kalos::scenegen::bench_scene(a.triangles),
     };
     say!(

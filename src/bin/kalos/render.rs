@@ -39,6 +39,8 @@ pub struct RenderArgs {
     /// Ray budget (closest-hit and shadow rays together); accepts 30M, 2G.
     #[arg(long, value_parser = mcli::parse_count)]
     rays: Option<u64>,
+    #[command(flatten)]
+    defines: crate::Defines,
     /// Random seed: the same seed gives the same image whatever --threads.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -147,7 +149,10 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         rays: a.rays,
         passes: None,
     };
-    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
+    // Without a budget on the command line: the scene's own sample count
+    // (Mitsuba's <sampler>, known once it is loaded), else 16 spp
+    let default_budget = budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none();
+    if default_budget {
         budget.spp = Some(16.0);
     }
     budget.validate()?;
@@ -165,7 +170,14 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     }
     set_threads(a.threads)?;
     let t0 = Instant::now();
-    let mut scene = load_scene(a.scene.as_deref())?;
+    let mut scene = load_scene(a.scene.as_deref(), &a.defines)?;
+    if scene.emitters.is_empty() {
+        bail!(
+            "{}: the scene has no emitters, so the image would be black; add an <emitter> \
+             (an area light on a shape, or <emitter type=\"constant\"/> for a white sky)",
+            scene.source
+        );
+    }
     if let Some((w, h)) = a.res {
         scene.set_resolution(w, h);
     }
@@ -193,7 +205,18 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     crate::signals::install();
     let cancel = crate::signals::cancel_flag();
     if world.lights.is_empty() {
-        eprintln!("warning: the scene has no emitters; the image will be black");
+        bail!(
+            "{}: the scene's {} emitters emit no light (zero radiance, or on shapes with no area), \
+             so the image would be black",
+            world.scene.source,
+            world.scene.emitters.len()
+        );
+    }
+    let mut budget_note = None;
+    if let (true, Some(n)) = (default_budget, world.scene.sample_count) {
+        budget.spp = Some(n as f64);
+        budget.validate()?;
+        budget_note = Some(format!(" (the scene's sample_count {n})"));
     }
     let bar = if a.quiet {
         ProgressBar::hidden()
@@ -244,12 +267,13 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         write_log(log, &result.log)?;
     }
     let mut line = format!(
-        "{}: {} {}x{}, {:.1} spp, {} passes, {:.2} s (+{:.2} s load/build), {:.1} M rays, {:.2} Mrays/s",
+        "{}: {} {}x{}, {:.1} spp{}, {} passes, {:.2} s (+{:.2} s load/build), {:.1} M rays, {:.2} Mrays/s",
         a.output.display(),
         result.method,
         result.image.width,
         result.image.height,
         result.spp,
+        budget_note.as_deref().unwrap_or(""),
         result.passes,
         result.seconds,
         load_s,

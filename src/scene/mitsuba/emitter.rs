@@ -28,7 +28,26 @@ impl<'t> Builder<'t> {
             }
         };
         self.finish(&p)?;
+        self.check_emission(el, "radiance", radiance)?;
         Ok(radiance)
+    }
+
+    /// Emission must be finite and non-negative: a negative light would be
+    /// dropped by the light sampler and subtract light where it is seen.
+    fn check_emission(&self, el: &El, what: &str, c: Rgb) -> Result<()> {
+        if c.is_finite() && c.min_element() >= 0.0 {
+            return Ok(());
+        }
+        Err(self.err(
+            el,
+            format!(
+                "{} `{what}` must be finite and non-negative, found ({}, {}, {})",
+                el.describe(),
+                c.x,
+                c.y,
+                c.z
+            ),
+        ))
     }
 
     pub(super) fn emitter(&mut self, el: &'t El) -> Result<()> {
@@ -48,6 +67,7 @@ impl<'t> Builder<'t> {
             }
             "constant" => {
                 let radiance = self.color_const(&mut p, "radiance")?.unwrap_or(Rgb::ONE);
+                self.check_emission(el, "radiance", radiance)?;
                 self.scene.emitters.push(EmitterDesc::Constant { radiance });
             }
             "envmap" => {
@@ -55,6 +75,7 @@ impl<'t> Builder<'t> {
                     .string(&mut p, "filename")?
                     .ok_or_else(|| self.err(el, "<emitter type=\"envmap\"> needs a `filename`"))?;
                 let scale = self.float(&mut p, "scale", 1.0)?;
+                self.check_emission(el, "scale", Rgb::splat(scale))?;
                 let to_world = self
                     .transform(&mut p, "to_world")?
                     .unwrap_or(Mat4::IDENTITY);

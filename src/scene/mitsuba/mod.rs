@@ -49,14 +49,22 @@
 //! # What is skipped, with a warning in [`Scene::warnings`]
 //!
 //! - the `integrator` block (kalos's method is chosen on the command line);
-//! - the `sampler` block and its parameters (budgets are kalos's own);
 //! - a reconstruction filter other than `box` (kalos always uses a box filter);
 //! - anisotropic roughness `alpha_u`/`alpha_v` (their mean is used);
 //! - a textured area-light radiance (its mean is used).
 //!
 //! Standard parameters that change nothing here (`far_clip`,
-//! `focus_distance`, `pixel_format`, `file_format`, `sample_count`...) are
-//! accepted silently.
+//! `focus_distance`, `pixel_format`, `file_format`...) are accepted
+//! silently. Any `sampler` type is accepted; its `sample_count` becomes
+//! [`Scene::sample_count`], the command line's default budget.
+//!
+//! # Parameters and limits
+//!
+//! `-D name=value` ([`load_with`]) fills `$name`, overriding the file's
+//! `<default>`; a `$name` with no value is an error naming it. Includes nest
+//! at most 16 deep and a scene reads at most 4096 of them; a scene holds at
+//! most [`super::MAX_TRIANGLES`] triangles. Emission must be finite and
+//! non-negative.
 //!
 //! # What is an error
 //!
@@ -97,30 +105,58 @@ type Result<T> = std::result::Result<T, SceneError>;
 
 /// Loads a Mitsuba 3 scene file.
 pub fn load(path: &Path) -> Result<Scene> {
+    load_with(path, &[])
+}
+
+/// Loads a Mitsuba 3 scene file with `-D name=value` parameters: each
+/// fills `$name`, overriding the file's `<default>`. A parameter the scene
+/// does not use is a warning in [`Scene::warnings`].
+pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| SceneError::new(path, 0, format!("cannot read scene file: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    load_impl(&text, &base, path.to_path_buf())
+    load_impl(&text, &base, path.to_path_buf(), defines)
 }
 
 /// Loads a Mitsuba 3 scene from a string (a built-in scene); relative paths
 /// resolve against `base_dir`, and `name` stands for the file in messages.
 pub fn load_str(xml: &str, base_dir: &Path, name: &str) -> Result<Scene> {
-    load_impl(xml, base_dir, PathBuf::from(name))
+    load_impl(xml, base_dir, PathBuf::from(name), &[])
 }
 
-fn load_impl(text: &str, base_dir: &Path, file: PathBuf) -> Result<Scene> {
+/// [`load_str`] with `-D name=value` parameters, as [`load_with`].
+pub fn load_str_with(
+    xml: &str,
+    base_dir: &Path,
+    name: &str,
+    defines: &[(String, String)],
+) -> Result<Scene> {
+    load_impl(xml, base_dir, PathBuf::from(name), defines)
+}
+
+fn load_impl(
+    text: &str,
+    base_dir: &Path,
+    file: PathBuf,
+    defines: &[(String, String)],
+) -> Result<Scene> {
     // Read the documents: splice includes, substitute `$name`s
     let mut reader = Reader {
         main_dir: base_dir.to_path_buf(),
         files: vec![file.clone()],
-        defaults: Vec::new(),
+        defaults: defines.to_vec(),
+        overrides: defines.iter().map(|(n, _)| n.clone()).collect(),
+        used: HashSet::new(),
         stack: vec![file.canonicalize().unwrap_or_else(|_| file.clone())],
+        includes: 0,
     };
     let mut top = Vec::new();
     reader.read_document(text, 0, 0, &mut top)?;
     let Reader {
-        main_dir, files, ..
+        main_dir,
+        files,
+        used,
+        ..
     } = reader;
 
     // Index the ids, then build the scene from the top-level elements
@@ -141,6 +177,14 @@ fn load_impl(text: &str, base_dir: &Path, file: PathBuf) -> Result<Scene> {
     }
     for el in &top {
         b.top_level(el)?;
+    }
+    for (n, v) in defines {
+        if !used.contains(n) {
+            b.scene.warnings.push(format!(
+                "{}: -D {n}={v} is unused: the scene has no `${n}` and no <default name=\"{n}\">",
+                file.display()
+            ));
+        }
     }
     if !b.camera_seen {
         let main = files.first().cloned().unwrap_or_default();

@@ -353,7 +353,11 @@ impl<'t> Builder<'t> {
                 if pairs.windows(2).any(|w| w[1].0 <= w[0].0) {
                     return Err(self.err(c, "spectrum wavelengths must increase"));
                 }
-                Ok(spectrum_to_rgb(&pairs))
+                if let Some((l, v)) = pairs.iter().find(|(_, v)| *v < 0.0) {
+                    return Err(self.err(c, format!("spectrum value {v} at {l} nm is negative")));
+                }
+                // the rough conversion may dip below zero on a channel
+                Ok(spectrum_to_rgb(&pairs).max(Rgb::ZERO))
             }
             _ => Err(self.err(
                 c,
@@ -368,9 +372,29 @@ impl<'t> Builder<'t> {
 
     pub(super) fn color_const(&self, p: &mut Props<'t>, name: &str) -> Result<Option<Rgb>> {
         match p.find(name) {
-            Some(c) => self.const_color_el(c).map(Some),
+            Some(c) => self.non_negative(p.el, c, name).map(Some),
             None => Ok(None),
         }
+    }
+
+    /// A constant colour of `plugin`, which no reflectance, transmittance
+    /// or radiance may have negative: the light it would subtract has no
+    /// meaning, and samplers weighting by it would drop it silently.
+    fn non_negative(&self, plugin: &El, c: &El, name: &str) -> Result<Rgb> {
+        let v = self.const_color_el(c)?;
+        if v.min_element() >= 0.0 {
+            return Ok(v);
+        }
+        Err(self.err(
+            c,
+            format!(
+                "`{name}` of {} must be non-negative, found ({}, {}, {})",
+                plugin.describe(),
+                v.x,
+                v.y,
+                v.z
+            ),
+        ))
     }
 
     /// A colour parameter: a constant or a texture (inline or by reference).
@@ -394,7 +418,7 @@ impl<'t> Builder<'t> {
                     ))
                 }
             }
-            _ => self.const_color_el(c).map(Texture::Constant),
+            _ => self.non_negative(p.el, c, name).map(Texture::Constant),
         }
     }
 

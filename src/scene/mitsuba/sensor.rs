@@ -68,8 +68,17 @@ impl<'t> Builder<'t> {
             match o.tag.as_str() {
                 "film" => (width, height) = self.film(o)?,
                 "sampler" => {
-                    // budgets are kalos's own; any sampler and parameter is accepted
+                    // any sampler type is accepted (kalos's methods draw their
+                    // own numbers); its sample count is the default budget
                     self.plugin_type(o)?;
+                    let mut sp = Props::new(o);
+                    let n = self.int(&mut sp, "sample_count", 0)?;
+                    if sp.used.iter().any(|u| *u) {
+                        let n = u32::try_from(n).ok().filter(|n| *n > 0).ok_or_else(|| {
+                            self.err(o, format!("`sample_count` must be positive, found {n}"))
+                        })?;
+                        self.scene.sample_count = Some(n);
+                    }
                 }
                 _ => {
                     return Err(self.err(o, format!("unexpected {} inside a sensor", o.describe())))

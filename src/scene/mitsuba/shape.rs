@@ -80,8 +80,8 @@ impl<'t> Builder<'t> {
                     _ => {
                         let center = self.point(&mut p, "center")?.unwrap_or(Vec3::ZERO);
                         let radius = self.float(&mut p, "radius", 1.0)?;
-                        if radius.is_nan() || radius <= 0.0 {
-                            return Err(self.err(el, "sphere `radius` must be positive"));
+                        if !(radius.is_finite() && radius > 0.0) {
+                            return Err(self.err(el, "sphere `radius` must be positive and finite"));
                         }
                         shapes::sphere(center, radius, shapes::SPHERE_RINGS)
                     }
@@ -133,6 +133,25 @@ impl<'t> Builder<'t> {
             }
         }
         self.finish(&p)?;
+        let tris = self.scene.triangles.len() as u64 + mesh.indices.len() as u64;
+        if tris > crate::scene::MAX_TRIANGLES {
+            return Err(self.err(
+                el,
+                format!(
+                    "this shape brings the scene to {tris} triangles; kalos loads at most {}",
+                    crate::scene::MAX_TRIANGLES
+                ),
+            ));
+        }
+        if let Some(i) = mesh.positions.iter().position(|v| !v.is_finite()) {
+            return Err(self.err(
+                el,
+                format!(
+                    "vertex {i} of this shape is not finite ({})",
+                    mesh.positions[i]
+                ),
+            ));
+        }
         let material = match bsdf {
             Some(m) => m,
             None => self.default_material(),

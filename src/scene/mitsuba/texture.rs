@@ -68,8 +68,8 @@ impl<'t> Builder<'t> {
     }
 
     /// An image file as linear RGB; 8- and 16-bit files (PNG, JPEG) are
-    /// sRGB-encoded unless `srgb` is false (`raw`), float files (EXR, HDR)
-    /// are linear.
+    /// sRGB-encoded unless `srgb` is false (`raw`), float files (EXR, HDR,
+    /// PFM) are linear. Non-finite or negative pixels are errors.
     pub(super) fn image(&mut self, el: &El, filename: &str, srgb: bool) -> Result<Arc<TexImage>> {
         let path = resolve(self.main_dir, &self.file(el), filename);
         if let Some(img) = self.images.get(&(path.clone(), srgb)) {
@@ -84,26 +84,58 @@ impl<'t> Builder<'t> {
                 ),
             ));
         }
-        let img = image::open(&path)
-            .map_err(|e| self.err(el, format!("cannot read image `{}`: {e}", path.display())))?;
-        let linear = matches!(
-            img,
-            image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)
-        );
-        let rgb = img.to_rgb32f();
-        let (width, height) = rgb.dimensions();
-        let decode = srgb && !linear;
-        let data = rgb
-            .pixels()
-            .map(|px| {
-                let c = Rgb::from(px.0);
-                if decode {
-                    c.map(srgb_to_linear)
-                } else {
-                    c
-                }
-            })
-            .collect();
+        let cannot =
+            |e: String| self.err(el, format!("cannot read image `{}`: {e}", path.display()));
+        let is_pfm = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("pfm"));
+        let (width, height, data) = if is_pfm {
+            // PFM holds linear floats; the `image` crate does not read it
+            let bytes = std::fs::read(&path).map_err(|e| cannot(e.to_string()))?;
+            let img = crate::image_io::decode_pfm(&bytes).map_err(cannot)?;
+            (img.width, img.height, img.data)
+        } else {
+            let img = image::open(&path).map_err(|e| cannot(e.to_string()))?;
+            let linear = matches!(
+                img,
+                image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)
+            );
+            let rgb = img.to_rgb32f();
+            let (width, height) = rgb.dimensions();
+            let decode = srgb && !linear;
+            let data: Vec<Rgb> = rgb
+                .pixels()
+                .map(|px| {
+                    let c = Rgb::from(px.0);
+                    if decode {
+                        c.map(srgb_to_linear)
+                    } else {
+                        c
+                    }
+                })
+                .collect();
+            (width, height, data)
+        };
+        // A NaN or infinite texel would reach the film through every path
+        // that sees it. Negative texels (ringing from a resampled HDR image)
+        // are a reflectance or radiance no surface has: clamped, with a note
+        if let Some(i) = data.iter().position(|c| !c.is_finite()) {
+            let (x, y) = (i as u32 % width.max(1), i as u32 / width.max(1));
+            return Err(cannot(format!(
+                "pixel ({x}, {y}) is not finite ({})",
+                data[i]
+            )));
+        }
+        let negative = data.iter().filter(|c| c.min_element() < 0.0).count();
+        let data = if negative > 0 {
+            self.warn(
+                el,
+                format!("image `{filename}`: {negative} pixels with negative values clamped to 0"),
+            );
+            data.into_iter().map(|c| c.max(Rgb::ZERO)).collect()
+        } else {
+            data
+        };
         let img = Arc::new(TexImage {
             width,
             height,

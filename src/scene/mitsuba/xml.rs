@@ -1,6 +1,7 @@
 //! Reading: the XML documents to an owned tree of [`El`]s, with includes
 //! spliced in and `$name`s substituted.
 
+use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use crate::scene::SceneError;
@@ -13,6 +14,14 @@ use super::Result;
 /// Deepest element nesting accepted (a guard against stack exhaustion on
 /// hostile input; real scenes nest a handful of levels).
 const MAX_DEPTH: usize = 64;
+
+/// Deepest chain of `<include>`s (a file including a file including...).
+const MAX_INCLUDE_DEPTH: usize = 16;
+
+/// Most `<include>`s read for one scene, counting every time a file is
+/// included: a file that includes the next one ten times, seven levels deep,
+/// asks for a million files from a few hundred bytes.
+pub(super) const MAX_INCLUDES: usize = 4096;
 
 /// An element after includes are spliced in and `$name`s substituted.
 #[derive(Debug)]
@@ -49,10 +58,17 @@ impl El {
 pub(super) struct Reader {
     pub(super) main_dir: PathBuf,
     pub(super) files: Vec<PathBuf>,
-    /// `<default>` values, first declaration wins (as in Mitsuba).
+    /// `<default>` values, first declaration wins (as in Mitsuba); the
+    /// `-D` overrides come first, so they win.
     pub(super) defaults: Vec<(String, String)>,
+    /// The names given by `-D`.
+    pub(super) overrides: HashSet<String>,
+    /// Names that a `$name` or a `<default>` used.
+    pub(super) used: HashSet<String>,
     /// Canonical paths of the files being read (include-cycle guard).
     pub(super) stack: Vec<PathBuf>,
+    /// `<include>`s read so far.
+    pub(super) includes: usize,
 }
 
 impl Reader {
@@ -80,18 +96,41 @@ impl Reader {
         self.convert_children(&doc, root, file, depth, out)
     }
 
-    fn substitute(&self, v: &str) -> String {
+    /// Replaces each `$name` in `v` by its value (a `-D` override, else the
+    /// first `<default>`); a `$name` left without a value is an error at
+    /// `path:line` naming it.
+    fn substitute(&mut self, v: &str, path: &Path, line: u32) -> Result<String> {
         if !v.contains('$') {
-            return v.to_string();
+            return Ok(v.to_string());
         }
         // longest names first, so that `$spp` is not read as `$sp` + "p"
         let mut names: Vec<&(String, String)> = self.defaults.iter().collect();
         names.sort_by_key(|(n, _)| std::cmp::Reverse(n.len()));
         let mut s = v.to_string();
         for (n, val) in names {
-            s = s.replace(&format!("${n}"), val);
+            let pattern = format!("${n}");
+            if s.contains(&pattern) {
+                s = s.replace(&pattern, val);
+                self.used.insert(n.clone());
+            }
         }
-        s
+        if let Some(at) = s.find('$') {
+            let name: String = s[at + 1..]
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                .collect();
+            if !name.is_empty() {
+                return Err(SceneError::new(
+                    path,
+                    line,
+                    format!(
+                        "`${name}` has no value: declare <default name=\"{name}\" value=\"...\"/> \
+                         or pass -D {name}=VALUE"
+                    ),
+                ));
+            }
+        }
+        Ok(s)
     }
 
     fn convert_children(
@@ -111,8 +150,13 @@ impl Reader {
             let tag = child.tag_name().name().to_string();
             let attrs: Vec<(String, String)> = child
                 .attributes()
-                .map(|a| (a.name().to_string(), self.substitute(a.value())))
-                .collect();
+                .map(|a| {
+                    Ok((
+                        a.name().to_string(),
+                        self.substitute(a.value(), &path, line)?,
+                    ))
+                })
+                .collect::<Result<_>>()?;
             let get = |k: &str| {
                 attrs
                     .iter()
@@ -125,6 +169,9 @@ impl Reader {
             match tag.as_str() {
                 "default" => {
                     let (name, value) = (get("name")?, get("value")?);
+                    if self.overrides.contains(&name) {
+                        self.used.insert(name.clone());
+                    }
                     if !self.defaults.iter().any(|(n, _)| *n == name) {
                         self.defaults.push((name, value));
                     }
@@ -169,6 +216,19 @@ impl Reader {
         let canon = path.canonicalize().unwrap_or_else(|_| path.clone());
         if self.stack.contains(&canon) {
             return Err(err(format!("include cycle: `{filename}` includes itself")));
+        }
+        if self.stack.len() > MAX_INCLUDE_DEPTH {
+            return Err(err(format!(
+                "includes nested more than {MAX_INCLUDE_DEPTH} deep (at `{filename}`)"
+            )));
+        }
+        self.includes += 1;
+        if self.includes > MAX_INCLUDES {
+            return Err(err(format!(
+                "more than {MAX_INCLUDES} includes in one scene (at `{filename}`, {} files deep): \
+                 the includes fan out, each file including others many times",
+                self.stack.len()
+            )));
         }
         let text = std::fs::read_to_string(&path)
             .map_err(|e| err(format!("cannot read included file `{filename}`: {e}")))?;
