@@ -29,8 +29,22 @@ fn load_models(path: &Path) -> Result<ObjModels, SceneError> {
     if !path.is_file() {
         return Err(SceneError::new(path, 0, "OBJ file not found"));
     }
-    let (models, materials) = tobj::load_obj(path, &options())
+    let file = std::fs::File::open(path)
         .map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
+    let mut reader = std::io::BufReader::new(file);
+    let base = path.parent().unwrap_or(Path::new(""));
+    // what made an MTL file unreadable, in our words (tobj's error has no
+    // line)
+    let mtl_problem: std::cell::RefCell<Option<SceneError>> = Default::default();
+    let (models, materials) = tobj::load_obj_buf(&mut reader, &options(), |mtl| {
+        let mtl = base.join(mtl);
+        if let Err(e) = check_mtl(&mtl) {
+            *mtl_problem.borrow_mut() = Some(e);
+            return Err(tobj::LoadError::MaterialParseError);
+        }
+        tobj::load_mtl(&mtl)
+    })
+    .map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
     for m in &models {
         if let Some(i) = m.mesh.positions.iter().position(|v| !v.is_finite()) {
             return Err(SceneError::new(
@@ -50,9 +64,31 @@ fn load_models(path: &Path) -> Result<ObjModels, SceneError> {
         Err(e) => Ok((
             models,
             Vec::new(),
-            Some(format!("{}: MTL not loaded: {e}", path.display())),
+            Some(match mtl_problem.into_inner() {
+                Some(p) => format!("MTL not loaded: {p}"),
+                None => format!("{}: MTL not loaded: {e}", path.display()),
+            }),
         )),
     }
+}
+
+/// Refuses the MTL lines on which tobj 4 panics instead of returning an
+/// error: a colour (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than three numbers.
+/// A missing file is left to tobj, which reports it.
+fn check_mtl(path: &Path) -> Result<(), SceneError> {
+    let Ok(bytes) = std::fs::read(path) else {
+        return Ok(());
+    };
+    for (i, line) in String::from_utf8_lossy(&bytes).lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
+            if words.count() < 3 {
+                let msg = format!("{key} expects three numbers (r g b)");
+                return Err(SceneError::new(path, i as u32 + 1, msg));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// One tobj mesh as [`MeshData`]. With `flip_tex_coords` (Mitsuba's default
