@@ -45,6 +45,7 @@ const MAX_NODES: u64 = 1 << 20;
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
     check_glb_lengths(path)?;
+    check_attribute_indices(path)?;
     let (doc, buffers, images) =
         gltf::import(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
     let mut scene = Scene::empty(path.display().to_string());
@@ -217,6 +218,8 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
                     );
                     continue;
                 }
+                check_accessor_types(&prim)
+                    .map_err(|e| err(format!("mesh {} primitive {k}: {e}", mesh.index())))?;
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
                 let Some(positions) = reader.read_positions() else {
                     warn(
@@ -315,6 +318,67 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
 /// before the `gltf` crate sizes a buffer from them (it trusts the header:
 /// a claimed 4 GB aborted on the allocation). A file that does not start
 /// with the GLB magic is left to the JSON parser.
+/// Checks that every mesh primitive's attributes name an accessor that
+/// exists, before the `gltf` crate validates the file: its validation of a
+/// primitive indexes the accessor list with the POSITION index unchecked
+/// (gltf-json 1.4.1), so a bad index panicked instead of erroring.
+fn check_attribute_indices(path: &Path) -> Result<(), SceneError> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let bytes = std::fs::read(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
+    // a file the parser refuses is left to `gltf::import`, which says why
+    let Ok(g) = gltf::Gltf::from_slice_without_validation(&bytes) else {
+        return Ok(());
+    };
+    let root = g.document.as_json();
+    let n = root.accessors.len();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (k, prim) in mesh.primitives.iter().enumerate() {
+            let named = prim.attributes.values().chain(prim.indices.as_ref());
+            if let Some(bad) = named.map(|i| i.value()).find(|&i| i >= n) {
+                return Err(err(format!(
+                    "mesh {m} primitive {k} names accessor {bad}, but the file has {n}"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks the component types of the accessors kalos reads, which the
+/// `gltf` crate's readers assume valid (an index accessor of floats reached
+/// an `unreachable!`).
+fn check_accessor_types(prim: &gltf::Primitive) -> Result<(), String> {
+    use gltf::accessor::{DataType as T, Dimensions as D};
+    use gltf::Semantic as S;
+    let ok = |a: &gltf::Accessor, types: &[T], dims: D| {
+        types.contains(&a.data_type()) && a.dimensions() == dims
+    };
+    if let Some(a) = prim.indices() {
+        if !ok(&a, &[T::U8, T::U16, T::U32], D::Scalar) {
+            return Err(format!(
+                "the indices must be unsigned integer scalars, found {:?} {:?}",
+                a.data_type(),
+                a.dimensions()
+            ));
+        }
+    }
+    for (semantic, a) in prim.attributes() {
+        let good = match semantic {
+            S::Positions | S::Normals => ok(&a, &[T::F32], D::Vec3),
+            S::TexCoords(_) => ok(&a, &[T::U8, T::U16, T::F32], D::Vec2),
+            _ => true,
+        };
+        if !good {
+            return Err(format!(
+                "attribute {semantic:?} has the wrong type ({:?} {:?})",
+                a.data_type(),
+                a.dimensions()
+            ));
+        }
+    }
+    Ok(())
+}
+
 fn check_glb_lengths(path: &Path) -> Result<(), SceneError> {
     use std::io::{Read, Seek, SeekFrom};
     let err = |msg: String| SceneError::new(path, 0, msg);

@@ -186,3 +186,45 @@ fn short_mtl_colour_is_a_warning_not_a_panic() {
         "warnings: {w}"
     );
 }
+
+/// The glTF seed with `from` replaced by `to` in its JSON, loaded.
+fn load_gltf_with(from: &str, to: &str) -> Result<scene::Scene, scene::SceneError> {
+    let dir = tempfile::tempdir().unwrap();
+    let seed = cases::seeds()
+        .into_iter()
+        .find(|s| s.label == "gltf")
+        .unwrap();
+    for f in &seed.files {
+        let mut bytes = f.bytes.clone();
+        if f.name == seed.main {
+            let text = String::from_utf8(bytes).unwrap();
+            assert!(text.contains(from), "the seed has no {from}");
+            bytes = text.replace(from, to).into_bytes();
+        }
+        std::fs::write(dir.path().join(&f.name), bytes).unwrap();
+    }
+    scene::load(&dir.path().join(&seed.main))
+}
+
+/// Found by the fuzzer: gltf-json 1.4.1's validation indexed the accessor
+/// list with a primitive's POSITION index unchecked, and panicked.
+#[test]
+fn gltf_attribute_naming_a_missing_accessor_is_an_error() {
+    let e =
+        load_gltf_with("\"POSITION\":0", "\"POSITION\":7").expect_err("accessor 7 does not exist");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("names accessor 7") && msg.contains("quad.gltf"),
+        "{msg}"
+    );
+}
+
+/// Found by the fuzzer: the gltf crate's index reader reached an
+/// `unreachable!` on an index accessor of floats.
+#[test]
+fn gltf_float_indices_are_an_error() {
+    let e = load_gltf_with("\"componentType\":5123", "\"componentType\":5126")
+        .expect_err("float indices");
+    let msg = e.to_string();
+    assert!(msg.contains("indices must be unsigned integer"), "{msg}");
+}
