@@ -135,6 +135,7 @@ fn load_impl(text: &str, base_dir: &Path, file: PathBuf) -> Result<Scene> {
         building: HashSet::new(),
         default_material: None,
         camera_seen: false,
+        spheres: Vec::new(),
     };
     for el in &top {
         b.index_ids(el)?;
@@ -142,6 +143,7 @@ fn load_impl(text: &str, base_dir: &Path, file: PathBuf) -> Result<Scene> {
     for el in &top {
         b.top_level(el)?;
     }
+    b.add_spheres();
     if !b.camera_seen {
         let main = files.first().cloned().unwrap_or_default();
         super::obj::synthesise_camera(&mut b.scene, &main);
