@@ -112,7 +112,7 @@ impl Accel {
         if self.tris.is_empty() {
             return None;
         }
-        let oray = ORay::new(Vec3A::from(ray.o), Vec3A::from(ray.d), ray.tmin, ray.tmax);
+        let oray = obvhs_ray(ray.o, ray.d, ray.tmin, ray.tmax);
         let mut hit = RayHit::none();
         let tris = &self.tris;
         if self
@@ -141,7 +141,7 @@ impl Accel {
             return false;
         }
         let d = b - a;
-        let oray = ORay::new(Vec3A::from(a), Vec3A::from(d), 0.0, 1.0 - 1e-4);
+        let oray = obvhs_ray(a, d, 0.0, 1.0 - 1e-4);
         let tris = &self.tris;
         !self
             .bvh
@@ -154,12 +154,21 @@ impl Accel {
         if self.tris.is_empty() {
             return false;
         }
-        let oray = ORay::new(Vec3A::from(ray.o), Vec3A::from(ray.d), ray.tmin, ray.tmax);
+        let oray = obvhs_ray(ray.o, ray.d, ray.tmin, ray.tmax);
         let tris = &self.tris;
         !self
             .bvh
             .ray_traverse_miss(oray, |r, id| tris[id].intersect(r))
     }
+}
+
+/// The obvhs ray for `o + t d`. A direction component of −0 becomes +0:
+/// obvhs inverts a zero component to ±1/ε by its sign, and its wide-BVH
+/// traversal then misses every node along a direction such as `-Vec3::Z`
+/// (whose x and y are −0), while the same ray with +0 hits.
+#[inline]
+fn obvhs_ray(o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> ORay {
+    ORay::new(Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO, tmin, tmax)
 }
 
 /// Triangles of the sample that [`ploc_is_safe`] builds PLOC on. PLOC takes
