@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use kalos::methods::{density, World};
+use kalos::methods::density;
 
 use crate::{extension, load_scene, say, set_threads};
 
@@ -66,7 +66,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
     }
     set_threads(a.threads)?;
     let t0 = Instant::now();
-    let world = World::new(load_scene(a.scene.as_deref())?);
+    let world = crate::progress::build_world(load_scene(a.scene.as_deref())?);
     let load_s = t0.elapsed().as_secs_f64();
     if world.lights.is_empty() {
         bail!("the scene has no emitters: nothing to bake");

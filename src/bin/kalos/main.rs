@@ -2,6 +2,7 @@
 //! files. Everything else lives in the library.
 
 mod bake;
+mod progress;
 mod render;
 
 use std::ffi::OsString;
@@ -12,7 +13,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use kalos::image_io::{self, PngOptions, Tonemap};
-use kalos::methods::{self, World};
+use kalos::methods;
 use kalos::metrics;
 use kalos::plot::{self, PlotOptions, XAxis};
 use kalos::scene::{self, Scene};
@@ -173,7 +174,8 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
         None => Ok(scene::builtin::cornell_box()?),
         Some(p) if p.as_os_str() == "builtin" => Ok(scene::builtin::cornell_box()?),
         Some(p) => {
-            let s = scene::load(p)?;
+            let s =
+                progress::with_spinner(&format!("loading {}", p.display()), |_| scene::load(p))?;
             for w in &s.warnings {
                 eprintln!("warning: {w}");
             }
@@ -294,7 +296,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         scene.triangles.len()
     );
     let t = Instant::now();
-    let world = World::new(scene);
+    let world = progress::build_world(scene);
     say!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
     let one = kalos::bench::incoherent_closest_hits(&world, a.rays, 1);
     let all_threads = rayon::current_num_threads();

@@ -14,7 +14,7 @@ use clap::{Args, Command, FromArgMatches};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::image_io::{self, PngOptions};
-use kalos::methods::{self, cli as mcli, Budget, Common, World};
+use kalos::methods::{self, cli as mcli, Budget, Common};
 use kalos::metrics;
 use kalos::render::Render;
 
@@ -168,7 +168,7 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         }
         None => None,
     };
-    let world = World::new(scene);
+    let world = crate::progress::build_world(scene);
     let load_s = t0.elapsed().as_secs_f64();
     if world.lights.is_empty() {
         eprintln!("warning: the scene has no emitters; the image will be black");
