@@ -179,10 +179,12 @@ const PLOC_PROBE: usize = 2048;
 /// False when PLOC would take quadratic time on `tris`: PLOC on an evenly
 /// strided sample of them needed as many passes as obvhs's default
 /// traversal stack depth (96). A healthy input merges a fixed fraction of
-/// its clusters per pass, about log₂ k passes for k clusters (11 for the
-/// sample); the inputs of the module doc merge a few per pass, and need
-/// hundreds. A sample keeps either shape: a strided sample of a fan is a
-/// fan, of copies is copies.
+/// its clusters per pass, so its passes grow as log k for k clusters; the
+/// inputs of the module doc merge a few per pass, and their passes grow
+/// with k. A sample keeps either shape: a strided sample of a fan is a
+/// fan, of copies is copies. A fan that is a small part of a large scene is
+/// a small part of the sample too and goes undetected; PLOC's extra work is
+/// then quadratic in the fan's size only.
 fn ploc_is_safe(tris: &[Triangle], params: BvhBuildParams) -> bool {
     if tris.len() <= PLOC_PROBE {
         return true;

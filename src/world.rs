@@ -1,12 +1,12 @@
 //! The world a method reads: the scene and what is built from it once (the
 //! BVH, the light distribution, the camera).
 
-use std::collections::HashMap;
+use std::hash::{DefaultHasher, Hash, Hasher};
 
 use crate::accel::Accel;
 use crate::camera::Camera;
 use crate::emitter::Lights;
-use crate::scene::Scene;
+use crate::scene::{EmitterDesc, Scene, Shape};
 
 /// Everything a method reads: the scene and what is built from it once.
 pub struct World {
@@ -71,32 +71,50 @@ impl World {
 /// different surface (the back of a one-sided emitter) and stays. Returns
 /// the warning to show when something was removed.
 pub fn remove_duplicate_triangles(scene: &mut Scene) -> Option<String> {
-    // Key: the corners' bits, rotated so that the smallest comes first
-    let key = |t: &[u32; 3]| -> [u32; 9] {
-        let c = t.map(|i| {
-            let p = scene.positions[i as usize];
+    // Key: the corners' bits, rotated so that the smallest comes first.
+    // Sorting (hash, index) pairs finds the copies in O(n log n) time and
+    // 16 bytes a triangle; equal hashes are confirmed on the keys.
+    let key = |i: u32| -> [u32; 9] {
+        let c = scene.triangles[i as usize].map(|v| {
+            let p = scene.positions[v as usize];
             [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]
         });
         let r = (0..3).min_by_key(|&k| c[k]).unwrap_or(0);
         let (a, b, d) = (c[r], c[(r + 1) % 3], c[(r + 2) % 3]);
         [a[0], a[1], a[2], b[0], b[1], b[2], d[0], d[1], d[2]]
     };
-    let mut first: HashMap<[u32; 9], u32> = HashMap::with_capacity(scene.triangles.len());
+    let mut order: Vec<(u64, u32)> = (0..scene.triangles.len() as u32)
+        .map(|i| {
+            let mut h = DefaultHasher::new();
+            key(i).hash(&mut h);
+            (h.finish(), i)
+        })
+        .collect();
+    order.sort_unstable();
+    let emission = |s: &Shape| match s.emitter.map(|e| &scene.emitters[e as usize]) {
+        Some(EmitterDesc::Area { radiance, .. }) => Some(*radiance),
+        _ => None,
+    };
     let mut keep = vec![true; scene.triangles.len()];
     let (mut removed, mut conflicting) = (0usize, 0usize);
-    for (i, t) in scene.triangles.iter().enumerate() {
-        if let Some(&j) = first.get(&key(t)) {
-            keep[i] = false;
+    for run in order.chunk_by(|x, y| x.0 == y.0) {
+        // the first triangle of each distinct key in the run (in index order)
+        let mut firsts: Vec<(u32, [u32; 9])> = Vec::new();
+        for &(_, i) in run {
+            let k = key(i);
+            let Some(&(j, _)) = firsts.iter().find(|f| f.1 == k) else {
+                firsts.push((i, k));
+                continue;
+            };
+            keep[i as usize] = false;
             removed += 1;
             let (a, b) = (
                 &scene.shapes[scene.tri_shape[j as usize] as usize],
-                &scene.shapes[scene.tri_shape[i] as usize],
+                &scene.shapes[scene.tri_shape[i as usize] as usize],
             );
-            if a.material != b.material || a.emitter.is_some() != b.emitter.is_some() {
+            if a.material != b.material || emission(a) != emission(b) {
                 conflicting += 1;
             }
-        } else {
-            first.insert(key(t), i as u32);
         }
     }
     if removed == 0 {
