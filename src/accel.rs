@@ -11,7 +11,7 @@
 //! a handful of clusters while searching all of them, and the build takes
 //! time quadratic in the triangle count. [`Accel::build_reporting`] tries
 //! PLOC on a sample of the triangles first and, when the sample shows that
-//! behaviour, builds the tree top-down instead ([`sah`]), which takes
+//! behaviour, builds the tree top-down instead (`accel/sah.rs`), which takes
 //! O(n log n) time whatever the input.
 
 mod sah;
