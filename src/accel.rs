@@ -3,12 +3,26 @@
 //! geometry; it wraps obvhs (pinned to an exact version in Cargo.toml), whose
 //! compressed wide BVH (CWBVH, Ylitie et al. 2017) is built in parallel by
 //! PLOC with rayon.
+//!
+//! PLOC merges only pairs of clusters that are each other's nearest
+//! neighbour, and some inputs have almost no such pairs: many copies of one
+//! triangle (every candidate ties), or a fan of thin triangles around one
+//! vertex (every box holds the shared vertex). Each of its passes then merges
+//! a handful of clusters while searching all of them, and the build takes
+//! time quadratic in the triangle count. [`Accel::build_reporting`] tries
+//! PLOC on a sample of the triangles first and, when the sample shows that
+//! behaviour, builds the tree top-down instead (`accel/sah.rs`), which takes
+//! O(n log n) time whatever the input.
+
+mod sah;
 
 use std::time::Duration;
 
 use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::cwbvh::CwBvh;
+use obvhs::ploc::PlocBuilder;
 use obvhs::ray::{Ray as ORay, RayHit};
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
@@ -44,6 +58,13 @@ pub struct Accel {
 impl Accel {
     /// Builds the BVH over all triangles of `scene` (in parallel).
     pub fn build(scene: &Scene) -> Self {
+        Self::build_reporting(scene, &mut |_| {})
+    }
+
+    /// [`Accel::build`], telling `on_phase` which builder it runs (a line
+    /// for a progress display: building a BVH over millions of triangles
+    /// takes seconds).
+    pub fn build_reporting(scene: &Scene, on_phase: &mut dyn FnMut(String)) -> Self {
         let tris: Vec<Triangle> = (0..scene.triangles.len() as u32)
             .map(|i| {
                 let [a, b, c] = scene.tri_vertices(i);
@@ -61,11 +82,18 @@ impl Accel {
                 ids: Vec::new(),
             };
         }
-        let bvh = build_cwbvh_from_tris(
-            &tris,
-            BvhBuildParams::medium_build(),
-            &mut Duration::default(),
-        );
+        let params = BvhBuildParams::medium_build();
+        let bvh = if ploc_is_safe(&tris, params) {
+            on_phase(format!("building the BVH over {} triangles", tris.len()));
+            build_cwbvh_from_tris(&tris, params, &mut Duration::default())
+        } else {
+            on_phase(format!(
+                "building the BVH over {} triangles top-down (PLOC would take quadratic time on this input)",
+                tris.len()
+            ));
+            let bvh2 = sah::build(&tris);
+            bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false)
+        };
         let ids: Vec<u32> = bvh.primitive_indices.clone();
         let ordered = ids
             .iter()
@@ -84,7 +112,7 @@ impl Accel {
         if self.tris.is_empty() {
             return None;
         }
-        let oray = ORay::new(Vec3A::from(ray.o), Vec3A::from(ray.d), ray.tmin, ray.tmax);
+        let oray = obvhs_ray(ray.o, ray.d, ray.tmin, ray.tmax);
         let mut hit = RayHit::none();
         let tris = &self.tris;
         if self
@@ -113,7 +141,7 @@ impl Accel {
             return false;
         }
         let d = b - a;
-        let oray = ORay::new(Vec3A::from(a), Vec3A::from(d), 0.0, 1.0 - 1e-4);
+        let oray = obvhs_ray(a, d, 0.0, 1.0 - 1e-4);
         let tris = &self.tris;
         !self
             .bvh
@@ -126,12 +154,57 @@ impl Accel {
         if self.tris.is_empty() {
             return false;
         }
-        let oray = ORay::new(Vec3A::from(ray.o), Vec3A::from(ray.d), ray.tmin, ray.tmax);
+        let oray = obvhs_ray(ray.o, ray.d, ray.tmin, ray.tmax);
         let tris = &self.tris;
         !self
             .bvh
             .ray_traverse_miss(oray, |r, id| tris[id].intersect(r))
     }
+}
+
+/// The obvhs ray for `o + t d`. A direction component of −0 becomes +0:
+/// obvhs inverts a zero component to ±1/ε by its sign, and its wide-BVH
+/// traversal then misses every node along a direction such as `-Vec3::Z`
+/// (whose x and y are −0), while the same ray with +0 hits.
+#[inline]
+fn obvhs_ray(o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> ORay {
+    ORay::new(Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO, tmin, tmax)
+}
+
+/// Triangles of the sample that [`ploc_is_safe`] builds PLOC on. PLOC takes
+/// at most O(k²) on k triangles (a fraction of a second for this k), and
+/// when the whole input is smaller it is built directly.
+const PLOC_PROBE: usize = 2048;
+
+/// False when PLOC would take quadratic time on `tris`: PLOC on an evenly
+/// strided sample of them needed as many passes as obvhs's default
+/// traversal stack depth (96). A healthy input merges a fixed fraction of
+/// its clusters per pass, so its passes grow as log k for k clusters; the
+/// inputs of the module doc merge a few per pass, and their passes grow
+/// with k. A sample keeps either shape: a strided sample of a fan is a
+/// fan, of copies is copies. A fan that is a small part of a large scene is
+/// a small part of the sample too and goes undetected; PLOC's extra work is
+/// then quadratic in the fan's size only.
+fn ploc_is_safe(tris: &[Triangle], params: BvhBuildParams) -> bool {
+    if tris.len() <= PLOC_PROBE {
+        return true;
+    }
+    let stride = tris.len() / PLOC_PROBE;
+    let sample: Vec<Triangle> = tris
+        .iter()
+        .step_by(stride)
+        .take(PLOC_PROBE)
+        .copied()
+        .collect();
+    let bvh2 = PlocBuilder::with_capacity(sample.len()).build(
+        params.ploc_search_distance,
+        &sample,
+        (0..sample.len() as u32).collect(),
+        params.sort_precision,
+        params.search_depth_threshold,
+    );
+    // max_depth is max(96, passes + 1)
+    bvh2.max_depth <= obvhs::bvh2::DEFAULT_MAX_STACK_DEPTH
 }
 
 /// Barycentric weights (of the second and third vertex) of the point where

@@ -24,8 +24,70 @@ use crate::geometry;
 /// `π·sin(2π/n)/(2π/n)`, within 0.04 % of π for n = 128.
 pub const DISK_SEGMENTS: u32 = 128;
 /// Rings (in θ) of a tessellated sphere; there are twice as many segments in φ.
-/// The polyhedron's area is within 0.1 % of 4π.
+/// The polyhedron's area is within 0.1 % of 4π. This is the most a sphere of a
+/// scene file gets: [`sphere_rings`] gives small spheres fewer.
 pub const SPHERE_RINGS: u32 = 48;
+/// The fewest rings a sphere of a scene file gets (48 triangles).
+pub const SPHERE_MIN_RINGS: u32 = 4;
+/// The largest distance between a tessellated sphere and the true one (the
+/// sagitta of a segment, `r·(1 − cos(π/2n))` ≈ `r·π²/(8n²)` for n rings), as a
+/// fraction of the scene's bounding-box diagonal. BENCHMARKS.md ("Geometry:
+/// spheres and degenerate BVH inputs") has the measurement behind it.
+pub const SPHERE_TOLERANCE: f32 = 1e-4;
+/// The most triangles all the spheres of a scene may take together; past it
+/// every sphere gets proportionally fewer rings (down to
+/// [`SPHERE_MIN_RINGS`]), so that many small spheres load in bounded memory.
+pub const SPHERE_TRIANGLE_BUDGET: u64 = 2_000_000;
+
+/// Triangles of a Mitsuba sphere of `rings` rings (the pole rings have one
+/// triangle per segment instead of two).
+pub fn sphere_triangles(rings: u32) -> u64 {
+    let rings = rings.max(2) as u64;
+    4 * rings * (rings - 1)
+}
+
+/// The rings of each sphere of a scene, from its radius and the scene's
+/// bounding-box diagonal `extent`: enough that the tessellation stays within
+/// [`SPHERE_TOLERANCE`]·`extent` of the sphere, between [`SPHERE_MIN_RINGS`]
+/// and [`SPHERE_RINGS`], and together within [`SPHERE_TRIANGLE_BUDGET`]
+/// (every sphere's rings scaled by one factor, so that the large ones stay
+/// finer than the small ones). A sphere as large as the scene gets the most.
+pub fn sphere_rings(radii: &[f32], extent: f32) -> Vec<u32> {
+    let tol = SPHERE_TOLERANCE * extent.max(f32::MIN_POSITIVE);
+    let wanted: Vec<f32> = radii
+        .iter()
+        .map(|&r| {
+            let n = PI * (r.abs() / (8.0 * tol)).sqrt();
+            if n.is_finite() {
+                n
+            } else {
+                SPHERE_RINGS as f32
+            }
+        })
+        .collect();
+    let rings_at = |scale: f32| -> Vec<u32> {
+        wanted
+            .iter()
+            .map(|&n| ((n * scale).ceil() as u32).clamp(SPHERE_MIN_RINGS, SPHERE_RINGS))
+            .collect()
+    };
+    let total = |rings: &[u32]| rings.iter().map(|&n| sphere_triangles(n)).sum::<u64>();
+    let full = rings_at(1.0);
+    if total(&full) <= SPHERE_TRIANGLE_BUDGET {
+        return full;
+    }
+    // Bisect the scale: the triangle count grows with it
+    let (mut lo, mut hi) = (0.0f32, 1.0f32);
+    for _ in 0..32 {
+        let mid = 0.5 * (lo + hi);
+        if total(&rings_at(mid)) <= SPHERE_TRIANGLE_BUDGET {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    rings_at(lo)
+}
 
 /// An indexed triangle mesh with optional per-vertex normals and uvs.
 #[derive(Clone, Debug, Default)]

@@ -15,6 +15,7 @@ mod cli;
 mod density;
 mod driver;
 mod fuzz;
+mod geometry;
 mod image_io;
 mod loader;
 mod loader_limits;

@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::methods::density::control::{Control, Limits, Phase, Tick};
 use kalos::methods::density::{DensityError, Storage};
-use kalos::methods::{density, MethodConfig, World};
+use kalos::methods::{density, MethodConfig};
 
 use crate::{check_output, load_scene, say, set_threads};
 
@@ -83,7 +83,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
     }
     set_threads(a.threads)?;
     let t0 = Instant::now();
-    let world = World::new(load_scene(a.scene.as_deref(), &a.defines)?);
+    let world = crate::progress::build_world(load_scene(a.scene.as_deref(), &a.defines)?);
     let load_s = t0.elapsed().as_secs_f64();
     if world.lights.is_empty() {
         bail!("the scene has no emitters: nothing to bake");

@@ -2,6 +2,7 @@
 //! files. Everything else lives in the library.
 
 mod bake;
+mod progress;
 mod render;
 mod signals;
 
@@ -13,7 +14,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use kalos::image_io::{self, PngOptions, Tonemap};
-use kalos::methods::{self, World};
+use kalos::methods;
 use kalos::metrics;
 use kalos::plot::{self, PlotOptions, XAxis};
 use kalos::scene::{self, Scene};
@@ -192,7 +193,9 @@ fn parse_define(s: &str) -> Result<(String, String), String> {
 fn load_scene(path: Option<&Path>, defines: &Defines) -> Result<Scene> {
     let builtin = path.is_none_or(|p| p.as_os_str() == "builtin");
     let s = match path {
-        Some(p) if !builtin => scene::load_with(p, &defines.define)?,
+        Some(p) if !builtin => progress::with_spinner(&format!("loading {}", p.display()), |_| {
+            scene::load_with(p, &defines.define)
+        })?,
         _ => scene::builtin::cornell_box_with(&defines.define)?,
     };
     // the built-in scene's own warnings (its skipped integrator) are known
@@ -418,7 +421,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         scene.triangles.len()
     );
     let t = Instant::now();
-    let world = World::new(scene);
+    let world = progress::build_world(scene);
     say!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
     let one = kalos::bench::incoherent_closest_hits(&world, a.rays, 1);
     let all_threads = rayon::current_num_threads();

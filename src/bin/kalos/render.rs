@@ -12,7 +12,7 @@ use clap::{Args, Command, FromArgMatches};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::image_io::{self, PngOptions};
-use kalos::methods::{self, cli as mcli, Budget, Common, World};
+use kalos::methods::{self, cli as mcli, Budget, Common};
 use kalos::metrics;
 use kalos::render::{self, Render};
 
@@ -198,7 +198,7 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
             );
         }
     }
-    let world = World::new(scene);
+    let world = crate::progress::build_world(scene);
     let load_s = t0.elapsed().as_secs_f64();
     // From here on the first SIGINT or SIGTERM saves what is rendered;
     // while loading there is nothing to save, and they end kalos at once.

@@ -29,6 +29,8 @@ pub(super) struct Builder<'t> {
     pub(super) building: HashSet<usize>,
     pub(super) default_material: Option<u32>,
     pub(super) camera_seen: bool,
+    /// Spheres waiting for the whole scene (see `shape.rs`).
+    pub(super) spheres: Vec<super::shape::PendingSphere>,
 }
 
 pub(super) fn addr(el: &El) -> usize {

@@ -171,6 +171,7 @@ fn load_impl(
         building: HashSet::new(),
         default_material: None,
         camera_seen: false,
+        spheres: Vec::new(),
     };
     for el in &top {
         b.index_ids(el)?;
@@ -178,6 +179,7 @@ fn load_impl(
     for el in &top {
         b.top_level(el)?;
     }
+    b.add_spheres();
     for (n, v) in defines {
         if !used.contains(n) {
             b.scene.warnings.push(format!(

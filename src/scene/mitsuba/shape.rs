@@ -1,5 +1,11 @@
 //! Shape plugins: `obj`, `ply`, `rectangle`, `cube`, `disk`, `sphere`, with
 //! `to_world` and their nested BSDF and area emitter.
+//!
+//! Spheres are tessellated last, once the whole scene is read
+//! ([`Builder::add_spheres`]): how finely depends on each sphere's size
+//! relative to the scene and on how many there are
+//! ([`shapes::sphere_rings`]). They therefore come after the other shapes in
+//! [`crate::scene::Scene::shapes`].
 
 use glam::{Mat3, Mat4, Vec3};
 
@@ -32,7 +38,8 @@ impl<'t> Builder<'t> {
             .unwrap_or(Mat4::IDENTITY);
         let flip_normals = self.boolean(&mut p, "flip_normals", false)?;
 
-        // Geometry in object space
+        // Geometry in object space (a sphere's waits for the whole scene)
+        let mut sphere = None;
         let (mut mesh, analytic) = match ty {
             "obj" | "ply" => {
                 let filename = self
@@ -72,19 +79,20 @@ impl<'t> Builder<'t> {
                 }
                 (mesh, false)
             }
-            "rectangle" | "cube" | "disk" | "sphere" => {
+            "sphere" => {
+                let center = self.point(&mut p, "center")?.unwrap_or(Vec3::ZERO);
+                let radius = self.float(&mut p, "radius", 1.0)?;
+                if !(radius.is_finite() && radius > 0.0) {
+                    return Err(self.err(el, "sphere `radius` must be positive and finite"));
+                }
+                sphere = Some((center, radius));
+                (MeshData::default(), true)
+            }
+            "rectangle" | "cube" | "disk" => {
                 let mut mesh = match ty {
                     "rectangle" => shapes::rectangle(),
                     "cube" => shapes::cube(),
-                    "disk" => shapes::disk(shapes::DISK_SEGMENTS),
-                    _ => {
-                        let center = self.point(&mut p, "center")?.unwrap_or(Vec3::ZERO);
-                        let radius = self.float(&mut p, "radius", 1.0)?;
-                        if !(radius.is_finite() && radius > 0.0) {
-                            return Err(self.err(el, "sphere `radius` must be positive and finite"));
-                        }
-                        shapes::sphere(center, radius, shapes::SPHERE_RINGS)
-                    }
+                    _ => shapes::disk(shapes::DISK_SEGMENTS),
                 };
                 mesh.transform(&to_world);
                 (mesh, ty != "cube")
@@ -160,8 +168,55 @@ impl<'t> Builder<'t> {
             || format!("{ty}{}", self.scene.shapes.len()),
             str::to_string,
         );
-        self.add(name, &mesh, material, radiance);
+        match sphere {
+            Some((center, radius)) => self.spheres.push(PendingSphere {
+                name,
+                center,
+                radius,
+                to_world,
+                flip_normals,
+                material,
+                radiance,
+            }),
+            None => self.add(name, &mesh, material, radiance),
+        }
         Ok(())
+    }
+
+    /// Tessellates the spheres read so far and adds them to the scene, each
+    /// with the rings [`shapes::sphere_rings`] gives it from its world
+    /// radius and the diagonal of the whole scene (the other shapes and every
+    /// sphere's bounds).
+    pub(super) fn add_spheres(&mut self) {
+        let spheres = std::mem::take(&mut self.spheres);
+        if spheres.is_empty() {
+            return;
+        }
+        let (mut lo, mut hi) = if self.scene.triangles.is_empty() {
+            (Vec3::INFINITY, Vec3::NEG_INFINITY)
+        } else {
+            self.scene.bounds()
+        };
+        let world: Vec<(Vec3, f32)> = spheres.iter().map(PendingSphere::world).collect();
+        for &(c, r) in &world {
+            lo = lo.min(c - r);
+            hi = hi.max(c + r);
+        }
+        let extent = (hi - lo).length();
+        let radii: Vec<f32> = world.iter().map(|w| w.1).collect();
+        let rings = shapes::sphere_rings(&radii, extent);
+        for (s, n) in spheres.into_iter().zip(rings) {
+            let mut mesh = shapes::sphere(s.center, s.radius, n);
+            mesh.transform(&s.to_world);
+            // as for the other analytic shapes (see `shape`)
+            if Mat3::from_mat4(s.to_world).determinant() < 0.0 {
+                mesh.reverse_winding();
+            }
+            if s.flip_normals {
+                mesh.flip();
+            }
+            self.add(s.name, &mesh, s.material, s.radiance);
+        }
     }
 
     fn add(&mut self, name: String, m: &MeshData, material: u32, radiance: Option<Rgb>) {
@@ -174,5 +229,35 @@ impl<'t> Builder<'t> {
             material,
             radiance,
         );
+    }
+}
+
+/// A `sphere` shape read but not yet tessellated: [`Builder::add_spheres`]
+/// chooses its rings once the whole scene is known.
+pub(super) struct PendingSphere {
+    name: String,
+    center: Vec3,
+    radius: f32,
+    to_world: Mat4,
+    flip_normals: bool,
+    material: u32,
+    radiance: Option<Rgb>,
+}
+
+impl PendingSphere {
+    /// World-space centre and radius. Under a non-uniform `to_world` the
+    /// radius is the longest transformed axis (the ellipsoid's longest
+    /// semi-axis unless `to_world` shears), so that its tessellation errs on
+    /// the fine side.
+    fn world(&self) -> (Vec3, f32) {
+        let m = Mat3::from_mat4(self.to_world);
+        let stretch = m
+            .x_axis
+            .length()
+            .max(m.y_axis.length())
+            .max(m.z_axis.length());
+        let r = self.radius * stretch;
+        let c = self.to_world.transform_point3(self.center);
+        (c, if r.is_finite() { r } else { 0.0 })
     }
 }
