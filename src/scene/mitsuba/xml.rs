@@ -71,6 +71,22 @@ pub(super) struct Reader {
     pub(super) includes: usize,
 }
 
+/// The byte offsets of a text's line breaks, to find an element's line by
+/// binary search: roxmltree's `text_pos_at` rescans the text from its start
+/// on every call, which made a scene of 20,000 shapes take seconds to number.
+struct LineTable(Vec<usize>);
+
+impl LineTable {
+    fn new(text: &str) -> Self {
+        LineTable(text.match_indices('\n').map(|(i, _)| i).collect())
+    }
+
+    /// The 1-based line of byte `pos`.
+    fn row(&self, pos: usize) -> u32 {
+        (self.0.partition_point(|&nl| nl < pos) + 1) as u32
+    }
+}
+
 impl Reader {
     pub(super) fn read_document(
         &mut self,
@@ -93,7 +109,8 @@ impl Reader {
                 ),
             ));
         }
-        self.convert_children(&doc, root, file, depth, out)
+        let lines = LineTable::new(text);
+        self.convert_children(&lines, root, file, depth, out)
     }
 
     /// Replaces each `$name` in `v` by its value (a `-D` override, else the
@@ -135,7 +152,7 @@ impl Reader {
 
     fn convert_children(
         &mut self,
-        doc: &roxmltree::Document,
+        lines: &LineTable,
         node: roxmltree::Node,
         file: usize,
         depth: usize,
@@ -143,7 +160,7 @@ impl Reader {
     ) -> Result<()> {
         let path = self.files.get(file).cloned().unwrap_or_default();
         for child in node.children().filter(|n| n.is_element()) {
-            let line = doc.text_pos_at(child.range().start).row;
+            let line = lines.row(child.range().start);
             if depth > MAX_DEPTH {
                 return Err(SceneError::new(&path, line, "elements nested too deeply"));
             }
@@ -188,7 +205,7 @@ impl Reader {
                         file,
                         line,
                     };
-                    self.convert_children(doc, child, file, depth + 1, &mut el.children)?;
+                    self.convert_children(lines, child, file, depth + 1, &mut el.children)?;
                     out.push(el);
                 }
             }
