@@ -294,11 +294,15 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
             r.dot(d),
         )
     };
-    let proj: Vec<Proj> = order
+    // in patch order, so that the patches are read in memory order, then
+    // gathered into depth order: reading them in depth order stalled on
+    // every patch
+    let by_id: Vec<Proj> = patches
+        .p
         .par_iter()
-        .map(|&o| {
-            let id = (o & 0xFFFF_FFFF) as u32;
-            let p = &patches.p[id as usize];
+        .enumerate()
+        .map(|(id, p)| {
+            let id = id as u32;
             let (a, za) = to_map(p.v[0]);
             let (b, zb) = to_map(p.v[1]);
             let (c, zc) = to_map(p.v[2]);
@@ -335,6 +339,14 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
             }
         })
         .collect();
+    let proj: Vec<Proj> = if inp.visibility == Visibility::Painter {
+        order
+            .par_iter()
+            .map(|&o| by_id[(o & 0xFFFF_FFFF) as usize])
+            .collect()
+    } else {
+        by_id
+    };
 
     // Scan-convert band by band
     let rows_per_band = (h as usize).div_ceil(BANDS) as i32;
