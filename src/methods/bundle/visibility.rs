@@ -265,19 +265,21 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     let mut jr = Pcg32::keyed(&[inp.keys[0], inp.keys[1], 0x0FF5]);
     let jitter = jr.next_2d();
 
-    // Sort the patches along d (upstream first)
+    // Sort the patches along d (upstream first); the z-buffer needs no order
     let t0 = Instant::now();
-    let mut order: Vec<u64> = patches
-        .p
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let k = p.centroid().dot(d).to_bits();
-            let k = if k >> 31 == 1 { !k } else { k | 0x8000_0000 };
-            ((k as u64) << 32) | i as u64
-        })
-        .collect();
-    if inp.visibility == Visibility::Painter {
+    let painter = inp.visibility == Visibility::Painter;
+    let mut order: Vec<u64> = Vec::new();
+    if painter {
+        order = patches
+            .p
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let k = p.centroid().dot(d).to_bits();
+                let k = if k >> 31 == 1 { !k } else { k | 0x8000_0000 };
+                ((k as u64) << 32) | i as u64
+            })
+            .collect();
         order.par_sort_unstable();
     }
     let t_sort = t0.elapsed().as_secs_f64();
@@ -339,7 +341,7 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
             }
         })
         .collect();
-    let proj: Vec<Proj> = if inp.visibility == Visibility::Painter {
+    let proj: Vec<Proj> = if painter {
         order
             .par_iter()
             .map(|&o| by_id[(o & 0xFFFF_FFFF) as usize])
