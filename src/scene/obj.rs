@@ -38,11 +38,13 @@ fn load_models(path: &Path) -> Result<ObjModels, SceneError> {
     let mtl_problem: std::cell::RefCell<Option<SceneError>> = Default::default();
     let (models, materials) = tobj::load_obj_buf(&mut reader, &options(), |mtl| {
         let mtl = base.join(mtl);
-        if let Err(e) = check_mtl(&mtl) {
+        // read once: checked, then parsed from the same bytes
+        let bytes = std::fs::read(&mtl).map_err(|_| tobj::LoadError::OpenFileFailed)?;
+        if let Err(e) = check_mtl(&mtl, &bytes) {
             *mtl_problem.borrow_mut() = Some(e);
             return Err(tobj::LoadError::MaterialParseError);
         }
-        tobj::load_mtl(&mtl)
+        tobj::load_mtl_buf(&mut &bytes[..])
     })
     .map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
     for m in &models {
@@ -74,12 +76,9 @@ fn load_models(path: &Path) -> Result<ObjModels, SceneError> {
 
 /// Refuses the MTL lines on which tobj 4 panics instead of returning an
 /// error: a colour (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than three numbers.
-/// A missing file is left to tobj, which reports it.
-fn check_mtl(path: &Path) -> Result<(), SceneError> {
-    let Ok(bytes) = std::fs::read(path) else {
-        return Ok(());
-    };
-    for (i, line) in String::from_utf8_lossy(&bytes).lines().enumerate() {
+/// `bytes` are the contents of the MTL file `path`.
+fn check_mtl(path: &Path, bytes: &[u8]) -> Result<(), SceneError> {
+    for (i, line) in String::from_utf8_lossy(bytes).lines().enumerate() {
         let mut words = line.split_whitespace();
         if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
             if words.count() < 3 {
