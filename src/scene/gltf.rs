@@ -44,10 +44,7 @@ const MAX_NODES: u64 = 1 << 20;
 /// Loads a glTF 2.0 file as a scene.
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
-    check_glb_lengths(path)?;
-    check_attribute_indices(path)?;
-    let (doc, buffers, images) =
-        gltf::import(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
+    let (doc, buffers, images) = import(path)?;
     let mut scene = Scene::empty(path.display().to_string());
     let warn = |scene: &mut Scene, msg: String| {
         scene.warnings.push(format!("{}: {msg}", path.display()));
@@ -314,22 +311,40 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     Ok(scene)
 }
 
-/// Checks a binary glTF's header and chunk lengths against the file's size
-/// before the `gltf` crate sizes a buffer from them (it trusts the header:
-/// a claimed 4 GB aborted on the allocation). A file that does not start
-/// with the GLB magic is left to the JSON parser.
+/// Reads a glTF or GLB file once, checking what the `gltf` crate would
+/// trust before it does: the GLB lengths ([`check_glb_lengths`]) and the
+/// accessor indices ([`check_attribute_indices`]); then validates it and
+/// reads its buffers and images, as `gltf::import` does.
+fn import(
+    path: &Path,
+) -> Result<
+    (
+        gltf::Document,
+        Vec<gltf::buffer::Data>,
+        Vec<gltf::image::Data>,
+    ),
+    SceneError,
+> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let bytes = std::fs::read(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
+    check_glb_lengths(path, &bytes)?;
+    let cannot = |e: gltf::Error| err(format!("cannot read glTF file: {e}"));
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(&bytes).map_err(cannot)?;
+    check_attribute_indices(path, document.as_json())?;
+    let document = gltf::Document::from_json(document.into_json()).map_err(cannot)?;
+    let base = path.parent().unwrap_or(Path::new("./"));
+    let buffers = gltf::import_buffers(&document, Some(base), blob).map_err(cannot)?;
+    let images = gltf::import_images(&document, Some(base), &buffers).map_err(cannot)?;
+    Ok((document, buffers, images))
+}
+
 /// Checks that every mesh primitive's attributes name an accessor that
 /// exists, before the `gltf` crate validates the file: its validation of a
 /// primitive indexes the accessor list with the POSITION index unchecked
 /// (gltf-json 1.4.1), so a bad index panicked instead of erroring.
-fn check_attribute_indices(path: &Path) -> Result<(), SceneError> {
+fn check_attribute_indices(path: &Path, root: &gltf::json::Root) -> Result<(), SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
-    let bytes = std::fs::read(path).map_err(|e| err(format!("cannot read glTF file: {e}")))?;
-    // a file the parser refuses is left to `gltf::import`, which says why
-    let Ok(g) = gltf::Gltf::from_slice_without_validation(&bytes) else {
-        return Ok(());
-    };
-    let root = g.document.as_json();
     let n = root.accessors.len();
     for (m, mesh) in root.meshes.iter().enumerate() {
         for (k, prim) in mesh.primitives.iter().enumerate() {
@@ -379,18 +394,21 @@ fn check_accessor_types(prim: &gltf::Primitive) -> Result<(), String> {
     Ok(())
 }
 
-fn check_glb_lengths(path: &Path) -> Result<(), SceneError> {
-    use std::io::{Read, Seek, SeekFrom};
+/// Checks a binary glTF's header and chunk lengths against the file's size
+/// before the `gltf` crate sizes a buffer from them (it trusts the header:
+/// a claimed 4 GB aborted on the allocation). A file that does not start
+/// with the GLB magic is left to the JSON parser.
+fn check_glb_lengths(path: &Path, bytes: &[u8]) -> Result<(), SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
-    let io = |e: std::io::Error| err(format!("cannot read glTF file: {e}"));
-    let mut f = std::fs::File::open(path).map_err(io)?;
-    let size = f.metadata().map_err(io)?.len();
-    let mut header = [0u8; 12];
-    if size < 12 || f.read_exact(&mut header).is_err() || &header[..4] != b"glTF" {
+    let size = bytes.len() as u64;
+    if size < 12 || &bytes[..4] != b"glTF" {
         return Ok(());
     }
-    let word = |b: &[u8], i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-    let claimed = word(&header, 8) as u64;
+    let word = |i: u64| {
+        let i = i as usize;
+        u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]) as u64
+    };
+    let claimed = word(8);
     if claimed > size {
         return Err(err(format!(
             "GLB header claims {claimed} bytes, but the file has {size}: truncated or corrupt"
@@ -400,10 +418,7 @@ fn check_glb_lengths(path: &Path) -> Result<(), SceneError> {
     let mut at = 12u64;
     let mut k = 0;
     while at + 8 <= claimed {
-        let mut chunk = [0u8; 8];
-        f.seek(SeekFrom::Start(at)).map_err(io)?;
-        f.read_exact(&mut chunk).map_err(io)?;
-        let len = word(&chunk, 0) as u64;
+        let len = word(at);
         if at + 8 + len > claimed {
             return Err(err(format!(
                 "GLB chunk {k} at byte {at} claims {len} bytes, but only {} remain of the {claimed} the header gives",
