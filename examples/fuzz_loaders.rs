@@ -25,8 +25,6 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
 
-const METHODS: [&str; 5] = ["path", "light", "plb", "bundle", "density"];
-
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Outcome {
     Error,
@@ -83,7 +81,10 @@ fn run(a: &Args, seeds: &[cases::Seed], i: u64) -> Result<(Outcome, String, f64)
     let dir = tempfile::tempdir()?;
     c.write(dir.path())?;
     let out = dir.path().join("out.pfm");
-    let method = METHODS[(i % METHODS.len() as u64) as usize];
+    // the methods in turn, as the in-process test does
+    let all = kalos::methods::all();
+    let info = &all[(i % all.len() as u64) as usize];
+    let method = info.name;
     let mut cmd = Command::new(&a.kalos);
     cmd.args([
         "render",
@@ -102,11 +103,12 @@ fn run(a: &Args, seeds: &[cases::Seed], i: u64) -> Result<(Outcome, String, f64)
     .arg(&out)
     .stdout(Stdio::null())
     .stderr(Stdio::piped());
-    if method != "bundle" {
+    if info.max_depth {
         cmd.args(["--max-depth", "6"]);
     }
     if method == "density" {
-        cmd.args(["--particles", "20000"]);
+        cmd.arg("--particles")
+            .arg(cases::DENSITY_PARTICLES.to_string());
     }
     let t0 = Instant::now();
     let mut child = cmd.spawn()?;

@@ -63,8 +63,7 @@ fn run_case(dir: &std::path::Path, c: &cases::Case, index: u64) -> Outcome {
     let info = &methods::all()[(index % methods::all().len() as u64) as usize];
     let mut method: MethodConfig = (info.default)();
     if let MethodConfig::Density(d) = &mut method {
-        // its default is millions of particles whatever the film size
-        d.particles = 20_000;
+        d.particles = cases::DENSITY_PARTICLES;
     }
     let common = Common {
         seed: index,

@@ -16,6 +16,10 @@ use std::path::Path;
 /// The run seed of the CI test and of the example's default run.
 pub const RUN_SEED: u64 = 1;
 
+/// Particles of a density case: its default is millions whatever the
+/// film size, and a case should cost milliseconds.
+pub const DENSITY_PARTICLES: u64 = 20_000;
+
 /// splitmix64: enough randomness for choosing mutations, and a pure
 /// function of its state.
 pub struct Rng(u64);
