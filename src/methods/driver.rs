@@ -43,6 +43,14 @@ impl Budget {
         }
         Ok(())
     }
+
+    /// The fraction of the time and ray limits that `elapsed` seconds and
+    /// `rays` rays have spent (0 when there are none).
+    fn spent(&self, elapsed: f64, rays: u64) -> f64 {
+        let t = self.time.map_or(0.0, |t| elapsed / t);
+        let r = self.rays.map_or(0.0, |r| rays as f64 / r as f64);
+        t.max(r)
+    }
 }
 
 /// A row of the convergence log.
@@ -106,13 +114,7 @@ impl Setup<'_> {
     /// the phase.
     pub fn report(&mut self, rays: u64, fraction: f64, phase: &'static str) {
         let elapsed = self.elapsed();
-        let mut f = fraction;
-        if let Some(t) = self.budget.time {
-            f = f.max(elapsed / t);
-        }
-        if let Some(r) = self.budget.rays {
-            f = f.max(rays as f64 / r as f64);
-        }
+        let f = fraction.max(self.budget.spent(elapsed, rays));
         self.last = self.last.max(f.clamp(0.0, 1.0));
         (self.on_progress)(&Progress {
             passes: 0,
@@ -196,15 +198,9 @@ impl Driver<'_> {
             && budget.passes.is_none();
         loop {
             let elapsed = start.elapsed().as_secs_f64() - excluded;
-            let mut fraction: f64 = 0.0;
+            let mut fraction = budget.spent(elapsed, rays);
             if let Some(s) = budget.spp {
                 fraction = fraction.max(method.spp() / s);
-            }
-            if let Some(t) = budget.time {
-                fraction = fraction.max(elapsed / t);
-            }
-            if let Some(r) = budget.rays {
-                fraction = fraction.max(rays as f64 / r as f64);
             }
             if let Some(p) = budget.passes {
                 fraction = fraction.max(pass as f64 / p as f64);
