@@ -177,13 +177,16 @@ pub struct Viewer {
 /// `name` from a thread of its own.
 pub fn start(content: Content, name: &str, port: u16) -> Result<Viewer> {
     let server = Server::http(("127.0.0.1", port)).map_err(|e| {
-        if port == 0 {
-            anyhow!("cannot open a port on 127.0.0.1 for the viewer: {e}")
-        } else {
-            anyhow!(
-                "cannot serve the viewer on 127.0.0.1:{port}: {e} (is the port in use? choose \
-                 another with --port, or omit --port for a free one)"
-            )
+        let in_use = e
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::AddrInUse);
+        match (port, in_use) {
+            (0, _) => anyhow!("cannot open a port on 127.0.0.1 for the viewer: {e}"),
+            (_, true) => anyhow!(
+                "port {port} on 127.0.0.1 is in use: choose another with --port, or omit \
+                 --port for a free one"
+            ),
+            _ => anyhow!("cannot serve the viewer on 127.0.0.1:{port}: {e}"),
         }
     })?;
     let port = server
