@@ -310,3 +310,28 @@ fn render_view_publishes_progress_and_ctrl_c_still_saves() {
     let saved = kalos::image_io::read_image(Path::new(&out)).expect("the image was saved");
     assert_eq!((saved.width, saved.height), (16, 16));
 }
+
+/// `Render::watch` sees every pass but the last (whose image the result
+/// holds), at the film's size, and leaves the render as it would be
+/// without it.
+#[test]
+fn the_watch_hook_sees_the_passes_and_changes_nothing() {
+    let world = kalos::world::World::new(crate::common::furnace(0.5, 1.0, 12));
+    let plain = kalos::render::Render::new(&world)
+        .seed(3)
+        .passes(5)
+        .run(|_| {})
+        .expect("render");
+    let mut seen = Vec::new();
+    let watched = kalos::render::Render::new(&world)
+        .seed(3)
+        .passes(5)
+        .watch(0.0, |img, p| {
+            seen.push((p.passes, img.width, img.height, img.data.len()))
+        })
+        .run(|_| {})
+        .expect("render");
+    let want: Vec<_> = (1..5).map(|p| (p, 12, 12, 144)).collect();
+    assert_eq!(seen, want);
+    assert_eq!(watched.image, plain.image);
+}
