@@ -27,8 +27,11 @@ export async function show($) {
   gltf.scene.updateMatrixWorld(true);
 
   // Materials: baked radiance where there is one, grey where the bake has
-  // nothing (the non-diffuse surfaces it leaves to a renderer)
-  const baked = new THREE.MeshBasicMaterial({ vertexColors: true, side: THREE.DoubleSide });
+  // nothing (the non-diffuse surfaces it leaves to a renderer). The bake
+  // writes each lit side of a surface as its own triangles, wound to face
+  // that side: front faces only, so that the two sides of a wall do not
+  // fight, and a closed room seen from outside shows its inside.
+  const baked = new THREE.MeshBasicMaterial({ vertexColors: true, side: THREE.FrontSide });
   const unbaked = new THREE.MeshBasicMaterial({ color: 0x606060, side: THREE.DoubleSide });
   const wires = [];
   let triangles = 0;
