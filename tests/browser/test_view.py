@@ -15,12 +15,15 @@ removed.
 
 import argparse
 import os
+import json
 import re
+import signal
 import struct
 import subprocess
 import sys
 import tempfile
 import time
+import urllib.request
 import zlib
 
 from playwright.sync_api import sync_playwright
@@ -153,7 +156,7 @@ def run(args):
     r = subprocess.run(args, capture_output=True, text=True)
     if r.returncode != 0:
         print(r.stdout + r.stderr)
-    check(r.returncode == 0, " ".join(args[1:3]) + " runs")
+    check(r.returncode == 0, "kalos " + args[1] + " runs")
 
 
 def main():
@@ -268,13 +271,14 @@ def live_checks(browser, kalos, out):
     ref = os.path.join(out, "ref.exr")
     run([kalos, "render", "--spp", "64", "--res", "96x96", "--seed", "9", "-q", "-o", ref])
     live_out = os.path.join(out, "live.exr")
-    served = Served([kalos, "render", "--view", "--time", "8", "--res", "96x96", "-q",
+    # a budget far beyond the test: it ends the render with Ctrl-C
+    served = Served([kalos, "render", "--view", "--time", "600", "--res", "96x96", "-q",
                      "--ref", ref, "-o", live_out], "stderr")
     try:
         page = browser.new_page(viewport={"width": 600, "height": 400}, device_scale_factor=1)
         page.goto(served.url)
         page.wait_for_function("window.kalos && (window.kalos.ready || window.kalos.error)",
-                               timeout=30000)
+                               timeout=60000)
         first = page.evaluate("[window.kalos.passes, window.kalos.version, window.kalos.imageSum]")
         page.wait_for_timeout(3000)
         later = page.evaluate("[window.kalos.passes, window.kalos.version, window.kalos.imageSum]")
@@ -282,10 +286,18 @@ def live_checks(browser, kalos, out):
         check(later[0] > first[0], "the pass count grows")
         check(later[1] > first[1] and later[2] != first[2], "the image changes")
         check(page.is_visible("#curve"), "the convergence curve is drawn (--ref)")
-        page.close()  # closing the page must not stop the render
+        page.close()
+        # closing the page does not stop the render: it goes on passing
+        time.sleep(2)
+        with urllib.request.urlopen(served.url + "status") as r:
+            passes = json.load(r)["passes"]
+        check(served.proc.poll() is None and passes > later[0],
+              f"the render goes on after the page is closed ({passes} passes)")
+        # Ctrl-C still saves the image, and exits with 130
+        served.proc.send_signal(signal.SIGINT)
         code = served.proc.wait(timeout=60)
-        check(code == 0 and os.path.exists(live_out),
-              "the render runs to its budget after the page is closed and writes its image")
+        check(code == 130 and os.path.exists(live_out),
+              f"Ctrl-C saves the image and exits with 130 (exit {code})")
     finally:
         served.stop()
 
