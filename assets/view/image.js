@@ -135,6 +135,24 @@ export async function show($, live) {
     });
   }
 
+  // The false-colour scale starts at the image's own range (its 99th
+  // percentile of luminance, rounded up to 1, 2 or 5 × 10^k), since kalos's
+  // images have no fixed exposure; Radiance's fixed 1000 cd/m² would leave
+  // most renders in the lowest band. The user's value then stays.
+  let scaled = false;
+  function niceScale({ w, h, px }) {
+    const step = Math.max(1, Math.floor((w * h) / 100000));
+    const ls = [];
+    for (let i = 0; i < w * h; i += step) {
+      ls.push(EFFICACY * luminance(px[3 * i], px[3 * i + 1], px[3 * i + 2]));
+    }
+    ls.sort((a, b) => a - b);
+    const p99 = ls[Math.min(ls.length - 1, Math.floor(ls.length * 0.99))];
+    if (!(p99 > 0) || !isFinite(p99)) return 1000;
+    const k = Math.pow(10, Math.floor(Math.log10(p99)));
+    return [1, 2, 5, 10].map((m) => m * k).find((v) => v >= p99);
+  }
+
   async function fetchImage() {
     const r = await fetch("/image");
     if (!r.ok) return false;
@@ -144,6 +162,10 @@ export async function show($, live) {
     window.kalos.width = img.w;
     window.kalos.height = img.h;
     window.kalos.imageSum = sum;
+    if (!scaled) {
+      $("fc-max").value = niceScale(img);
+      scaled = true;
+    }
     draw();
     return true;
   }
