@@ -362,17 +362,18 @@ impl Builder {
     pub(super) fn texture(&mut self, d: &Directive) -> Result<()> {
         let s = self.strs(d, 3)?;
         let (name, kind, class) = (s[0].to_string(), s[1], s[2]);
-        let float =
-            match kind {
-                "spectrum" | "color" => false,
-                "float" => true,
-                _ => return Err(self.cx.err(
+        let float = match kind {
+            "spectrum" | "color" => false,
+            "float" => true,
+            _ => {
+                return Err(self.cx.err(
                     d.line,
                     format!(
                         "Texture \"{name}\": type \"{kind}\" should be \"spectrum\" or \"float\""
                     ),
-                )),
-            };
+                ))
+            }
+        };
         let defaults = self.g.attrs[3].clone();
         let mut ps = Params::new(d, format!("Texture \"{name}\" ({class})"), &defaults);
         let lookup = if float {

@@ -331,6 +331,9 @@ impl Builder {
                     ));
                 }
                 let path = self.cx.resolve(name);
+                if spectra::is_gz(&path) {
+                    return Err(self.cx.err(line, spectra::gz_message(name)));
+                }
                 if !path.is_file() {
                     return Err(self.cx.err(
                         line,
