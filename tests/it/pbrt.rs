@@ -538,3 +538,58 @@ fn cornell_box_pbrt_matches_its_mitsuba_version() {
     };
     assert!(red(&p1, 56) > red(&p1, 0) + 1.0);
 }
+
+/// An image `infinite` light: pbrt-v4's square equal-area image resampled
+/// to kalos's latitude–longitude map, directions kept. In a 2×2 image the
+/// texel (1, 1) holds the directions with x > 0 and y > 0; in the 4×2 map
+/// pixel (x, y) looks along (sin θ sin φ, cos θ, −sin θ cos φ).
+#[test]
+fn image_infinite_light_keeps_directions() {
+    let dir = tempfile::Builder::new()
+        .prefix("kalos-pbrt-")
+        .tempdir()
+        .unwrap();
+    let mut data = vec![Vec3::ZERO; 4];
+    data[3] = Vec3::X;
+    let img = kalos::film::Image {
+        width: 2,
+        height: 2,
+        data,
+    };
+    // PFM rows are stored bottom-up; encode_pfm takes row 0 as the top
+    std::fs::write(
+        dir.path().join("sky.pfm"),
+        kalos::image_io::encode_pfm(&img),
+    )
+    .unwrap();
+    let main = dir.path().join("main.pbrt");
+    std::fs::write(
+        &main,
+        "WorldBegin\nLightSource \"infinite\" \"string filename\" \"sky.pfm\" \"float scale\" 2\n",
+    )
+    .unwrap();
+    let s = scene::load(&main).unwrap();
+    let EmitterDesc::EnvMap { image, scale, .. } = &s.emitters[0] else {
+        panic!("{:?}", s.emitters)
+    };
+    assert_eq!((image.width, image.height, *scale), (4, 2, 2.0));
+    assert_eq!(image.texel(1, 0), Vec3::X);
+    assert_eq!(image.texel(3, 0), Vec3::ZERO);
+    assert_eq!(image.texel(1, 1), Vec3::ZERO);
+    std::fs::write(
+        dir.path().join("wide.pfm"),
+        kalos::image_io::encode_pfm(&kalos::film::Image {
+            width: 2,
+            height: 1,
+            data: vec![Vec3::ONE; 2],
+        }),
+    )
+    .unwrap();
+    std::fs::write(
+        &main,
+        "WorldBegin\nLightSource \"infinite\" \"string filename\" \"wide.pfm\"\n",
+    )
+    .unwrap();
+    let e = scene::load(&main).unwrap_err();
+    assert!(e.line == 2 && e.msg.contains("square"), "{e}");
+}
