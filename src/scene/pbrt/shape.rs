@@ -306,7 +306,19 @@ impl Builder {
                     b.emission,
                 );
             }
-            Geom::Sphere { .. } => self.pending.push(b),
+            Geom::Sphere { .. } => {
+                // each sphere takes at least the fewest rings' triangles
+                let min = shapes::sphere_triangles(shapes::SPHERE_MIN_RINGS);
+                let tris =
+                    self.scene.triangles.len() as u64 + (self.pending.len() as u64 + 1) * min;
+                if tris > MAX_TRIANGLES {
+                    return Err(self.cx.err(
+                        line,
+                        format!("this sphere brings the scene past {MAX_TRIANGLES} triangles"),
+                    ));
+                }
+                self.pending.push(b)
+            }
         }
         Ok(())
     }
