@@ -452,6 +452,7 @@ fn unsupported_input_is_an_error_with_file_and_line() {
             "out of range",
         ),
         ("Frobnicate 1", "unknown directive `Frobnicate`"),
+        ("Identity \"float x\" 1", "takes no parameters"),
         ("Shape \"sphere\" \"string note", "not closed"),
         ("Include \"more.pbrt.gz\"", "gzip"),
     ];

@@ -313,6 +313,36 @@ impl Builder {
 
     fn directive(&mut self, d: &Directive, depth: usize) -> Result<()> {
         let line = d.line;
+        const WITH_PARAMS: &[&str] = &[
+            "Accelerator",
+            "AreaLightSource",
+            "Attribute",
+            "Camera",
+            "Film",
+            "Integrator",
+            "LightSource",
+            "MakeNamedMaterial",
+            "MakeNamedMedium",
+            "Material",
+            "Option",
+            "PixelFilter",
+            "Sampler",
+            "Shape",
+            "Texture",
+        ];
+        if let Some(p) = d
+            .params
+            .first()
+            .filter(|_| !WITH_PARAMS.contains(&d.name.as_str()))
+        {
+            return Err(self.cx.err(
+                p.line,
+                format!(
+                    "`{}` takes no parameters, found \"{} {}\"",
+                    d.name, p.ty_name, p.name
+                ),
+            ));
+        }
         match d.name.as_str() {
             // Files
             "Include" | "Import" => {
