@@ -594,3 +594,36 @@ fn image_infinite_light_keeps_directions() {
     let e = scene::load(&main).unwrap_err();
     assert!(e.line == 2 && e.msg.contains("square"), "{e}");
 }
+
+/// The command line reads `.pbrt` files: `info` shows the box, and a bad
+/// file ends in one error line naming the file and line (exit 1, no panic).
+#[test]
+fn cli_info_reads_pbrt_files() {
+    let run = |file: &Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_kalos"))
+            .arg("info")
+            .arg(file)
+            .output()
+            .unwrap()
+    };
+    let out = run(&repo("scenes/cornell-box-pbrt/cornell-box.pbrt"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{out:?}");
+    assert!(
+        stdout.contains("triangles  32") && stdout.contains("1080x1080"),
+        "{stdout}"
+    );
+    let dir = tempfile::Builder::new()
+        .prefix("kalos-pbrt-")
+        .tempdir()
+        .unwrap();
+    let bad = dir.path().join("bad.pbrt");
+    std::fs::write(&bad, world("LightSource \"spot\"")).unwrap();
+    let out = run(&bad);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("bad.pbrt:3:") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+}
