@@ -2,13 +2,14 @@
 //!
 //! Every shape, whatever file it came from, is flattened into one set of
 //! world-space triangles. Loaders live in the submodules ([`mitsuba`],
-//! [`gltf`], [`obj`], [`ply`]); nothing else in the crate reads files.
+//! [`pbrt`], [`gltf`], [`obj`], [`ply`]); nothing else in the crate reads files.
 
 pub mod builtin;
 pub mod gltf;
 pub mod material;
 pub mod mitsuba;
 pub mod obj;
+pub mod pbrt;
 pub mod ply;
 pub mod shapes;
 pub mod summary;
@@ -30,8 +31,9 @@ pub use summary::Summary;
 pub const MAX_TRIANGLES: u64 = 1 << 26;
 
 /// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
-/// `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a camera is synthesised)
-/// or `.ply` (one mesh, default material, synthesised camera).
+/// `.pbrt` (pbrt-v4), `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a
+/// camera is synthesised) or `.ply` (one mesh, default material,
+/// synthesised camera).
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
     load_with(path, &[])
 }
@@ -48,13 +50,14 @@ pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene, Sce
     let mut scene =
         match ext.as_str() {
             "xml" => return mitsuba::load_with(path, defines),
+            "pbrt" => pbrt::load(path)?,
             "obj" => obj::load_obj_scene(path)?,
             "ply" => ply::load_ply_scene(path)?,
             "gltf" | "glb" => gltf::load_gltf(path)?,
             _ => return Err(SceneError::new(
                 path,
                 0,
-                "unknown scene format: expected a .xml (Mitsuba 3), .gltf/.glb, .obj or .ply file",
+                "unknown scene format: expected a .xml (Mitsuba 3), .pbrt (pbrt-v4), .gltf/.glb, .obj or .ply file",
             )),
         };
     for (n, v) in defines {

@@ -20,6 +20,7 @@ mod image_io;
 mod loader;
 mod loader_limits;
 mod methods;
+mod pbrt;
 mod plb;
 mod reference;
 mod transport;

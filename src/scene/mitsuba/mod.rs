@@ -90,7 +90,7 @@ mod emitter;
 mod props;
 mod sensor;
 mod shape;
-mod tables;
+pub(crate) mod tables;
 mod texture;
 mod xml;
 

@@ -33,7 +33,7 @@ pub(super) const CONDUCTORS: &[(&str, [f32; 3], [f32; 3])] = &[
     ),
 ];
 
-pub(super) fn conductor_table(name: &str) -> Option<(Rgb, Rgb)> {
+pub(crate) fn conductor_table(name: &str) -> Option<(Rgb, Rgb)> {
     CONDUCTORS
         .iter()
         .find(|(n, _, _)| *n == name)
@@ -77,7 +77,7 @@ pub(super) fn ior_table(name: &str) -> Option<f32> {
 /// the CIE 1931 matching functions in the multi-lobe Gaussian fit of Wyman,
 /// Sloan and Shirley (2013), then normalised per channel so that a constant
 /// spectrum of 1 gives RGB (1, 1, 1).
-pub(super) fn spectrum_to_rgb(pairs: &[(f32, f32)]) -> Rgb {
+pub(crate) fn spectrum_to_rgb(pairs: &[(f32, f32)]) -> Rgb {
     fn g(l: f32, mu: f32, s1: f32, s2: f32) -> f32 {
         let t = (l - mu) / if l < mu { s1 } else { s2 };
         (-0.5 * t * t).exp()

@@ -347,6 +347,50 @@ const MATERIALS_XML: &str = r#"<scene version="3.0.0">
 
 /// The seeds: one per loader and file form, plus the XML scene with its
 /// mesh files and include mutated in turn.
+/// A pbrt-v4 scene with an Include, transforms, attributes, an object
+/// instance, every shape kind, textured and stand-in materials, an area
+/// and an environment light.
+const SCENE_PBRT: &str = r#"# fuzz seed
+LookAt 0 1 -4  0 0.5 0  0 1 0
+Camera "perspective" "float fov" [40]
+Film "rgb" "integer xresolution" [16] "integer yresolution" [12]
+Sampler "independent" "integer pixelsamples" [2]
+WorldBegin
+LightSource "infinite" "rgb L" [0.2 0.2 0.3]
+Include "materials.pbrt"
+AttributeBegin
+    Translate 0 2 0
+    AreaLightSource "diffuse" "blackbody L" [4000] "float scale" [5]
+    Shape "disk" "float radius" [0.5]
+AttributeEnd
+AttributeBegin
+    NamedMaterial "checks"
+    Rotate 90 1 0 0
+    Shape "bilinearmesh" "point3 P" [-2 -2 0  2 -2 0  -2 2 0  2 2 0] "point2 uv" [0 0 1 0 0 1 1 1]
+AttributeEnd
+ObjectBegin "ball"
+    Material "conductor" "spectrum eta" "metal-Au-eta" "spectrum k" "metal-Au-k" "float roughness" 0.1
+    Shape "sphere" "float radius" 0.3
+ObjectEnd
+AttributeBegin
+    Translate -0.8 0.3 0
+    ObjectInstance "ball"
+AttributeEnd
+AttributeBegin
+    Material "dielectric" "float eta" 1.5
+    Translate 0.8 0.3 0
+    Scale 0.3 0.3 0.3
+    Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0 0 0 1] "integer indices" [0 2 1 0 1 3 0 3 2 1 2 3]
+AttributeEnd
+Material "mix" "string materials" ["checks" "plain"] "float amount" 0.3
+Shape "plymesh" "string filename" "quad.ply"
+"#;
+
+const MATERIALS_PBRT: &str = r#"Texture "c" "spectrum" "checkerboard" "rgb tex1" [0.8 0.8 0.8] "rgb tex2" [0.2 0.3 0.4] "float uscale" 4 "float vscale" 4
+MakeNamedMaterial "checks" "string type" "diffuse" "texture reflectance" "c"
+MakeNamedMaterial "plain" "string type" "coateddiffuse" "rgb reflectance" [0.5 0.4 0.3] "float roughness" 0.05
+"#;
+
 pub fn seeds() -> Vec<Seed> {
     let xml_files = || {
         vec![
@@ -358,7 +402,16 @@ pub fn seeds() -> Vec<Seed> {
         ]
     };
     let (buf, ..) = gltf_buffer();
+    let pbrt_files = || {
+        vec![
+            text("scene.pbrt", SCENE_PBRT),
+            text("materials.pbrt", MATERIALS_PBRT),
+            text("quad.ply", &ply_ascii()),
+        ]
+    };
     vec![
+        seed("pbrt", "scene.pbrt", "scene.pbrt", pbrt_files()),
+        seed("pbrt-include", "scene.pbrt", "materials.pbrt", pbrt_files()),
         seed("xml", "scene.xml", "scene.xml", xml_files()),
         seed("xml-include", "scene.xml", "materials.xml", xml_files()),
         seed("xml-obj", "scene.xml", "cube.obj", xml_files()),
