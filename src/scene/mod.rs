@@ -47,17 +47,24 @@ pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene, Sce
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
+    // pbrt-v4 scenes are also shipped gzip-compressed
+    let pbrt_gz = ext == "gz"
+        && path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .is_some_and(|s| s.to_ascii_lowercase().ends_with(".pbrt"));
     let mut scene =
         match ext.as_str() {
             "xml" => return mitsuba::load_with(path, defines),
             "pbrt" => pbrt::load(path)?,
+            _ if pbrt_gz => pbrt::load(path)?,
             "obj" => obj::load_obj_scene(path)?,
             "ply" => ply::load_ply_scene(path)?,
             "gltf" | "glb" => gltf::load_gltf(path)?,
             _ => return Err(SceneError::new(
                 path,
                 0,
-                "unknown scene format: expected a .xml (Mitsuba 3), .pbrt (pbrt-v4), .gltf/.glb, .obj or .ply file",
+                "unknown scene format: expected a .xml (Mitsuba 3), .pbrt or .pbrt.gz (pbrt-v4), .gltf/.glb, .obj or .ply file",
             )),
         };
     for (n, v) in defines {

@@ -60,9 +60,11 @@
 //! Every error names the file and the line: an unknown directive, shape,
 //! material, texture or light type; `point`, `spot`, `distant`,
 //! `goniometric` and `projection` lights (kalos's methods need lights with
-//! an area); an unknown or ill-typed parameter; a missing file; gzip-compressed
-//! files (kalos has no gzip decoder); an unmatched `AttributeEnd`. Includes
-//! nest at most 16 deep and a scene reads at most 4096 of them.
+//! an area); an unknown or ill-typed parameter; a missing file; a `.gz` file
+//! that is not valid gzip or expands to more than 4 GiB; an unmatched
+//! `AttributeEnd`. Includes nest at most 16 deep and a scene reads at most
+//! 4096 of them. Files whose names end in `.gz` (`.pbrt.gz`, `.ply.gz`,
+//! spectra) are decompressed as they are read.
 
 mod lexer;
 mod light;
@@ -223,12 +225,7 @@ impl Builder {
     /// Reads one file (the main one, or an `Include`/`Import` from `line`
     /// of the including file) and runs its directives.
     fn read_file(&mut self, path: &Path, depth: usize, line: u32) -> Result<()> {
-        if spectra::is_gz(path) {
-            return Err(self
-                .cx
-                .err(line, spectra::gz_message(&path.display().to_string())));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| {
+        let text = spectra::read_text(path).map_err(|e| {
             let msg = format!("cannot read scene file `{}`: {e}", path.display());
             if depth == 0 {
                 SceneError::new(path, 0, msg)
@@ -361,9 +358,6 @@ impl Builder {
                     ));
                 }
                 let path = self.cx.resolve(name);
-                if spectra::is_gz(&path) {
-                    return Err(self.cx.err(line, spectra::gz_message(name)));
-                }
                 if !path.is_file() {
                     return Err(self.cx.err(
                         line,

@@ -198,13 +198,12 @@ impl Builder {
                     }
                 }
                 let path = self.cx.resolve(file);
-                if super::spectra::is_gz(&path) {
-                    return Err(self.cx.err(d.line, super::spectra::gz_message(file)));
-                }
                 if !path.is_file() {
                     return Err(self.cx.err(d.line, format!("PLY file `{file}` not found (looked for {})", path.display())));
                 }
-                let mesh = crate::scene::ply::load_ply(&path)
+                let bytes = super::spectra::read_file(&path)
+                    .map_err(|e| self.cx.err(d.line, format!("cannot read PLY file `{file}`: {e}")))?;
+                let mesh = crate::scene::ply::parse_ply(&bytes, &path)
                     .map_err(|e| self.cx.err(d.line, format!("in the mesh of this shape: {e}")))?;
                 Geom::Mesh(mesh)
             }

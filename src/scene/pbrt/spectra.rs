@@ -140,10 +140,7 @@ fn read_spd(cx: &Ctx, line: u32, file: &str) -> Result<Vec<(f32, f32)>> {
             ),
         ));
     }
-    if is_gz(&path) {
-        return Err(cx.err(line, gz_message(file)));
-    }
-    let text = std::fs::read_to_string(&path).map_err(|e| {
+    let text = read_text(&path).map_err(|e| {
         cx.err(
             line,
             format!("cannot read spectrum file `{}`: {e}", path.display()),
@@ -183,18 +180,39 @@ fn pairs_from(nums: &[f32]) -> std::result::Result<Vec<(f32, f32)>, String> {
     Ok(pairs)
 }
 
-/// Whether a path names a gzip-compressed file.
-pub(super) fn is_gz(path: &Path) -> bool {
-    path.extension()
+/// The most bytes a gzip-compressed input may expand to: a small file that
+/// claims more (a "zip bomb") is refused before it fills the memory.
+pub(super) const MAX_GUNZIPPED: u64 = 1 << 32;
+
+/// Reads a file, decompressing it when its name ends in `.gz` (pbrt-v4
+/// scenes ship gzip-compressed `.pbrt.gz` and `.ply.gz` files).
+pub(super) fn read_file(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let bytes = std::fs::read(path)?;
+    if !path
+        .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("gz"))
+    {
+        return Ok(bytes);
+    }
+    let mut out = Vec::new();
+    flate2::read::GzDecoder::new(&bytes[..])
+        .take(MAX_GUNZIPPED + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| std::io::Error::new(e.kind(), format!("not a valid gzip file ({e})")))?;
+    if out.len() as u64 > MAX_GUNZIPPED {
+        return Err(std::io::Error::other(format!(
+            "it decompresses to more than {} GiB",
+            MAX_GUNZIPPED >> 30
+        )));
+    }
+    Ok(out)
 }
 
-/// The error for a gzip-compressed input.
-pub(super) fn gz_message(file: &str) -> String {
-    format!(
-        "`{file}` is gzip-compressed, which kalos does not read (it has no gzip decoder); \
-         decompress it (gunzip) and name the plain file"
-    )
+/// [`read_file`] as UTF-8 text.
+pub(super) fn read_text(path: &Path) -> std::io::Result<String> {
+    String::from_utf8(read_file(path)?)
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"))
 }
 
 /// A spectrum parameter's value as RGB (not a texture).
