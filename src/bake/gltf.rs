@@ -74,6 +74,17 @@ impl Builder {
     }
 }
 
+/// The display colour of each vertex of `lit`, as `COLOR_0` holds it: the
+/// radiance over the white point `w0` (1 when `w0` is not a positive
+/// number), clamped to [0, 1].
+pub fn display_colors(lit: &BakedMesh, w0: f32) -> Vec<Vec3> {
+    let w0 = if w0 > 0.0 && w0.is_finite() { w0 } else { 1.0 };
+    lit.radiance
+        .iter()
+        .map(|l| (*l / w0).clamp(Vec3::ZERO, Vec3::ONE))
+        .collect()
+}
+
 /// The bytes of a .glb holding `lit` (white point `w0` for COLOR_0) and
 /// `other`.
 pub fn encode_glb(lit: &BakedMesh, other: &BakedMesh, w0: f32) -> Vec<u8> {
@@ -84,12 +95,7 @@ pub fn encode_glb(lit: &BakedMesh, other: &BakedMesh, w0: f32) -> Vec<u8> {
     };
     let mut prims = Vec::new();
     if !lit.indices.is_empty() {
-        let w0 = if w0 > 0.0 && w0.is_finite() { w0 } else { 1.0 };
-        let colors: Vec<Vec3> = lit
-            .radiance
-            .iter()
-            .map(|l| (*l / w0).clamp(Vec3::ZERO, Vec3::ONE))
-            .collect();
+        let colors = display_colors(lit, w0);
         let p = b.vec3(&lit.positions, true);
         let n = b.vec3(&lit.normals, false);
         let c = b.vec3(&colors, false);
