@@ -33,8 +33,12 @@ pub(crate) fn image_from_array(what: &str, obj: &Bound<'_, PyAny>) -> PyResult<I
     let arr = arr.cast::<numpy::PyArrayDyn<f32>>()?;
     let shape = arr.shape().to_vec();
     if shape.len() != 3 || shape[2] != 3 || shape[0] == 0 || shape[1] == 0 {
+        // the shape as Python prints it
+        let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+        let comma = if dims.len() == 1 { "," } else { "" };
         return Err(PyValueError::new_err(format!(
-            "{what}: expected an RGB image, an array of shape (height, width, 3), got shape {shape:?}"
+            "{what}: expected an RGB image, an array of shape (height, width, 3), got shape ({}{comma})",
+            dims.join(", ")
         )));
     }
     let (h, w) = (shape[0], shape[1]);
