@@ -137,10 +137,17 @@ impl Scene {
 pub fn load(
     py: Python<'_>,
     path: Option<PathBuf>,
-    defines: Option<Vec<(String, String)>>,
+    defines: Option<&Bound<'_, PyDict>>,
     res: Option<(u32, u32)>,
 ) -> PyResult<Scene> {
-    let defines = defines.unwrap_or_default();
+    // {name: value}, a value in any type that prints as the scene expects
+    let defines = match defines {
+        Some(d) => d
+            .iter()
+            .map(|(k, v)| Ok((k.extract::<String>()?, v.str()?.to_string())))
+            .collect::<PyResult<Vec<_>>>()?,
+        None => Vec::new(),
+    };
     if let Some((w, h)) = res {
         if w == 0 || h == 0 || w > 16384 || h > 16384 {
             return Err(PyValueError::new_err(format!(
