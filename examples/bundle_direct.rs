@@ -54,6 +54,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 },
                 centre_rr: true,
             },
+            &mut Default::default(),
         );
         for (i, p) in patches.p.iter().enumerate() {
             let mut e = 0.0;

@@ -44,6 +44,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     visibility: v,
                     centre_rr: true,
                 },
+                &mut Default::default(),
             )
         };
         let (p, z) = (
@@ -80,6 +81,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     visibility: v,
                     centre_rr: true,
                 },
+                &mut Default::default(),
             )
         };
         let (p, z) = (run(Visibility::Painter), run(Visibility::ZBuffer));

@@ -36,8 +36,12 @@ use glam::{DVec3, Vec3};
 use crate::film::Image;
 use crate::methods::{
     bundle, density, Budget, Common, Driver, MethodConfig, MethodError, Progress, RenderResult,
+    Watch,
 };
 use crate::world::World;
+
+/// What [`Render::watch`] calls with each image it shows.
+type OnImage<'a> = Box<dyn FnMut(&Image, &Progress) + 'a>;
 
 /// A render being set up: the method with its settings, the shared
 /// settings, the budget, and what the driver watches.
@@ -50,6 +54,7 @@ pub struct Render<'a> {
     reference: Option<&'a Image>,
     log_every: f64,
     max_memory: Option<u64>,
+    watch: Option<(f64, OnImage<'a>)>,
 }
 
 impl<'a> Render<'a> {
@@ -68,6 +73,7 @@ impl<'a> Render<'a> {
             reference: None,
             log_every: 0.0,
             max_memory: None,
+            watch: None,
         }
     }
 
@@ -138,9 +144,22 @@ impl<'a> Render<'a> {
         self
     }
 
+    /// Calls `on_image` with the current estimate at most every
+    /// `every_seconds` of render time (a live preview); the time it and the
+    /// estimate take is not counted as render time
+    /// ([`Watch`](crate::methods::Watch)).
+    pub fn watch(
+        mut self,
+        every_seconds: f64,
+        on_image: impl FnMut(&Image, &Progress) + 'a,
+    ) -> Self {
+        self.watch = Some((every_seconds, Box::new(on_image)));
+        self
+    }
+
     /// Builds the method, prepares it and runs it until the budget is
     /// spent; `on_progress` is called after every pass.
-    pub fn run(self, on_progress: impl FnMut(&Progress)) -> Result<RenderResult, MethodError> {
+    pub fn run(mut self, on_progress: impl FnMut(&Progress)) -> Result<RenderResult, MethodError> {
         if let Some(limit) = self.max_memory {
             let (w, h) = (self.world.camera.width, self.world.camera.height);
             check_memory(
@@ -156,7 +175,15 @@ impl<'a> Render<'a> {
             reference: self.reference,
             log_every: self.log_every,
         }
-        .run(method.as_mut(), self.world, on_progress)
+        .run_watched(
+            method.as_mut(),
+            self.world,
+            on_progress,
+            self.watch.as_mut().map(|(every, f)| Watch {
+                every: *every,
+                on_image: f.as_mut(),
+            }),
+        )
     }
 }
 

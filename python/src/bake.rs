@@ -15,6 +15,7 @@ use kalos::bake::{self as kbake, BakedMesh as Mesh};
 use kalos::methods::density::control::{Control, Limits, Tick};
 use kalos::methods::density::{self, DensityError, Storage};
 use kalos::methods::MethodConfig;
+use kalos::scene::CameraDesc;
 
 use crate::render::{count, memory_limit, method_config, Progress, Watch};
 use crate::scene::Scene;
@@ -92,6 +93,8 @@ pub struct Bake {
     #[pyo3(get)]
     stats: Py<PyDict>,
     meshes: (Mesh, Mesh),
+    /// The scene's camera, which the .glb carries as `kalos bake` writes it.
+    camera: CameraDesc,
 }
 
 #[pymethods]
@@ -145,7 +148,13 @@ impl Bake {
             .unwrap_or_default();
         let (lit, unlit) = &self.meshes;
         let r = py.detach(|| match ext.as_str() {
-            "glb" => Some(kbake::gltf::write_glb(&path, lit, unlit, self.w0)),
+            "glb" => Some(kbake::gltf::write_glb(
+                &path,
+                lit,
+                unlit,
+                self.w0,
+                Some(&self.camera),
+            )),
             "ply" => Some(kbake::ply::write_ply(&path, lit)),
             _ => None,
         });
@@ -255,5 +264,6 @@ pub fn bake(
         w0: b.w0,
         stats: stats.unbind(),
         meshes,
+        camera: world.scene.camera.clone(),
     })
 }

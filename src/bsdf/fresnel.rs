@@ -118,3 +118,16 @@ pub fn reflect(v: Vec3, m: Vec3) -> Vec3 {
 pub fn refract(v: Vec3, m: Vec3, cos_t: f32, eta_ti: f32) -> Vec3 {
     m * (v.dot(m) * eta_ti + cos_t) - v * eta_ti
 }
+
+/// Reflectance of a thin pane with both faces' interreflections summed
+/// (Mitsuba's `thindielectric`): R' = R + T²R / (1 − R²), T = 1 − R.
+#[inline]
+pub fn thin_reflectance(cos: f32, eta: f32) -> f32 {
+    let r = fresnel_dielectric(cos, eta).0;
+    if r < 1.0 {
+        let t = 1.0 - r;
+        r + t * t * r / (1.0 - r * r)
+    } else {
+        1.0
+    }
+}

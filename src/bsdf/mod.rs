@@ -46,7 +46,9 @@ use crate::sampling::{cosine_hemisphere, cosine_hemisphere_pdf};
 use crate::scene::{luminance, Rgb};
 
 use coat::CoatTable;
-use fresnel::{fresnel_conductor, fresnel_dielectric, fresnel_diffuse_reflectance, reflect};
+use fresnel::{
+    fresnel_conductor, fresnel_dielectric, fresnel_diffuse_reflectance, reflect, thin_reflectance,
+};
 use microfacet::Microfacet;
 
 /// Which quantity a path carries: radiance (camera paths) or importance
@@ -779,19 +781,6 @@ fn phong_specular_probability(kd: Rgb, ks: Rgb) -> f32 {
         s / (d + s)
     } else {
         0.0
-    }
-}
-
-/// Reflectance of a thin pane with both faces' interreflections summed
-/// (Mitsuba's `thindielectric`): R' = R + T²R / (1 − R²), T = 1 − R.
-#[inline]
-fn thin_reflectance(cos: f32, eta: f32) -> f32 {
-    let r = fresnel_dielectric(cos, eta).0;
-    if r < 1.0 {
-        let t = 1.0 - r;
-        r + t * t * r / (1.0 - r * r)
-    } else {
-        1.0
     }
 }
 

@@ -163,13 +163,36 @@ pub struct Driver<'a> {
     pub log_every: f64,
 }
 
+/// A watcher of the estimate while it converges (the live viewer): called
+/// with the current image at most every `every` seconds of render time,
+/// once the first pass is done and until the last (whose image the result
+/// holds); the time [`Method::image`] and the call take is not counted as
+/// render time, as for the convergence log.
+pub struct Watch<'a> {
+    /// Seconds of render time between calls.
+    pub every: f64,
+    /// Called with the current estimate and the progress it shows.
+    pub on_image: &'a mut dyn FnMut(&Image, &Progress),
+}
+
 impl Driver<'_> {
     /// Runs `method`; `on_progress` is called after every pass.
     pub fn run(
         &self,
         method: &mut dyn Method,
         world: &World,
+        on_progress: impl FnMut(&Progress),
+    ) -> Result<RenderResult, MethodError> {
+        self.run_watched(method, world, on_progress, None)
+    }
+
+    /// [`Driver::run`] that also shows the estimate to `watch`.
+    pub fn run_watched(
+        &self,
+        method: &mut dyn Method,
+        world: &World,
         mut on_progress: impl FnMut(&Progress),
+        mut watch: Option<Watch<'_>>,
     ) -> Result<RenderResult, MethodError> {
         self.budget.validate()?;
         let start = Instant::now();
@@ -190,6 +213,7 @@ impl Driver<'_> {
         let mut pass = 0u64;
         let mut log = Vec::new();
         let mut next_log = self.log_every;
+        let mut next_watch = 0.0;
         let mut interrupted = false;
         let budget = self.budget;
         let unlimited = budget.spp.is_none()
@@ -208,13 +232,23 @@ impl Driver<'_> {
             if unlimited && pass >= 1 {
                 fraction = 1.0;
             }
-            on_progress(&Progress {
+            let progress = Progress {
                 passes: pass,
                 rays,
                 elapsed,
                 fraction: fraction.max(shown).min(1.0),
                 phase: None,
-            });
+            };
+            on_progress(&progress);
+            if let Some(w) = watch
+                .as_mut()
+                .filter(|_| pass >= 1 && elapsed >= next_watch && progress.fraction < 1.0)
+            {
+                let t0 = Instant::now();
+                (w.on_image)(&method.image(world), &progress);
+                next_watch = elapsed + w.every;
+                excluded += t0.elapsed().as_secs_f64();
+            }
             if fraction >= 1.0 {
                 break;
             }

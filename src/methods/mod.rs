@@ -22,7 +22,7 @@ pub mod light;
 pub mod path;
 pub mod plb;
 
-pub use driver::{Budget, Driver, LogRow, Progress, RenderResult, Setup};
+pub use driver::{Budget, Driver, LogRow, Progress, RenderResult, Setup, Watch};
 
 use crate::film::Image;
 pub use crate::world::World;

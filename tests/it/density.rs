@@ -445,7 +445,7 @@ fn glb_loads_back_with_vertex_colours() {
     let world = World::new(furnace(0.5, 1.0, 8));
     let b = density::bake(&world, &settings(50_000, 1)).expect("bake");
     let (lit, other) = b.baked_meshes(&world.scene);
-    let bytes = kalos::bake::gltf::encode_glb(&lit, &other, b.w0);
+    let bytes = kalos::bake::gltf::encode_glb(&lit, &other, b.w0, Some(&world.scene.camera));
     let (doc, buffers, _) = gltf::import_slice(&bytes).expect("valid glb");
     let mesh = doc.meshes().next().expect("a mesh");
     let prim = mesh.primitives().next().expect("a primitive");

@@ -23,3 +23,4 @@ mod methods;
 mod plb;
 mod reference;
 mod transport;
+mod view;

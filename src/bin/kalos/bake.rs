@@ -116,7 +116,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
     bars.start("writing", 0, "");
     let t1 = Instant::now();
     let (lit, other) = b.baked_meshes(&world.scene);
-    kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0)?;
+    kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0, Some(&world.scene.camera))?;
     if let Some(p) = &a.ply {
         kalos::bake::ply::write_ply(p, &lit)?;
     }

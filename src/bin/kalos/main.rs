@@ -5,6 +5,7 @@ mod bake;
 mod progress;
 mod render;
 mod signals;
+mod view;
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -69,6 +70,9 @@ enum Command {
     /// Bake view-independent lighting by density estimation into a glTF
     /// binary display mesh (vertex colours), optionally an irradiance PLY.
     Bake(Box<bake::BakeArgs>),
+    /// Show a baked mesh (.glb) or an HDR image (.exr, .pfm, .hdr) in the
+    /// browser: serves a page on 127.0.0.1 and prints its address.
+    View(view::ViewArgs),
     /// Write a generated scene (sphereflake, teapot-room, terrain, big-room)
     /// as Mitsuba XML plus OBJ meshes.
     Gen {
@@ -223,6 +227,7 @@ fn main() {
         Command::Bench(a) => bench(a),
         Command::Bake(a) => bake::run(*a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
+        Command::View(a) => view::run(a),
     };
     // An interrupted command exits with the signal's code (130, 143),
     // after it has saved what it had.

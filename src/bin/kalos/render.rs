@@ -77,6 +77,13 @@ pub struct RenderArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+    /// Show the render as it converges in the browser (`kalos view`'s page,
+    /// updated about once a second); the address is printed.
+    #[arg(long)]
+    view: bool,
+    /// The viewer's port on 127.0.0.1 (default: a free one); needs --view.
+    #[arg(long, requires = "view")]
+    port: Option<u16>,
     /// Check the arguments and the method's settings, then exit without
     /// loading the scene or rendering (to vet a job before it is queued).
     #[arg(long)]
@@ -168,6 +175,15 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         crate::say!("{}: arguments accepted", cfg.name());
         return Ok(());
     }
+    // The viewer's port is taken before the scene loads, so that a port in
+    // use fails at once
+    let mut live = match a.view {
+        true => Some(crate::view::Live::start(
+            a.port.unwrap_or(0),
+            &a.output.display().to_string(),
+        )?),
+        false => None,
+    };
     set_threads(a.threads)?;
     let t0 = Instant::now();
     let mut scene = load_scene(a.scene.as_deref(), &a.defines)?;
@@ -230,6 +246,9 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         );
         b
     };
+    if let Some(l) = &mut live {
+        l.set_reference(reference.clone());
+    }
     let mut render = Render::new(&world)
         .method(cfg)
         .common(common)
@@ -237,6 +256,9 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         .cancel(cancel);
     if let Some(r) = &reference {
         render = render.reference(r, if a.log.is_some() { a.log_every } else { 0.0 });
+    }
+    if let Some(l) = &live {
+        render = render.watch(1.0, |img, p| l.image(img, p));
     }
     let result = render.run(|p| {
         bar.set_position((p.fraction * 1000.0) as u64);
@@ -249,9 +271,24 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
             Some(phase) => format!("{phase}, {:.2} Mrays/s", mrays),
             None => format!("{} passes, {:.2} Mrays/s", p.passes, mrays),
         });
+        if let Some(l) = &live {
+            l.progress(p);
+        }
     });
     bar.finish_and_clear();
     let result = result.context("rendering")?;
+    if let Some(l) = &live {
+        l.finish(
+            &result.image,
+            &methods::Progress {
+                passes: result.passes,
+                rays: result.rays,
+                elapsed: result.seconds,
+                fraction: 1.0,
+                phase: None,
+            },
+        );
+    }
     if result.interrupted && result.passes == 0 {
         // Nothing to save, and a black image must not replace a good one.
         eprintln!("interrupted before the first pass: nothing written");

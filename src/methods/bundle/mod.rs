@@ -69,7 +69,7 @@
 //! gather costs one ray per glossy pixel and iteration, plus the first
 //! shot's shadow ray; its stream is its own, so `--gather off` gives the
 //! image of the code without it, bit for bit. The paper's form is
-//! `--direct bundles --positions fixed --gather off`.
+//! `--direct bundles --positions fixed --gather off --glass off`.
 //!
 //! The image converges to the exact image up to the patch and map
 //! discretisation: radiance is constant over a patch in each direction
@@ -157,6 +157,22 @@ pub struct Settings {
     /// (the default), or from the bundles' direction pair as the paper does.
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "glossy"))]
     pub gather: Gather,
+    /// Glass in the transfer: reflected and transmitted through widened
+    /// lobes (the default), or left out as the paper's code did.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "lobes"))]
+    pub glass: Glass,
+}
+
+/// How glass (smooth and thin dielectrics) takes part in the transfer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Glass {
+    /// Fresnel reflection and refraction, each widened to a narrow lobe
+    /// ([`transfer::eval_glass`]).
+    Lobes,
+    /// Glass neither reflects nor transmits in the transfer (the camera
+    /// still sees through it).
+    Off,
 }
 
 /// Which pixels take their bounced light by a final gather.
@@ -233,6 +249,7 @@ impl Default for Settings {
             positions: Positions::Jittered,
             direct: Direct::Nee,
             gather: Gather::Glossy,
+            glass: Glass::Lobes,
         }
     }
 }
@@ -279,6 +296,8 @@ pub struct Bundle {
     iter: u64,
     counted: u64,
     timings: Timings,
+    /// The sweep's buffers, reused from iteration to iteration.
+    scratch: visibility::Scratch,
 }
 
 impl Bundle {
@@ -296,6 +315,7 @@ impl Bundle {
             sum: vec![DVec3::ZERO; npix],
             iter: 0,
             counted: 0,
+            scratch: Default::default(),
             timings: Timings::default(),
             settings,
         }
@@ -312,7 +332,8 @@ impl Bundle {
         let edge = settings
             .edge
             .unwrap_or_else(|| patches::edge_for_count(&world.scene, settings.patches));
-        let patches = Patches::build(&world.scene, &world.lights, edge);
+        let mut patches = Patches::build(&world.scene, &world.lights, edge);
+        patches.set_glass(settings.glass == Glass::Lobes);
         let radius = world.lights.radius;
         let res = settings.map_res.unwrap_or_else(|| {
             let r = (8.0 * radius / edge.max(1e-9)).ceil();
@@ -441,6 +462,7 @@ impl Method for Bundle {
                 visibility: self.settings.visibility,
                 centre_rr: self.settings.centre_rr,
             },
+            &mut self.scratch,
         );
         self.timings.sort += inc.t_sort;
         self.timings.raster += inc.t_raster;

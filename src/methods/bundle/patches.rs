@@ -33,6 +33,10 @@ pub struct Patch {
     pub bsdf: Bsdf,
     /// True when the back side reflects too (Mitsuba `twosided`).
     pub two_sided: bool,
+    /// True when the patch is glass that the transfer reflects and
+    /// transmits through ([`super::transfer::eval_glass`]); false for other
+    /// BSDFs, and for glass with `--glass off`.
+    pub glass: bool,
 }
 
 impl Patch {
@@ -161,13 +165,15 @@ impl Patches {
                             / 3.0;
                         let sp = scene.surface_point(t, bary.x, bary.y);
                         let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length();
+                        let bsdf = material.bsdf(sp.uv);
                         p.push(Patch {
                             v,
                             ng,
                             ns: sp.frame.n,
                             area: area.max(1e-30),
                             le,
-                            bsdf: material.bsdf(sp.uv),
+                            glass: super::transfer::is_glass(&bsdf),
+                            bsdf,
                             two_sided,
                         });
                         vid.push(v.map(|x| vkey(shape, x)));
@@ -183,6 +189,14 @@ impl Patches {
             first,
             k: ks,
             edge,
+        }
+    }
+
+    /// Turns the glass transfer off (`--glass off`: glass neither reflects
+    /// nor transmits in the transfer, as before it existed) or back on.
+    pub fn set_glass(&mut self, on: bool) {
+        for p in &mut self.p {
+            p.glass = on && super::transfer::is_glass(&p.bsdf);
         }
     }
 

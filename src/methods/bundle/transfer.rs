@@ -9,7 +9,8 @@
 //!
 //! f̃_i is the patch's BRDF evaluated in the frame of the side that faces
 //! both the incoming flow and ω_{m+1} (zero when they are on different
-//! sides: no transmission; zero on the back of one-sided materials).
+//! sides; zero on the back of one-sided materials), except for glass, which
+//! also transmits (below).
 //!
 //! Mirror-like conductors: a Dirac BRDF can never map ω_m onto a random
 //! ω_{m+1}, so in the transfer a smooth conductor is replaced by a lobe
@@ -17,15 +18,26 @@
 //! scaled by the conductor's Fresnel reflectance and divided by cos θ_i as
 //! the mirror's δ is, so that its albedo is F at every angle (the paper's
 //! "mirror-like" patches are glossy in the same sense). The camera side still sees a perfect mirror
-//! (see `image.rs`). Glass (dielectrics) is left out: it neither reflects nor
-//! transmits in the transfer.
+//! (see `image.rs`).
+//!
+//! Glass (`--glass lobes`, the default) is widened the same way: a smooth
+//! dielectric reflects into a lobe around the mirror direction with weight
+//! F and transmits into a lobe around the refracted direction with weight
+//! (1 − F) η_o²/η_i² (radiance is scaled by the squared ratio of indices as
+//! it crosses, as in the path tracer's BSDF), both divided by cos θ_i, so
+//! that the albedos are those of the smooth interface. A thin pane
+//! transmits straight through with 1 − R' and reflects R'. Light then
+//! travels through a glass object patch to patch (in at the front, across
+//! the inside, out at the back), as it does through the patches of any
+//! other surface. `--glass off` is the code before it: glass neither
+//! reflects nor transmits in the transfer.
 
 use std::f32::consts::PI;
 
 use glam::Vec3;
 
 use super::patches::Patch;
-use crate::bsdf::fresnel::fresnel_conductor;
+use crate::bsdf::fresnel::{fresnel_conductor, fresnel_dielectric, thin_reflectance};
 use crate::bsdf::{Bsdf, Mode};
 use crate::geometry::Frame;
 use crate::sampling::{uniform_triangle, Pcg32};
@@ -58,12 +70,72 @@ pub fn eval_local(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
     }
 }
 
+/// The widened δ around direction `c` (unit): (n + 1)/(2π) cos^n α / |cos
+/// θ_i|, with α the angle between `wi` and `c`; ∫ of it times |cos θ_i|
+/// over the sphere of `wi` is 1, so a smooth lobe of weight w keeps albedo
+/// w.
+#[inline]
+fn widened(c: Vec3, wi: Vec3) -> f32 {
+    let cos_a = c.dot(wi).max(0.0);
+    if cos_a == 0.0 || wi.z == 0.0 {
+        return 0.0;
+    }
+    let n = MIRROR_EXPONENT;
+    (n + 1.0) / (2.0 * PI) * cos_a.powf(n) / wi.z.abs()
+}
+
+/// f(wo, wi) of smooth glass in the transfer, in the frame of the front
+/// side (+z = the shading normal, outside): reflection when wo and wi are
+/// on the same side, transmission when not, each a widened δ (see the
+/// module notes). Zero for any other BSDF.
+#[inline]
+pub fn eval_glass(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
+    let same_side = wo.z * wi.z > 0.0;
+    match *bsdf {
+        Bsdf::Dielectric { eta, r, t } => {
+            let (f, cos_t, _, eta_ti) = fresnel_dielectric(wo.z, eta);
+            if same_side {
+                r * (f * widened(Vec3::new(-wo.x, -wo.y, wo.z), wi))
+            } else if cos_t != 0.0 && wo.z * wi.z < 0.0 {
+                // the direction that refracts into wo
+                let c = Vec3::new(-eta_ti * wo.x, -eta_ti * wo.y, cos_t);
+                t * ((1.0 - f) * eta_ti * eta_ti * widened(c, wi))
+            } else {
+                Rgb::ZERO
+            }
+        }
+        Bsdf::ThinDielectric { eta, r, t } => {
+            let rr = thin_reflectance(wo.z.abs(), eta);
+            if same_side {
+                r * (rr * widened(Vec3::new(-wo.x, -wo.y, wo.z), wi))
+            } else if wo.z * wi.z < 0.0 {
+                t * ((1.0 - rr) * widened(-wo, wi))
+            } else {
+                Rgb::ZERO
+            }
+        }
+        _ => Rgb::ZERO,
+    }
+}
+
+/// True for the BSDFs that [`eval_glass`] transfers.
+#[inline]
+pub fn is_glass(bsdf: &Bsdf) -> bool {
+    matches!(bsdf, Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. })
+}
+
 /// f̃_i for radiance flowing along `d` into the patch and leaving toward `w`
 /// (both unit, world space), with shading normal `ns` (on the front side),
 /// times the shading-normal correction cos θ_s / cos θ_g of the incoming
-/// direction (see [`shading_ratio`]).
+/// direction (see [`shading_ratio`]). Glass patches transfer through
+/// [`eval_glass`] unless `--glass off` ([`Patch::glass`]).
 #[inline]
 pub fn brdf(p: &Patch, ns: Vec3, d: Vec3, w: Vec3) -> Rgb {
+    if p.glass {
+        let frame = Frame::from_normal(ns);
+        let wi = frame.to_local(-d);
+        return eval_glass(&p.bsdf, frame.to_local(w), wi) * shading_ratio(wi.z, p.ng.dot(d));
+    }
     let front_in = p.ng.dot(d) < 0.0;
     let front_out = p.ng.dot(w) > 0.0;
     if front_in != front_out || (!front_in && !p.two_sided) {

@@ -49,9 +49,11 @@
 //! layers are the pairs (j, i). No sorting error, but one pass over all
 //! patches per depth layer.
 //!
-//! **Parallelism**: the map is cut into a fixed number of horizontal bands,
-//! each with its own id buffer and accumulators; the bands are summed in a
-//! fixed order, so the result does not depend on the thread count.
+//! **Parallelism and memory**: the map is cut into horizontal tiles small
+//! enough for a core's L2 cache ([`tile_rows`]), each scanned with the
+//! patches that touch it and its own accumulators; the tiles are summed in
+//! a fixed order, so the result does not depend on the thread count. Each
+//! thread keeps one tile's buffer from iteration to iteration.
 
 use std::time::Instant;
 
@@ -66,8 +68,6 @@ use crate::scene::Rgb;
 /// Pixel value of the sky (nothing upstream).
 pub const SKY: u32 = u32::MAX;
 const NONE: u32 = u32::MAX - 1;
-/// Bands of the map processed in parallel (fixed for determinism).
-pub const BANDS: usize = 8;
 
 /// How visibility is resolved.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -252,9 +252,67 @@ fn scan(pr: &Proj, y0: i32, y1: i32, w: i32, mut visit: impl FnMut(i32, i32, f32
     }
 }
 
+/// Buffers a sweep reuses from one iteration to the next, so that an
+/// iteration allocates nothing of the size of the patch set or the map.
+#[derive(Default)]
+pub struct Scratch {
+    /// Sort keys (depth, patch id), and the radix sort's second buffer.
+    order: Vec<u64>,
+    spare: Vec<u64>,
+    /// Projections in patch order, then in sorted order.
+    by_id: Vec<Proj>,
+    proj: Vec<Proj>,
+    /// Per tile: the projections it scans, and what it gathers.
+    lists: Vec<Vec<u32>>,
+    tiles: Vec<(Band, u64)>,
+}
+
+/// Bytes of map one tile may hold, so that a tile of the painter's map
+/// stays in a core's L2 cache while its patches are scanned.
+const TILE_BYTES: usize = 512 * 1024;
+
+/// Rows of the map per tile, for a map `w` pixels wide. The tiles, not the
+/// threads, partition the map, so the sums do not depend on the thread
+/// count.
+pub fn tile_rows(w: usize) -> usize {
+    (TILE_BYTES / (w.max(1) * std::mem::size_of::<Px>())).max(1)
+}
+
+/// Sorts keys by their high 32 bits, keeping the order of equal ones (LSD
+/// radix sort, 4 passes of 8 bits). The keys are made in patch order with
+/// the id in the low bits, so this gives the same order as sorting the
+/// whole u64, in a fraction of the time of a comparison sort.
+fn radix_sort_hi(keys: &mut Vec<u64>, spare: &mut Vec<u64>) {
+    spare.clear();
+    spare.resize(keys.len(), 0);
+    for pass in 0..4 {
+        let shift = 32 + 8 * pass;
+        let mut count = [0usize; 256];
+        for &k in keys.iter() {
+            count[((k >> shift) & 0xFF) as usize] += 1;
+        }
+        if count.contains(&keys.len()) {
+            continue; // every key has the same byte here
+        }
+        let mut at = 0;
+        for c in count.iter_mut() {
+            let n = *c;
+            *c = at;
+            at += n;
+        }
+        for &k in keys.iter() {
+            let b = ((k >> shift) & 0xFF) as usize;
+            spare[count[b]] = k;
+            count[b] += 1;
+        }
+        std::mem::swap(keys, spare);
+    }
+}
+
 /// Transports the radiance of every patch along +d and −d at once and
-/// returns what each patch receives.
-pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
+/// returns what each patch receives. `scratch` holds the buffers of the
+/// previous call, reused.
+pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Incoming {
     let n = patches.len();
     let d = inp.d;
     let res = inp.res.max(1);
@@ -264,13 +322,20 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     let delta = 2.0 * inp.radius / res as f32;
     let mut jr = Pcg32::keyed(&[inp.keys[0], inp.keys[1], 0x0FF5]);
     let jitter = jr.next_2d();
+    let Scratch {
+        order,
+        spare,
+        by_id,
+        proj,
+        lists,
+        tiles,
+    } = scratch;
 
     // Sort the patches along d (upstream first); the z-buffer needs no order
     let t0 = Instant::now();
     let painter = inp.visibility == Visibility::Painter;
-    let mut order: Vec<u64> = Vec::new();
     if painter {
-        order = patches
+        patches
             .p
             .par_iter()
             .enumerate()
@@ -279,8 +344,8 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
                 let k = if k >> 31 == 1 { !k } else { k | 0x8000_0000 };
                 ((k as u64) << 32) | i as u64
             })
-            .collect();
-        order.par_sort_unstable();
+            .collect_into_vec(order);
+        radix_sort_hi(order, spare);
     }
     let t_sort = t0.elapsed().as_secs_f64();
 
@@ -299,7 +364,7 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
     // in patch order, so that the patches are read in memory order, then
     // gathered into depth order: reading them in depth order stalled on
     // every patch
-    let by_id: Vec<Proj> = patches
+    patches
         .p
         .par_iter()
         .enumerate()
@@ -340,21 +405,24 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
                 cover,
             }
         })
-        .collect();
-    let proj: Vec<Proj> = if painter {
+        .collect_into_vec(by_id);
+    let proj: &[Proj] = if painter {
         order
             .par_iter()
             .map(|&o| by_id[(o & 0xFFFF_FFFF) as usize])
-            .collect()
+            .collect_into_vec(proj);
+        proj
     } else {
         by_id
     };
 
-    // Scan-convert band by band
-    let rows_per_band = (h as usize).div_ceil(BANDS) as i32;
-    // Which projections each band scans, in sorted order (a patch spans one
-    // or two bands, so a band no longer walks every patch to skip it)
-    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); BANDS];
+    // Scan-convert tile by tile
+    let rows_per_tile = tile_rows(w as usize) as i32;
+    let ntiles = (h as usize).div_ceil(rows_per_tile as usize);
+    // Which projections each tile scans, in sorted order (a patch spans
+    // one tile or a few, so a tile does not walk every patch to skip it)
+    lists.resize_with(ntiles, Vec::new);
+    lists.iter_mut().for_each(Vec::clear);
     for (k, pr) in proj.iter().enumerate() {
         let (r0, r1) = match pr.cover {
             Cover::Raster => (pr.y0.max(0), pr.y1.min(h - 1)),
@@ -364,38 +432,36 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
         if r0 > r1 {
             continue;
         }
-        let b1 = ((r1 / rows_per_band) as usize).min(BANDS - 1);
-        for list in &mut lists[(r0 / rows_per_band) as usize..=b1] {
+        for list in &mut lists[(r0 / rows_per_tile) as usize..=(r1 / rows_per_tile) as usize] {
             list.push(k as u32);
         }
     }
-    let bands: Vec<(Band, u64)> = (0..BANDS)
-        .into_par_iter()
-        .map(|band| {
-            let y0 = band as i32 * rows_per_band;
-            let y1 = (y0 + rows_per_band).min(h);
-            let list = &lists[band];
-            let mut acc = Band {
-                gid: list.iter().map(|&k| proj[k as usize].id).collect(),
-                ep: vec![Rgb::ZERO; list.len()],
-                em: vec![Rgb::ZERO; list.len()],
+    tiles.resize_with(ntiles, Default::default);
+    let lists = &*lists;
+    tiles
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(tile, (acc, frags))| {
+            let y0 = tile as i32 * rows_per_tile;
+            let y1 = (y0 + rows_per_tile).min(h);
+            let list = &lists[tile];
+            acc.gid.clear();
+            acc.gid.extend(list.iter().map(|&k| proj[k as usize].id));
+            acc.ep.clear();
+            acc.ep.resize(list.len(), Rgb::ZERO);
+            acc.em.clear();
+            acc.em.resize(list.len(), Rgb::ZERO);
+            *frags = match inp.visibility {
+                Visibility::Painter => painter_band(proj, list, inp, y0..y1, w, acc),
+                Visibility::ZBuffer => zbuffer_band(proj, list, inp, y0..y1, w, acc),
             };
-            if y0 >= y1 {
-                return (acc, 0);
-            }
-            let frags = match inp.visibility {
-                Visibility::Painter => painter_band(&proj, list, inp, y0..y1, w, &mut acc),
-                Visibility::ZBuffer => zbuffer_band(&proj, list, inp, y0..y1, w, &mut acc),
-            };
-            (acc, frags)
-        })
-        .collect();
+        });
 
-    // Sum the bands in a fixed order
+    // Sum the tiles in a fixed order
     let da = delta * delta;
     let mut e_plus = vec![Rgb::ZERO; n];
     let mut e_minus = vec![Rgb::ZERO; n];
-    for (b, _) in &bands {
+    for (b, _) in tiles.iter() {
         for (j, &g) in b.gid.iter().enumerate() {
             e_plus[g as usize] += b.ep[j];
             e_minus[g as usize] += b.em[j];
@@ -408,7 +474,7 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
             *p *= da;
             *m *= da;
         });
-    let fragments = bands.iter().map(|b| b.1).sum();
+    let fragments = tiles.iter().map(|b| b.1).sum();
     Incoming {
         e_plus,
         e_minus,
@@ -422,6 +488,7 @@ pub fn sweep(patches: &Patches, inp: &SweepInput) -> Incoming {
 /// place in the band's list (the map buffers hold these local numbers), so
 /// that the accumulators hold only the band's own patches and stay small
 /// enough for the cache, instead of one full-length pair per band.
+#[derive(Default)]
 struct Band {
     /// Patch id of each local number.
     gid: Vec<u32>,
@@ -446,17 +513,19 @@ impl Band {
     }
 }
 
-/// Bytes of the visibility map at resolution `res`, all bands together:
-/// the painter's pixels, or the z-buffer's two depth and two id arrays. For
-/// the memory check before a render ([`crate::render::memory_estimate`]).
+/// Bytes of the visibility map at resolution `res`: one tile of it per
+/// thread (the painter's pixels, or the z-buffer's two depth and two id
+/// arrays), as the map is scanned tile by tile. For the memory check
+/// before a render ([`crate::render::memory_estimate`]).
 pub fn map_bytes(res: u32, visibility: Visibility) -> u64 {
     // the map is (res + 1)² pixels, as in `sweep`
-    let side = u64::from(res.max(1)) + 1;
+    let side = res.max(1) as usize + 1;
     let per_pixel = match visibility {
         Visibility::Painter => std::mem::size_of::<Px>(),
         Visibility::ZBuffer => 2 * std::mem::size_of::<f32>() + 2 * std::mem::size_of::<u32>(),
     };
-    side * side * per_pixel as u64
+    let rows = tile_rows(side).min(side);
+    (rayon::current_num_threads() * rows * side * per_pixel) as u64
 }
 
 /// Layers of depth the painter keeps per pixel to repair the centroid
@@ -526,41 +595,92 @@ fn painter_band(
     acc: &mut Band,
 ) -> u64 {
     let (y0, y1) = (rows.start, rows.end);
-    let mut buf = vec![Px::EMPTY; (w * (y1 - y0)) as usize];
-    let mut frags = 0u64;
-    for (cur, &k) in list.iter().enumerate() {
-        let (pr, cur) = (&proj[k as usize], cur as u32);
-        scan(pr, y0, y1, w, |x, y, z| {
-            let px = &mut buf[((y - y0) * w + x) as usize];
-            // the first kept layer that cur lies downstream of (ties keep
-            // the sorted order)
-            let k = (0..LAYERS)
-                .find(|&k| px.id[k] == SKY || z >= px.z[k])
-                .unwrap_or(LAYERS);
-            let a = if k < LAYERS { px.id[k] } else { px.base };
-            if k == 0 {
-                // in order: cur sees the last writer upstream
-                acc.pair(inp, a, cur, 1.0);
-            } else {
-                // sorted too late: slide cur in between a and b
-                let b = px.id[k - 1];
-                acc.pair(inp, a, b, -1.0);
-                acc.pair(inp, a, cur, 1.0);
-                acc.pair(inp, cur, b, 1.0);
-            }
-            px.insert(k, cur, z);
-            frags += 1;
-        });
-    }
-    // the last patch along each line receives the sky along −d
-    if inp.sky_minus != Rgb::ZERO {
-        for px in &buf {
-            if px.id[0] != SKY {
-                acc.em[px.id[0] as usize] += inp.sky_minus;
+    TILE.with_borrow_mut(|tile| {
+        let (buf, used) = tile.take(w, y1 - y0);
+        let mut frags = 0u64;
+        for (cur, &k) in list.iter().enumerate() {
+            let (pr, cur) = (&proj[k as usize], cur as u32);
+            scan(pr, y0, y1, w, |x, y, z| {
+                let row = (y - y0) as usize;
+                let span = &mut used[row];
+                *span = (span.0.min(x), span.1.max(x + 1));
+                let px = &mut buf[row * w as usize + x as usize];
+                // the first kept layer that cur lies downstream of (ties
+                // keep the sorted order)
+                let k = (0..LAYERS)
+                    .find(|&k| px.id[k] == SKY || z >= px.z[k])
+                    .unwrap_or(LAYERS);
+                let a = if k < LAYERS { px.id[k] } else { px.base };
+                if k == 0 {
+                    // in order: cur sees the last writer upstream
+                    acc.pair(inp, a, cur, 1.0);
+                } else {
+                    // sorted too late: slide cur in between a and b
+                    let b = px.id[k - 1];
+                    acc.pair(inp, a, b, -1.0);
+                    acc.pair(inp, a, cur, 1.0);
+                    acc.pair(inp, cur, b, 1.0);
+                }
+                px.insert(k, cur, z);
+                frags += 1;
+            });
+        }
+        // the last patch along each line receives the sky along −d
+        if inp.sky_minus != Rgb::ZERO {
+            for (row, &(x0, x1)) in used.iter().enumerate() {
+                if x0 >= x1 {
+                    continue;
+                }
+                let at = row * w as usize;
+                for px in &buf[at + x0 as usize..at + x1 as usize] {
+                    if px.id[0] != SKY {
+                        acc.em[px.id[0] as usize] += inp.sky_minus;
+                    }
+                }
             }
         }
+        frags
+    })
+}
+
+/// A thread's painter map for one tile, kept from tile to tile and from
+/// iteration to iteration: allocating and clearing the whole map every
+/// iteration cost more than scanning it, as most of the plane is empty
+/// for most directions. Only the span of each row that the last tile
+/// wrote is cleared.
+#[derive(Default)]
+struct TileMap {
+    px: Vec<Px>,
+    /// Per row, the columns written since the last clear (start, end).
+    used: Vec<(i32, i32)>,
+}
+
+impl TileMap {
+    /// The map for `rows` rows of `w` pixels (at most a tile's,
+    /// [`tile_rows`]), all [`Px::EMPTY`], and its (empty) row spans.
+    fn take(&mut self, w: i32, rows: i32) -> (&mut [Px], &mut [(i32, i32)]) {
+        let (w, rows) = (w as usize, rows as usize);
+        let size = w * tile_rows(w).max(rows);
+        if self.px.len() != size {
+            // a new map size: start afresh
+            self.px.clear();
+            self.px.resize(size, Px::EMPTY);
+            self.used.clear();
+        } else {
+            for (row, &(x0, x1)) in self.used.iter().enumerate() {
+                if x0 < x1 {
+                    self.px[row * w + x0 as usize..row * w + x1 as usize].fill(Px::EMPTY);
+                }
+            }
+        }
+        self.used.clear();
+        self.used.resize(rows, (i32::MAX, i32::MIN));
+        (&mut self.px, &mut self.used)
     }
-    frags
+}
+
+thread_local! {
+    static TILE: std::cell::RefCell<TileMap> = std::cell::RefCell::default();
 }
 
 /// The z-buffer (depth-peeling) sweep over `rows`, for the projections in
@@ -621,6 +741,25 @@ fn zbuffer_band(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The radix sort gives the comparison sort's order for keys made as
+    /// the sweep makes them (depth bits high, patch id low), including
+    /// equal depths and keys whose high bytes are all alike.
+    #[test]
+    fn radix_sort_matches_sort() {
+        let mut rng = Pcg32::keyed(&[78]);
+        for n in [0usize, 1, 2, 100, 5000] {
+            for spread in [u32::MAX, 255, 0] {
+                let mut keys: Vec<u64> = (0..n)
+                    .map(|i| (((rng.next_u32() & spread) as u64) << 32) | i as u64)
+                    .collect();
+                let mut want = keys.clone();
+                want.sort_unstable();
+                radix_sort_hi(&mut keys, &mut Vec::new());
+                assert_eq!(keys, want, "n {n}, spread {spread:#x}");
+            }
+        }
+    }
 
     /// The integer floor and ceiling agree with `floor`/`ceil` then `as
     /// i32`, including the saturating and NaN cases.

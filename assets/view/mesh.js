@@ -1,0 +1,139 @@
+// kalos view: a baked display mesh (.glb from `kalos bake`) in 3D.
+//
+// The lit surfaces carry `_RADIANCE` (linear W/(m²·sr), which three.js's
+// GLTFLoader names `_radiance`); they are drawn from it, scaled by
+// 2^exposure, unlit, and written to the sRGB canvas by three.js, so that at
+// exposure 0 a pixel shows what `kalos render --tonemap clamp` writes for the
+// same radiance. COLOR_0 (clamped to the bake's white point) is not used:
+// it cannot be exposed down.
+
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+
+export async function show($) {
+  $("mesh-controls").hidden = false;
+  const stage = $("stage");
+  const renderer = new THREE.WebGLRenderer({ antialias: true });
+  renderer.setPixelRatio(window.devicePixelRatio);
+  renderer.setSize(window.innerWidth, window.innerHeight);
+  renderer.setClearColor(0x000000);
+  stage.appendChild(renderer.domElement);
+
+  const gltf = await new Promise((resolve, reject) =>
+    new GLTFLoader().load("/scene.glb", resolve, undefined, reject));
+  const scene = new THREE.Scene();
+  scene.add(gltf.scene);
+  gltf.scene.updateMatrixWorld(true);
+
+  // Materials: baked radiance where there is one, grey where the bake has
+  // nothing (the non-diffuse surfaces it leaves to a renderer). The bake
+  // writes each lit side of a surface as its own triangles, wound to face
+  // that side: front faces only, so that the two sides of a wall do not
+  // fight, and a closed room seen from outside shows its inside.
+  const baked = new THREE.MeshBasicMaterial({ vertexColors: true, side: THREE.FrontSide });
+  const unbaked = new THREE.MeshBasicMaterial({ color: 0x606060, side: THREE.DoubleSide });
+  const wires = [];
+  let triangles = 0;
+  let hasUnbaked = false;
+  gltf.scene.traverse((o) => {
+    if (!o.isMesh) return;
+    const g = o.geometry;
+    const radiance = g.getAttribute("_radiance");
+    if (radiance) {
+      g.setAttribute("color", radiance);
+      o.material = baked;
+    } else {
+      o.material = unbaked;
+      hasUnbaked = true;
+    }
+    triangles += g.index ? g.index.count / 3 : g.getAttribute("position").count / 3;
+    const wire = new THREE.LineSegments(new THREE.WireframeGeometry(g),
+      new THREE.LineBasicMaterial({ color: 0x00ffff, transparent: true, opacity: 0.5 }));
+    wire.visible = false;
+    o.add(wire);
+    wires.push(wire);
+  });
+
+  const box = new THREE.Box3().setFromObject(gltf.scene);
+  const centre = box.getCenter(new THREE.Vector3());
+  const radius = Math.max(box.getSize(new THREE.Vector3()).length() / 2, 1e-6);
+
+  const camera = new THREE.PerspectiveCamera(45, window.innerWidth / window.innerHeight,
+    radius * 1e-3, radius * 100);
+  const sceneCamera = gltf.cameras.find((c) => c.isPerspectiveCamera);
+  // OrbitControls orbits about the camera's up at its creation: the scene
+  // camera's, when there is one
+  if (sceneCamera) {
+    sceneCamera.updateMatrixWorld(true);
+    const q = new THREE.Quaternion();
+    sceneCamera.matrixWorld.decompose(new THREE.Vector3(), q, new THREE.Vector3());
+    camera.up.set(0, 1, 0).applyQuaternion(q);
+  }
+  const controls = new OrbitControls(camera, renderer.domElement);
+
+  // The first view: the scene's camera when the bake recorded it, else the
+  // whole mesh framed from its front
+  function home() {
+    if (sceneCamera) {
+      sceneCamera.updateMatrixWorld(true);
+      const m = sceneCamera.matrixWorld;
+      m.decompose(camera.position, camera.quaternion, new THREE.Vector3());
+      camera.fov = sceneCamera.fov;
+      camera.near = sceneCamera.near;
+      const forward = new THREE.Vector3(0, 0, -1).applyQuaternion(camera.quaternion);
+      // orbit about the point on the view axis nearest the mesh's centre
+      const d = Math.max(centre.clone().sub(camera.position).dot(forward), radius * 1e-2);
+      controls.target.copy(camera.position).addScaledVector(forward, d);
+      camera.far = Math.max(camera.position.distanceTo(centre) + radius, 1e-3) * 2;
+    } else {
+      camera.fov = 45;
+      camera.position.copy(centre).add(new THREE.Vector3(0, 0, radius * 2.5));
+      camera.near = radius * 1e-3;
+      camera.far = radius * 100;
+      controls.target.copy(centre);
+      camera.lookAt(centre);
+    }
+    camera.updateProjectionMatrix();
+    controls.update();
+    draw();
+  }
+
+  function draw() {
+    renderer.render(scene, camera);
+  }
+
+  function expose() {
+    const v = Number($("exposure").value);
+    $("exposure-value").textContent = v.toFixed(1);
+    baked.color.setScalar(Math.pow(2, v));
+    draw();
+  }
+
+  $("exposure").oninput = expose;
+  $("wireframe").onchange = () => {
+    for (const w of wires) w.visible = $("wireframe").checked;
+    draw();
+  };
+  $("reset").onclick = home;
+  $("reset").hidden = !sceneCamera;
+  $("camera-note").textContent =
+    `${Math.round(triangles)} triangles; ` +
+    (sceneCamera ? "first view: the scene's camera" : "the bake holds no camera") +
+    (hasUnbaked ? "; grey: not baked (specular)" : "");
+  controls.addEventListener("change", draw);
+  window.addEventListener("resize", () => {
+    camera.aspect = window.innerWidth / window.innerHeight;
+    camera.updateProjectionMatrix();
+    renderer.setSize(window.innerWidth, window.innerHeight);
+    draw();
+  });
+
+  // hooks for the browser test and for scripts
+  window.kalos.triangles = triangles;
+  window.kalos.sceneCamera = !!sceneCamera;
+  window.kalos.setExposure = (v) => { $("exposure").value = v; expose(); };
+  home();
+  expose();
+  requestAnimationFrame(() => { window.kalos.ready = true; });
+}
