@@ -56,3 +56,39 @@ def test_threads_are_set_once():
     kalos.render(kalos.load(res=(8, 8)), spp=1)
     with pytest.raises(ValueError, match="only once"):
         kalos.set_threads(1)
+
+
+def test_the_interpreter_is_released_while_rendering():
+    """Another Python thread runs during a pass: the render holds no GIL
+    between its progress calls."""
+    import sys
+    import threading
+    import time
+
+    scene = kalos.load(res=(256, 256))
+    in_pass, done = threading.Event(), threading.Event()
+
+    def progress(p):
+        if p.passes == 0:
+            in_pass.set()  # pass 0 starts when this returns
+        else:
+            done.set()
+
+    # No forced switches: a thread that holds the interpreter keeps it until
+    # it releases it itself (here: only if the render does)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(100.0)
+    try:
+        t = threading.Thread(target=lambda: kalos.render(scene, spp=1, progress=progress))
+        t.start()
+        in_pass.wait()
+        count = 0
+        while not done.is_set():
+            count += 1
+            time.sleep(0)  # lets the render's next progress call in
+        t.join()
+    finally:
+        sys.setswitchinterval(interval)
+    # with the interpreter held through the pass, this thread would run only
+    # once the render had ended, after `done` was set
+    assert count > 0
