@@ -82,6 +82,17 @@ impl Builder {
     }
 }
 
+/// The display colour of each vertex of `lit`, as `COLOR_0` holds it: the
+/// radiance over the white point `w0` (1 when `w0` is not a positive
+/// number), clamped to [0, 1].
+pub fn display_colors(lit: &BakedMesh, w0: f32) -> Vec<Vec3> {
+    let w0 = if w0 > 0.0 && w0.is_finite() { w0 } else { 1.0 };
+    lit.radiance
+        .iter()
+        .map(|l| (*l / w0).clamp(Vec3::ZERO, Vec3::ONE))
+        .collect()
+}
+
 /// The glTF node and camera objects (JSON) for the scene's camera.
 ///
 /// glTF cameras look along their −z with +y up and x to the right; a
@@ -140,12 +151,7 @@ pub fn encode_glb(
     };
     let mut prims = Vec::new();
     if !lit.indices.is_empty() {
-        let w0 = if w0 > 0.0 && w0.is_finite() { w0 } else { 1.0 };
-        let colors: Vec<Vec3> = lit
-            .radiance
-            .iter()
-            .map(|l| (*l / w0).clamp(Vec3::ZERO, Vec3::ONE))
-            .collect();
+        let colors = display_colors(lit, w0);
         let p = b.vec3(&lit.positions, true);
         let n = b.vec3(&lit.normals, false);
         let c = b.vec3(&colors, false);

@@ -131,3 +131,111 @@ pub fn foreign_flag_message(method: &str, flag: &str) -> Option<String> {
          `kalos render --method {method} --help` lists the settings of '{method}'."
     ))
 }
+
+/// Builds `method`'s settings from `(name, value)` pairs, for callers that
+/// have no command line (the Python package's keyword arguments). Names
+/// are the long flags without `--` (`rr-depth`); the values go through the
+/// same parsers and checks as `kalos render`, so a bad value gets the
+/// command line's message. A switch (`no-decimate`) takes `true` or `on`
+/// to be given, `false` or `off` to be left out. A setting of another
+/// method gets [`foreign_flag_message`]; a name no method knows gets a
+/// message listing the method's settings.
+pub fn config_from_pairs(
+    method: &str,
+    pairs: &[(String, String)],
+) -> Result<super::MethodConfig, super::MethodError> {
+    use super::MethodError;
+    let info = by_name(method)?;
+    let cmd = (info.args)(Command::new(info.name))
+        .no_binary_name(true)
+        .disable_help_flag(true);
+    let mut args = Vec::new();
+    for (name, value) in pairs {
+        let Some(arg) = cmd.get_arguments().find(|a| a.get_long() == Some(name)) else {
+            if let Some(msg) = foreign_flag_message(method, name) {
+                return Err(MethodError(msg));
+            }
+            let known: Vec<String> = method_flags(info)
+                .iter()
+                .map(|f| format!("--{f}"))
+                .collect();
+            return Err(MethodError(format!(
+                "unknown setting --{name} for method '{method}'; its settings: {}",
+                known.join(", ")
+            )));
+        };
+        if arg.get_action().takes_values() {
+            // `--name=value`: a value may start with '-'
+            args.push(format!("--{name}={value}"));
+        } else {
+            match value.as_str() {
+                "true" | "on" => args.push(format!("--{name}")),
+                "false" | "off" => {}
+                _ => {
+                    return Err(MethodError(format!(
+                        "--{name} is a switch: expected true or false, got '{value}'"
+                    )))
+                }
+            }
+        }
+    }
+    let matches = cmd.try_get_matches_from(args).map_err(|e| {
+        // clap's first line, without its "error: " and the hint about --help
+        let text = e.render().to_string();
+        let line = text.lines().next().unwrap_or_default();
+        MethodError(line.trim_start_matches("error: ").to_string())
+    })?;
+    let cfg = (info.from_args)(&matches).map_err(|e| MethodError(e.to_string()))?;
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::methods::MethodConfig;
+
+    fn pairs(p: &[(&str, &str)]) -> Vec<(String, String)> {
+        p.iter()
+            .map(|(n, v)| (n.to_string(), v.to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn pairs_set_the_settings() {
+        let cfg =
+            config_from_pairs("plb", &pairs(&[("lambda", "3"), ("camera-pass", "off")])).unwrap();
+        let MethodConfig::Plb(s) = cfg else {
+            panic!("not plb: {cfg:?}")
+        };
+        assert_eq!(s.lambda, 3.0);
+        assert!(!s.camera_pass);
+        let cfg = config_from_pairs("density", &pairs(&[("no-decimate", "true")])).unwrap();
+        let MethodConfig::Density(s) = cfg else {
+            panic!("not density: {cfg:?}")
+        };
+        assert!(!s.decimate);
+        assert_eq!(
+            config_from_pairs("path", &[]).unwrap(),
+            MethodConfig::Path(Default::default())
+        );
+    }
+
+    #[test]
+    fn bad_pairs_get_the_command_lines_messages() {
+        let e = config_from_pairs("path", &pairs(&[("lambda", "3")])).unwrap_err();
+        assert_eq!(Some(e.0), foreign_flag_message("path", "--lambda"));
+        let e = config_from_pairs("plb", &pairs(&[("lambda", "x")])).unwrap_err();
+        assert!(e.0.contains("invalid value 'x' for '--lambda"), "{e}");
+        let e = config_from_pairs("path", &pairs(&[("rr-depth", "0")])).unwrap_err();
+        assert!(e.0.starts_with("--rr-depth must be at least 1"), "{e}");
+        let e = config_from_pairs("path", &pairs(&[("frobnicate", "1")])).unwrap_err();
+        assert!(
+            e.0.contains("--frobnicate") && e.0.contains("--rr-depth"),
+            "{e}"
+        );
+        let e = config_from_pairs("density", &pairs(&[("no-decimate", "2")])).unwrap_err();
+        assert!(e.0.contains("is a switch"), "{e}");
+        assert!(config_from_pairs("nope", &[]).is_err());
+    }
+}

@@ -1,0 +1,269 @@
+//! `kalos.bake`: view-independent lighting by density estimation, as numpy
+//! arrays and as the .glb (or .ply) that `kalos bake` writes.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use glam::Vec3;
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use kalos::bake::{self as kbake, BakedMesh as Mesh};
+use kalos::methods::density::control::{Control, Limits, Tick};
+use kalos::methods::density::{self, DensityError, Storage};
+use kalos::methods::MethodConfig;
+use kalos::scene::CameraDesc;
+
+use crate::render::{count, memory_limit, method_config, Progress, Watch};
+use crate::scene::Scene;
+use crate::{ImageError, RenderError};
+
+/// `v` as a float32 array of shape (len, 3).
+fn vec3s<'py>(py: Python<'py>, v: &[Vec3]) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let flat: Vec<f32> = v.iter().flat_map(|p| p.to_array()).collect();
+    PyArray1::from_vec(py, flat).reshape([v.len(), 3])
+}
+
+/// Triangles with per-vertex attributes, as numpy arrays (read-only
+/// attributes; the arrays are the object's own).
+#[pyclass(frozen, get_all, module = "kalos")]
+pub struct BakedMesh {
+    /// Vertex positions, float32 (n, 3), world space.
+    positions: Py<PyArray2<f32>>,
+    /// Vertex normals, float32 (n, 3): the side the lighting is for.
+    normals: Py<PyArray2<f32>>,
+    /// Display colours in [0, 1], float32 (n, 3): the radiance over the
+    /// white point, as the .glb's COLOR_0 holds them.
+    colours: Py<PyArray2<f32>>,
+    /// Outgoing radiance, W/(m²·sr), float32 (n, 3).
+    radiance: Py<PyArray2<f32>>,
+    /// Irradiance, W/m², float32 (n, 3).
+    irradiance: Py<PyArray2<f32>>,
+    /// Triangles, uint32 (m, 3), indices into the vertices.
+    indices: Py<PyArray2<u32>>,
+}
+
+impl BakedMesh {
+    fn new(py: Python<'_>, m: &Mesh, w0: f32) -> PyResult<Self> {
+        let flat: Vec<u32> = m.indices.iter().flatten().copied().collect();
+        Ok(BakedMesh {
+            positions: vec3s(py, &m.positions)?.unbind(),
+            normals: vec3s(py, &m.normals)?.unbind(),
+            colours: vec3s(py, &kbake::gltf::display_colors(m, w0))?.unbind(),
+            radiance: vec3s(py, &m.radiance)?.unbind(),
+            irradiance: vec3s(py, &m.irradiance)?.unbind(),
+            indices: PyArray1::from_vec(py, flat)
+                .reshape([m.indices.len(), 3])?
+                .unbind(),
+        })
+    }
+}
+
+#[pymethods]
+impl BakedMesh {
+    fn __repr__(&self, py: Python<'_>) -> String {
+        format!(
+            "<kalos.BakedMesh {} vertices, {} triangles>",
+            self.positions.bind(py).shape()[0],
+            self.indices.bind(py).shape()[0]
+        )
+    }
+}
+
+/// A bake: the display mesh of the diffuse surfaces with their lighting
+/// (`lit`, whose arrays `positions`, `normals`, `colours`, `radiance`,
+/// `irradiance` and `indices` are also the bake's own attributes), the
+/// unlit geometry of the other surfaces (`unlit`), the white point `w0`
+/// and the bake's figures (`stats`). `save` writes it.
+#[pyclass(frozen, module = "kalos")]
+pub struct Bake {
+    /// The lit display mesh.
+    #[pyo3(get)]
+    lit: Py<BakedMesh>,
+    /// The surfaces with no diffuse part (glass, metal), unlit.
+    #[pyo3(get)]
+    unlit: Py<BakedMesh>,
+    /// The white point of the display colours, radiance (luminance).
+    #[pyo3(get)]
+    w0: f32,
+    /// The figures of `kalos bake --stats`, as a dict.
+    #[pyo3(get)]
+    stats: Py<PyDict>,
+    meshes: (Mesh, Mesh),
+    /// The scene's camera, which the .glb carries as `kalos bake` writes it.
+    camera: CameraDesc,
+}
+
+#[pymethods]
+impl Bake {
+    /// The lit mesh's vertex positions.
+    #[getter]
+    fn positions(&self, py: Python<'_>) -> Py<PyArray2<f32>> {
+        self.lit.get().positions.clone_ref(py)
+    }
+
+    /// The lit mesh's vertex normals.
+    #[getter]
+    fn normals(&self, py: Python<'_>) -> Py<PyArray2<f32>> {
+        self.lit.get().normals.clone_ref(py)
+    }
+
+    /// The lit mesh's display colours.
+    #[getter]
+    fn colours(&self, py: Python<'_>) -> Py<PyArray2<f32>> {
+        self.lit.get().colours.clone_ref(py)
+    }
+
+    /// The lit mesh's outgoing radiance.
+    #[getter]
+    fn radiance(&self, py: Python<'_>) -> Py<PyArray2<f32>> {
+        self.lit.get().radiance.clone_ref(py)
+    }
+
+    /// The lit mesh's irradiance.
+    #[getter]
+    fn irradiance(&self, py: Python<'_>) -> Py<PyArray2<f32>> {
+        self.lit.get().irradiance.clone_ref(py)
+    }
+
+    /// The lit mesh's triangles.
+    #[getter]
+    fn indices(&self, py: Python<'_>) -> Py<PyArray2<u32>> {
+        self.lit.get().indices.clone_ref(py)
+    }
+
+    /// Writes the bake atomically: .glb, the glTF binary `kalos bake`
+    /// writes (display colours in COLOR_0, linear radiance in _RADIANCE,
+    /// the unlit surfaces as a second primitive), or .ply, the lit mesh
+    /// with its irradiance (`kalos bake --ply`). Raises ImageError naming
+    /// the file.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        let (lit, unlit) = &self.meshes;
+        let r = py.detach(|| match ext.as_str() {
+            "glb" => Some(kbake::gltf::write_glb(
+                &path,
+                lit,
+                unlit,
+                self.w0,
+                Some(&self.camera),
+            )),
+            "ply" => Some(kbake::ply::write_ply(&path, lit)),
+            _ => None,
+        });
+        match r {
+            Some(r) => r.map_err(|e| ImageError::new_err(e.to_string())),
+            None => Err(PyValueError::new_err(format!(
+                "{}: a bake is saved as .glb or .ply",
+                path.display()
+            ))),
+        }
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<kalos.Bake {} lit triangles, {} unlit, w0 {:.4e}>",
+            self.meshes.0.indices.len(),
+            self.meshes.1.indices.len(),
+            self.w0
+        )
+    }
+}
+
+/// Bakes the view-independent lighting of `scene` by density estimation
+/// (as `kalos bake`): particle tracing, kernel density estimation,
+/// decimated display mesh. The density method's settings are keyword
+/// arguments as for `kalos.render(method="density")` (`particles=1_000_000`
+/// or "1M", `c1`, `c2`, `epsilon`, `no_decimate=True`, ...). `progress(p)`
+/// is called between units of work with the phase in `p.phase`; Ctrl-C
+/// stops the bake, removes its scratch files and raises
+/// KeyboardInterrupt. Returns a `kalos.Bake`.
+#[pyfunction]
+#[pyo3(signature = (scene, *, seed=0, max_depth=None, progress=None, max_memory=None, **settings))]
+pub fn bake(
+    py: Python<'_>,
+    scene: &Bound<'_, Scene>,
+    seed: u64,
+    max_depth: Option<u32>,
+    progress: Option<Py<PyAny>>,
+    max_memory: Option<&Bound<'_, PyAny>>,
+    settings: Option<&Bound<'_, PyDict>>,
+) -> PyResult<Bake> {
+    let MethodConfig::Density(s) = method_config("density", settings)? else {
+        unreachable!("the density row builds density settings")
+    };
+    if max_depth == Some(0) {
+        return Err(PyValueError::new_err(
+            "--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)",
+        ));
+    }
+    let s = density::Settings {
+        seed,
+        max_depth,
+        ..s
+    };
+    if let Some((limit, source)) = memory_limit(count("max_memory", max_memory)?) {
+        // no film: only the bake's own buffers
+        let items = kalos::render::memory_estimate(&MethodConfig::Density(s.clone()), 0, 0);
+        kalos::render::check_memory(&items, limit, &source)
+            .map_err(|e| RenderError::new_err(e.to_string()))?;
+    }
+    let world = scene.get().world.clone();
+    if world.lights.is_empty() {
+        return Err(RenderError::new_err(format!(
+            "{}: the scene has no emitters that emit light: nothing to bake",
+            world.scene.source
+        )));
+    }
+
+    let cancel = AtomicBool::new(false);
+    let mut watch = Watch::new(progress.as_ref(), &cancel);
+    let baked = py.detach(|| {
+        let mut on_tick = |t: &Tick| {
+            watch.report(Progress {
+                passes: 0,
+                rays: t.rays,
+                elapsed: t.elapsed,
+                fraction: t.bake_fraction(),
+                phase: Some(t.phase.name().to_string()),
+            })
+        };
+        let mut ctl =
+            Control::new(Instant::now(), Limits::default(), Some(&cancel)).on_tick(&mut on_tick);
+        let b = density::bake_within(&world, &s, Storage::Disk, &mut ctl)?;
+        let meshes = b.baked_meshes(&world.scene);
+        Ok::<_, DensityError>((b, meshes))
+    });
+    if let Some(e) = watch.failure() {
+        return Err(e);
+    }
+    let (b, meshes) = baked.map_err(|e| RenderError::new_err(e.to_string()))?;
+    let st = &b.stats;
+    let stats = PyDict::new(py);
+    stats.set_item("particles", st.particles)?;
+    stats.set_item("hits", st.hits)?;
+    stats.set_item("rays", st.rays)?;
+    stats.set_item("surfaces", st.surfaces)?;
+    stats.set_item("t_trace", st.t_trace)?;
+    stats.set_item("t_estimate", st.t_estimate)?;
+    stats.set_item("t_decimate", st.t_decimate)?;
+    stats.set_item("tris_before", st.tris_before)?;
+    stats.set_item("tris_after", st.tris_after)?;
+    stats.set_item("max_brightness_error", st.max_brightness_error)?;
+    stats.set_item("mean_brightness_error", st.mean_brightness_error)?;
+    Ok(Bake {
+        lit: Py::new(py, BakedMesh::new(py, &meshes.0, b.w0)?)?,
+        unlit: Py::new(py, BakedMesh::new(py, &meshes.1, b.w0)?)?,
+        w0: b.w0,
+        stats: stats.unbind(),
+        meshes,
+        camera: world.scene.camera.clone(),
+    })
+}
