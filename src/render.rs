@@ -35,8 +35,10 @@ use glam::{DVec3, Vec3};
 
 use crate::film::Image;
 use crate::methods::{
-    bundle, density, Budget, Common, Driver, MethodConfig, MethodError, Progress, RenderResult,
+    bundle, density, Budget, Checkpoint, Common, Driver, Hooks, MethodConfig, MethodError,
+    Progress, RenderResult,
 };
+use crate::partial::{self, Shard, ShardKind, State};
 use crate::world::World;
 
 /// A render being set up: the method with its settings, the shared
@@ -50,6 +52,10 @@ pub struct Render<'a> {
     reference: Option<&'a Image>,
     log_every: f64,
     max_memory: Option<u64>,
+    shard: Shard,
+    resume: Option<&'a State>,
+    checkpoint: Option<Checkpoint<'a>>,
+    keep_state: bool,
 }
 
 impl<'a> Render<'a> {
@@ -68,7 +74,40 @@ impl<'a> Render<'a> {
             reference: None,
             log_every: 0.0,
             max_memory: None,
+            shard: Shard::WHOLE,
+            resume: None,
+            checkpoint: None,
+            keep_state: false,
         }
+    }
+
+    /// Renders only shard `shard` of the render (see [`crate::partial`]):
+    /// part of the streams of every pass (`path`, `light`), or an
+    /// independent chain with its own seed (`plb`, `bundle`). Keep its
+    /// state ([`Render::keep_state`]) to merge it.
+    pub fn shard(mut self, shard: Shard) -> Self {
+        self.shard = shard;
+        self
+    }
+
+    /// Continues from `state` (a checkpoint of the same render, as
+    /// [`RenderResult::state`] or the checkpoint function gave it).
+    pub fn resume(mut self, state: &'a State) -> Self {
+        self.resume = Some(state);
+        self
+    }
+
+    /// Hands the render's state to `save` every `every` seconds.
+    pub fn checkpoint(mut self, every: f64, save: &'a mut dyn FnMut(&State)) -> Self {
+        self.checkpoint = Some((every, save));
+        self
+    }
+
+    /// Puts the final state into [`RenderResult::state`] (for a chain
+    /// shard, its image), to write as a partial result.
+    pub fn keep_state(mut self) -> Self {
+        self.keep_state = true;
+        self
     }
 
     /// Refuses to start a render whose [`memory_estimate`] passes `bytes`
@@ -149,14 +188,46 @@ impl<'a> Render<'a> {
                 "Render::max_memory",
             )?;
         }
-        let mut method = self.method.create(self.world, &self.common)?;
-        Driver {
+        let kind = if self.shard == Shard::WHOLE {
+            None
+        } else {
+            Some(partial::shard_kind(&self.method)?)
+        };
+        let mut common = self.common.clone();
+        if kind == Some(ShardKind::Chains) {
+            common.seed = partial::shard_seed(common.seed, self.shard);
+        }
+        let mut method = self.method.create(self.world, &common)?;
+        if kind == Some(ShardKind::Exact) {
+            method.set_shard(self.shard)?;
+        }
+        let hooks = Hooks {
+            resume: self.resume,
+            checkpoint: self.checkpoint,
+            keep_state: self.keep_state,
+        };
+        let mut result = Driver {
             budget: self.budget,
             cancel: self.cancel,
             reference: self.reference,
             log_every: self.log_every,
         }
-        .run(method.as_mut(), self.world, on_progress)
+        .run_with(method.as_mut(), self.world, hooks, on_progress)?;
+        if self.keep_state && kind == Some(ShardKind::Chains) {
+            // A chain's part of the merge is its image (see crate::partial)
+            result.state = Some(State {
+                passes: result.passes,
+                rays: result.rays,
+                seconds: result.seconds,
+                spp: result.spp,
+                counters: Vec::new(),
+                buffers: vec![(
+                    "image".into(),
+                    result.image.data.iter().map(|v| v.as_dvec3()).collect(),
+                )],
+            });
+        }
+        Ok(result)
     }
 }
 

@@ -7,6 +7,7 @@ use std::time::Instant;
 use super::{Method, MethodError, World};
 use crate::film::Image;
 use crate::metrics;
+use crate::partial::State;
 
 /// When to stop. Several limits may be set; the first reached stops.
 #[derive(Clone, Copy, Debug, Default)]
@@ -147,6 +148,41 @@ pub struct RenderResult {
     /// The method's own statistics (phase timings, memory), when it keeps
     /// any ([`Method::report`]).
     pub report: Option<String>,
+    /// The final state, when [`Hooks::keep_state`] asked for it and the
+    /// method can give one ([`Method::state`]).
+    pub state: Option<State>,
+}
+
+/// Where the state goes every so many seconds: the interval and the
+/// function that writes the checkpoint.
+pub type Checkpoint<'a> = (f64, &'a mut dyn FnMut(&State));
+
+/// What a render keeps of its state besides the image: where it resumes
+/// from, and when it hands its state out (checkpoints, shards). The
+/// default does none of it.
+#[derive(Default)]
+pub struct Hooks<'a> {
+    /// Continue from this state (a checkpoint) instead of from nothing:
+    /// the method restores it after its setup, and the passes, rays and
+    /// seconds go on from its counts, so that the budget is the whole
+    /// render's. The setup's rays are not counted again.
+    pub resume: Option<&'a State>,
+    /// Every so many seconds, the state is handed to the function (which
+    /// writes the checkpoint). The time this takes is not render time.
+    pub checkpoint: Option<Checkpoint<'a>>,
+    /// Put the final state into [`RenderResult::state`].
+    pub keep_state: bool,
+}
+
+/// The method's state with the driver's counts filled in.
+fn snapshot(method: &dyn Method, passes: u64, rays: u64, seconds: f64) -> Option<State> {
+    method.state().map(|s| State {
+        passes,
+        rays,
+        seconds,
+        spp: method.spp(),
+        ..s
+    })
 }
 
 /// Runs a method until its budget is spent or `cancel` is set (Ctrl-C).
@@ -169,11 +205,31 @@ impl Driver<'_> {
         &self,
         method: &mut dyn Method,
         world: &World,
+        on_progress: impl FnMut(&Progress),
+    ) -> Result<RenderResult, MethodError> {
+        self.run_with(method, world, Hooks::default(), on_progress)
+    }
+
+    /// [`Driver::run`] with checkpoints: resumes from a state, hands out
+    /// the state now and then and at the end (see [`Hooks`]).
+    pub fn run_with(
+        &self,
+        method: &mut dyn Method,
+        world: &World,
+        mut hooks: Hooks<'_>,
         mut on_progress: impl FnMut(&Progress),
     ) -> Result<RenderResult, MethodError> {
         self.budget.validate()?;
+        if hooks.checkpoint.is_some() && method.state().is_none() {
+            return Err(MethodError(format!(
+                "method '{}' cannot write checkpoints: its state cannot be saved",
+                method.name()
+            )));
+        }
         let start = Instant::now();
-        let mut excluded = 0.0f64; // time spent on logging, not rendering
+        // time spent on logging and checkpoints, not rendering; a resumed
+        // render starts from the seconds already spent
+        let mut excluded = -hooks.resume.map_or(0.0, |s| s.seconds);
 
         // Setup runs inside the clock and its rays count toward the budget
         let mut setup = Setup {
@@ -188,6 +244,12 @@ impl Driver<'_> {
         // that reported its own progress
         let shown = setup.last;
         let mut pass = 0u64;
+        if let Some(state) = hooks.resume {
+            method.restore(state)?;
+            pass = state.passes;
+            rays = state.rays;
+        }
+        let mut next_checkpoint = hooks.checkpoint.as_ref().map_or(f64::INFINITY, |c| c.0);
         let mut log = Vec::new();
         let mut next_log = self.log_every;
         let mut interrupted = false;
@@ -225,6 +287,17 @@ impl Driver<'_> {
             let stats = method.step(world, pass);
             rays += stats.rays;
             pass += 1;
+            if let Some((every, save)) = hooks.checkpoint.as_mut() {
+                let now = start.elapsed().as_secs_f64() - excluded;
+                if now >= next_checkpoint {
+                    let t0 = Instant::now();
+                    if let Some(s) = snapshot(method, pass, rays, now) {
+                        save(&s);
+                    }
+                    next_checkpoint = now + *every;
+                    excluded += t0.elapsed().as_secs_f64();
+                }
+            }
             if let Some(r) = self.reference {
                 let now = start.elapsed().as_secs_f64() - excluded;
                 if self.log_every > 0.0 && now >= next_log {
@@ -252,7 +325,13 @@ impl Driver<'_> {
             spp: method.spp(),
             rel_mse,
         });
+        let state = if hooks.keep_state {
+            snapshot(method, pass, rays, seconds)
+        } else {
+            None
+        };
         Ok(RenderResult {
+            state,
             method: method.name(),
             report: method.report(),
             image,

@@ -2,6 +2,7 @@
 //! files. Everything else lives in the library.
 
 mod bake;
+mod merge;
 mod progress;
 mod render;
 mod signals;
@@ -69,6 +70,8 @@ enum Command {
     /// Bake view-independent lighting by density estimation into a glTF
     /// binary display mesh (vertex colours), optionally an irradiance PLY.
     Bake(Box<bake::BakeArgs>),
+    /// Merge the partial results of `render --shard K/N` into one image.
+    Merge(merge::MergeArgs),
     /// Write a generated scene (sphereflake, teapot-room, terrain, big-room)
     /// as Mitsuba XML plus OBJ meshes.
     Gen {
@@ -222,6 +225,7 @@ fn main() {
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench(a),
         Command::Bake(a) => bake::run(*a),
+        Command::Merge(a) => merge::run(a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
     };
     // An interrupted command exits with the signal's code (130, 143),
