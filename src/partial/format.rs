@@ -33,10 +33,11 @@ use crate::image_io::{write_atomic, ImageIoError};
 
 const MAGIC: &str = "kalos-partial 1";
 
-/// Writes `part` to `path` atomically (a temporary file, then a rename).
-pub fn write(path: &Path, part: &Partial) -> Result<(), PartialError> {
-    let m = &part.meta;
-    let s = &part.state;
+/// Writes the partial result of `state` in the render `meta` to `path`,
+/// atomically (a temporary file, then a rename).
+pub fn write(path: &Path, meta: &Meta, state: &State) -> Result<(), PartialError> {
+    let m = meta;
+    let s = state;
     let mut head = String::new();
     let mut line = |k: &str, v: String| {
         head += k;

@@ -274,16 +274,19 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     if let (Some(r), Some(p)) = (&resume, &a.resume) {
         check_resume(&meta, r, p)?;
     }
+    // checkpoints written during the render, and the seconds they took
+    let written = std::cell::Cell::new((0u32, 0.0f64));
     let mut save = |state: &partial::State| {
         if let Some(c) = &a.checkpoint {
-            let part = Partial {
-                meta: meta.clone(),
-                state: state.clone(),
-            };
+            let t0 = Instant::now();
             // A failed checkpoint does not stop the render: the image is
             // still written at the end
-            if let Err(e) = partial::write(c, &part) {
-                eprintln!("warning: checkpoint not written: {e}");
+            match partial::write(c, &meta, state) {
+                Ok(()) => {
+                    let (n, s) = written.get();
+                    written.set((n + 1, s + t0.elapsed().as_secs_f64()));
+                }
+                Err(e) => eprintln!("warning: checkpoint not written: {e}"),
             }
         }
     };
@@ -331,23 +334,11 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     };
     let state = result.state.as_ref();
     if let (Some(c), Some(state)) = (&a.checkpoint, state) {
-        partial::write(
-            c,
-            &Partial {
-                meta: meta.clone(),
-                state: state.clone(),
-            },
-        )?;
+        partial::write(c, &meta, state)?;
     }
     if partial_out {
         let state = state.context("the method gave no state to write as a partial result")?;
-        partial::write(
-            &a.output,
-            &Partial {
-                meta: meta.clone(),
-                state: state.clone(),
-            },
-        )?;
+        partial::write(&a.output, &meta, state)?;
     } else {
         image_io::write_image(&a.output, &result.image, &png)?;
     }
@@ -376,6 +367,16 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     }
     if let Some(p) = &a.resume {
         line += &format!(", resumed from {}", p.display());
+    }
+    if let Some(c) = &a.checkpoint {
+        let (n, s) = written.get();
+        line += &format!(", checkpoint {}", c.display());
+        if n > 0 {
+            line += &format!(
+                " ({n} written during the render, {:.1} ms each)",
+                s / n as f64 * 1e3
+            );
+        }
     }
     if result.interrupted {
         line += " (interrupted: saved what was rendered)";
