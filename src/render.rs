@@ -188,8 +188,10 @@ impl<'a> Render<'a> {
                 "Render::max_memory",
             )?;
         }
+        // A whole render is split in no way, but a chain method's state to
+        // keep is still its image
         let kind = if self.shard == Shard::WHOLE {
-            None
+            partial::shard_kind(&self.method).ok()
         } else {
             Some(partial::shard_kind(&self.method)?)
         };
@@ -198,7 +200,7 @@ impl<'a> Render<'a> {
             common.seed = partial::shard_seed(common.seed, self.shard);
         }
         let mut method = self.method.create(self.world, &common)?;
-        if kind == Some(ShardKind::Exact) {
+        if kind == Some(ShardKind::Exact) && self.shard != Shard::WHOLE {
             method.set_shard(self.shard)?;
         }
         let hooks = Hooks {

@@ -36,8 +36,18 @@ const MAGIC: &str = "kalos-partial 1";
 /// Writes the partial result of `state` in the render `meta` to `path`,
 /// atomically (a temporary file, then a rename).
 pub fn write(path: &Path, meta: &Meta, state: &State) -> Result<(), PartialError> {
-    let m = meta;
-    let s = state;
+    let head = header(meta, state);
+    write_atomic(path, |w| {
+        encode(&head, state, w).map_err(|source| ImageIoError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    })?;
+    Ok(())
+}
+
+/// The text header of a partial result, up to and with its `end` line.
+fn header(m: &Meta, s: &State) -> String {
     let mut head = String::new();
     let mut line = |k: &str, v: String| {
         head += k;
@@ -69,22 +79,23 @@ pub fn write(path: &Path, meta: &Meta, state: &State) -> Result<(), PartialError
         line("buffer", format!("{k} {}", b.len()));
     }
     head += "end\n";
-    write_atomic(path, |w| {
-        let io = |source| ImageIoError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        w.write_all(head.as_bytes()).map_err(io)?;
-        for (_, b) in &s.buffers {
-            let bytes: Vec<u8> = b
+    head
+}
+
+/// Writes the header `head` and the buffers of `state` to `w`, a buffer at
+/// a time (a film is not copied whole).
+fn encode(head: &str, state: &State, w: &mut impl Write) -> std::io::Result<()> {
+    w.write_all(head.as_bytes())?;
+    for (_, b) in &state.buffers {
+        for rows in b.chunks(4096) {
+            let bytes: Vec<u8> = rows
                 .iter()
                 .flat_map(|v| v.to_array())
                 .flat_map(f64::to_le_bytes)
                 .collect();
-            w.write_all(&bytes).map_err(io)?;
+            w.write_all(&bytes)?;
         }
-        Ok(())
-    })?;
+    }
     Ok(())
 }
 
@@ -249,4 +260,72 @@ fn decode(bytes: &[u8]) -> Result<Partial, String> {
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> (Meta, State) {
+        let meta = Meta {
+            method: "path".into(),
+            settings: "Path(Settings { rr_depth: 5 })".into(),
+            seed: 7,
+            max_depth: Some(3),
+            scene_hash: 0x0123_4567_89ab_cdef,
+            scene_source: "builtin".into(),
+            width: 3,
+            height: 2,
+            shard: Shard { index: 1, count: 4 },
+            kind: ShardKind::Exact,
+        };
+        let state = State {
+            passes: 5,
+            rays: 1234,
+            seconds: 0.1 + 0.2,
+            spp: 5.0,
+            counters: vec![("passes".into(), 5)],
+            buffers: vec![(
+                "film".into(),
+                (0..6)
+                    .map(|i| DVec3::new(i as f64 / 3.0, 1e-300, 1e300))
+                    .collect(),
+            )],
+        };
+        (meta, state)
+    }
+
+    fn bytes(meta: &Meta, state: &State) -> Vec<u8> {
+        let mut v = Vec::new();
+        encode(&header(meta, state), state, &mut v).expect("in memory");
+        v
+    }
+
+    #[test]
+    fn a_partial_result_reads_back_exactly() {
+        let (meta, state) = sample();
+        let back = decode(&bytes(&meta, &state)).expect("decodes");
+        assert_eq!(back, Partial { meta, state });
+    }
+
+    #[test]
+    fn damaged_files_are_refused_with_the_reason() {
+        let (meta, state) = sample();
+        let good = bytes(&meta, &state);
+        let cut = decode(&good[..good.len() - 1]).unwrap_err();
+        assert!(cut.contains("truncated"), "{cut}");
+        let mut long = good.clone();
+        long.push(0);
+        assert!(decode(&long)
+            .unwrap_err()
+            .contains("follow the last buffer"));
+        let text = String::from_utf8_lossy(&good[..good.len() - 144]).into_owned();
+        let bad = text.replace("seed 7", "seed x");
+        let e = decode(bad.as_bytes()).unwrap_err();
+        assert!(e.contains("line 5") && e.contains("'seed'"), "{e}");
+        let e = decode(b"P6\n").unwrap_err();
+        assert!(e.contains("not a kalos partial result"), "{e}");
+        let e = decode(text.replace("shard 1/4", "shard 4/4").as_bytes()).unwrap_err();
+        assert!(e.contains("'shard'"), "{e}");
+    }
 }

@@ -173,9 +173,17 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         budget.spp = Some(16.0);
     }
     budget.validate()?;
-    check_output(&a.output, &["exr", "pfm", "png", "kpart"])?;
+    // An image, or a partial result (what --shard writes)
     let partial_out = crate::extension(&a.output) == "kpart";
+    if partial_out {
+        check_output(&a.output, &["kpart"])?;
+    } else {
+        check_output(&a.output, &["exr", "pfm", "png"])?;
+    }
     let shard = a.shard.unwrap_or(Shard::WHOLE);
+    if partial_out {
+        partial::check_shard(&cfg, shard)?;
+    }
     if let Some(s) = a.shard {
         partial::check_shard(&cfg, s)?;
         if !partial_out {
