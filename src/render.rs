@@ -195,6 +195,9 @@ impl<'a> Render<'a> {
         } else {
             Some(partial::shard_kind(&self.method)?)
         };
+        if self.checkpoint.is_some() || self.resume.is_some() {
+            partial::check_resumable(&self.method)?;
+        }
         let mut common = self.common.clone();
         if kind == Some(ShardKind::Chains) {
             common.seed = partial::shard_seed(common.seed, self.shard);

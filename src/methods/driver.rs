@@ -168,7 +168,9 @@ pub struct Hooks<'a> {
     /// render's. The setup's rays are not counted again.
     pub resume: Option<&'a State>,
     /// Every so many seconds, the state is handed to the function (which
-    /// writes the checkpoint). The time this takes is not render time.
+    /// writes the checkpoint). The time this takes is not render time. A
+    /// method without state ([`Method::state`] gives None) hands out
+    /// nothing: check first ([`crate::partial::check_resumable`]).
     pub checkpoint: Option<Checkpoint<'a>>,
     /// Put the final state into [`RenderResult::state`].
     pub keep_state: bool,
@@ -220,12 +222,6 @@ impl Driver<'_> {
         mut on_progress: impl FnMut(&Progress),
     ) -> Result<RenderResult, MethodError> {
         self.budget.validate()?;
-        if hooks.checkpoint.is_some() && method.state().is_none() {
-            return Err(MethodError(format!(
-                "method '{}' cannot write checkpoints: its state cannot be saved",
-                method.name()
-            )));
-        }
         let start = Instant::now();
         // time spent on logging and checkpoints, not rendering; a resumed
         // render starts from the seconds already spent
