@@ -278,18 +278,24 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         );
         b
     };
-    let meta = Meta::new(&world.scene, &cfg, &common, shard)?;
-    if let (Some(r), Some(p)) = (&resume, &a.resume) {
-        check_resume(&meta, r, p)?;
+    // The render's identity (the scene hash reads every vertex): only
+    // when a partial result is written or read
+    let meta = if partial_out || a.checkpoint.is_some() || resume.is_some() {
+        Some(Meta::new(&world.scene, &cfg, &common, shard)?)
+    } else {
+        None
+    };
+    if let (Some(r), Some(p), Some(m)) = (&resume, &a.resume, &meta) {
+        check_resume(m, r, p)?;
     }
     // checkpoints written during the render, and the seconds they took
     let written = std::cell::Cell::new((0u32, 0.0f64));
     let mut save = |state: &partial::State| {
-        if let Some(c) = &a.checkpoint {
+        if let (Some(c), Some(meta)) = (&a.checkpoint, &meta) {
             let t0 = Instant::now();
             // A failed checkpoint does not stop the render: the image is
             // still written at the end
-            match partial::write(c, &meta, state) {
+            match partial::write(c, meta, state) {
                 Ok(()) => {
                     let (n, s) = written.get();
                     written.set((n + 1, s + t0.elapsed().as_secs_f64()));
@@ -341,12 +347,12 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         tonemap: a.tonemap.into(),
     };
     let state = result.state.as_ref();
-    if let (Some(c), Some(state)) = (&a.checkpoint, state) {
-        partial::write(c, &meta, state)?;
+    if let (Some(c), Some(state), Some(meta)) = (&a.checkpoint, state, &meta) {
+        partial::write(c, meta, state)?;
     }
-    if partial_out {
+    if let (true, Some(meta)) = (partial_out, &meta) {
         let state = state.context("the method gave no state to write as a partial result")?;
-        partial::write(&a.output, &meta, state)?;
+        partial::write(&a.output, meta, state)?;
     } else {
         image_io::write_image(&a.output, &result.image, &png)?;
     }
