@@ -16,6 +16,7 @@ pub mod geometry;
 pub mod image_io;
 pub mod methods;
 pub mod metrics;
+pub mod partial;
 #[cfg(feature = "cli")]
 pub mod plot;
 pub mod render;

@@ -35,9 +35,10 @@ use glam::{DVec3, Vec3};
 
 use crate::film::Image;
 use crate::methods::{
-    bundle, density, Budget, Common, Driver, MethodConfig, MethodError, Progress, RenderResult,
-    Watch,
+    bundle, density, Budget, Checkpoint, Common, Driver, Hooks, MethodConfig, MethodError,
+    Progress, RenderResult, Watch,
 };
+use crate::partial::{self, Shard, ShardKind, State};
 use crate::world::World;
 
 /// What [`Render::watch`] calls with each image it shows.
@@ -55,6 +56,10 @@ pub struct Render<'a> {
     log_every: f64,
     max_memory: Option<u64>,
     watch: Option<(f64, OnImage<'a>)>,
+    shard: Shard,
+    resume: Option<&'a State>,
+    checkpoint: Option<Checkpoint<'a>>,
+    keep_state: bool,
 }
 
 impl<'a> Render<'a> {
@@ -74,7 +79,40 @@ impl<'a> Render<'a> {
             log_every: 0.0,
             max_memory: None,
             watch: None,
+            shard: Shard::WHOLE,
+            resume: None,
+            checkpoint: None,
+            keep_state: false,
         }
+    }
+
+    /// Renders only shard `shard` of the render (see [`crate::partial`]):
+    /// part of the streams of every pass (`path`, `light`), or an
+    /// independent chain with its own seed (`plb`, `bundle`). Keep its
+    /// state ([`Render::keep_state`]) to merge it.
+    pub fn shard(mut self, shard: Shard) -> Self {
+        self.shard = shard;
+        self
+    }
+
+    /// Continues from `state` (a checkpoint of the same render, as
+    /// [`RenderResult::state`] or the checkpoint function gave it).
+    pub fn resume(mut self, state: &'a State) -> Self {
+        self.resume = Some(state);
+        self
+    }
+
+    /// Hands the render's state to `save` every `every` seconds.
+    pub fn checkpoint(mut self, every: f64, save: &'a mut dyn FnMut(&State)) -> Self {
+        self.checkpoint = Some((every, save));
+        self
+    }
+
+    /// Puts the final state into [`RenderResult::state`] (for a chain
+    /// shard, its image), to write as a partial result.
+    pub fn keep_state(mut self) -> Self {
+        self.keep_state = true;
+        self
     }
 
     /// Refuses to start a render whose [`memory_estimate`] passes `bytes`
@@ -168,22 +206,59 @@ impl<'a> Render<'a> {
                 "Render::max_memory",
             )?;
         }
-        let mut method = self.method.create(self.world, &self.common)?;
-        Driver {
+        // A whole render is split in no way, but a chain method's state to
+        // keep is still its image
+        let kind = if self.shard == Shard::WHOLE {
+            partial::shard_kind(&self.method).ok()
+        } else {
+            Some(partial::shard_kind(&self.method)?)
+        };
+        if self.checkpoint.is_some() || self.resume.is_some() {
+            partial::check_resumable(&self.method)?;
+        }
+        let mut common = self.common.clone();
+        if kind == Some(ShardKind::Chains) {
+            common.seed = partial::shard_seed(common.seed, self.shard);
+        }
+        let mut method = self.method.create(self.world, &common)?;
+        if kind == Some(ShardKind::Exact) && self.shard != Shard::WHOLE {
+            method.set_shard(self.shard)?;
+        }
+        // both borrowed for the run only (the watch is owned here)
+        let hooks = Hooks {
+            resume: self.resume,
+            checkpoint: self
+                .checkpoint
+                .as_mut()
+                .map(|(every, save)| -> Checkpoint<'_> { (*every, &mut **save) }),
+            keep_state: self.keep_state,
+            watch: self.watch.as_mut().map(|(every, f)| Watch {
+                every: *every,
+                on_image: f.as_mut(),
+            }),
+        };
+        let mut result = Driver {
             budget: self.budget,
             cancel: self.cancel,
             reference: self.reference,
             log_every: self.log_every,
         }
-        .run_watched(
-            method.as_mut(),
-            self.world,
-            on_progress,
-            self.watch.as_mut().map(|(every, f)| Watch {
-                every: *every,
-                on_image: f.as_mut(),
-            }),
-        )
+        .run_with(method.as_mut(), self.world, hooks, on_progress)?;
+        if self.keep_state && kind == Some(ShardKind::Chains) {
+            // A chain's part of the merge is its image (see crate::partial)
+            result.state = Some(State {
+                passes: result.passes,
+                rays: result.rays,
+                seconds: result.seconds,
+                spp: result.spp,
+                counters: Vec::new(),
+                buffers: vec![(
+                    "image".into(),
+                    result.image.data.iter().map(|v| v.as_dvec3()).collect(),
+                )],
+            });
+        }
+        Ok(result)
     }
 }
 

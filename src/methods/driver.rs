@@ -7,6 +7,7 @@ use std::time::Instant;
 use super::{Method, MethodError, World};
 use crate::film::Image;
 use crate::metrics;
+use crate::partial::State;
 
 /// When to stop. Several limits may be set; the first reached stops.
 #[derive(Clone, Copy, Debug, Default)]
@@ -147,6 +148,45 @@ pub struct RenderResult {
     /// The method's own statistics (phase timings, memory), when it keeps
     /// any ([`Method::report`]).
     pub report: Option<String>,
+    /// The final state, when [`Hooks::keep_state`] asked for it and the
+    /// method can give one ([`Method::state`]).
+    pub state: Option<State>,
+}
+
+/// Where the state goes every so many seconds: the interval and the
+/// function that writes the checkpoint.
+pub type Checkpoint<'a> = (f64, &'a mut dyn FnMut(&State));
+
+/// What a render keeps of its state besides the image: where it resumes
+/// from, and when it hands its state out (checkpoints, shards). The
+/// default does none of it.
+#[derive(Default)]
+pub struct Hooks<'a> {
+    /// Continue from this state (a checkpoint) instead of from nothing:
+    /// the method restores it after its setup, and the passes, rays and
+    /// seconds go on from its counts, so that the budget is the whole
+    /// render's. The setup's rays are not counted again.
+    pub resume: Option<&'a State>,
+    /// Every so many seconds, the state is handed to the function (which
+    /// writes the checkpoint). The time this takes is not render time. A
+    /// method without state ([`Method::state`] gives None) hands out
+    /// nothing: check first ([`crate::partial::check_resumable`]).
+    pub checkpoint: Option<Checkpoint<'a>>,
+    /// Put the final state into [`RenderResult::state`].
+    pub keep_state: bool,
+    /// Show the estimate while it converges (the live viewer).
+    pub watch: Option<Watch<'a>>,
+}
+
+/// The method's state with the driver's counts filled in.
+fn snapshot(method: &dyn Method, passes: u64, rays: u64, seconds: f64) -> Option<State> {
+    method.state().map(|s| State {
+        passes,
+        rays,
+        seconds,
+        spp: method.spp(),
+        ..s
+    })
 }
 
 /// Runs a method until its budget is spent or `cancel` is set (Ctrl-C).
@@ -183,20 +223,24 @@ impl Driver<'_> {
         world: &World,
         on_progress: impl FnMut(&Progress),
     ) -> Result<RenderResult, MethodError> {
-        self.run_watched(method, world, on_progress, None)
+        self.run_with(method, world, Hooks::default(), on_progress)
     }
 
-    /// [`Driver::run`] that also shows the estimate to `watch`.
-    pub fn run_watched(
+    /// [`Driver::run`] with hooks: resumes from a state, hands out the
+    /// state now and then and at the end, and shows the estimate while it
+    /// converges (see [`Hooks`]).
+    pub fn run_with(
         &self,
         method: &mut dyn Method,
         world: &World,
+        mut hooks: Hooks<'_>,
         mut on_progress: impl FnMut(&Progress),
-        mut watch: Option<Watch<'_>>,
     ) -> Result<RenderResult, MethodError> {
         self.budget.validate()?;
         let start = Instant::now();
-        let mut excluded = 0.0f64; // time spent on logging, not rendering
+        // time spent on logging and checkpoints, not rendering; a resumed
+        // render starts from the seconds already spent
+        let mut excluded = -hooks.resume.map_or(0.0, |s| s.seconds);
 
         // Setup runs inside the clock and its rays count toward the budget
         let mut setup = Setup {
@@ -211,6 +255,12 @@ impl Driver<'_> {
         // that reported its own progress
         let shown = setup.last;
         let mut pass = 0u64;
+        if let Some(state) = hooks.resume {
+            method.restore(state)?;
+            pass = state.passes;
+            rays = state.rays;
+        }
+        let mut next_checkpoint = hooks.checkpoint.as_ref().map_or(f64::INFINITY, |c| c.0);
         let mut log = Vec::new();
         let mut next_log = self.log_every;
         let mut next_watch = 0.0;
@@ -240,7 +290,8 @@ impl Driver<'_> {
                 phase: None,
             };
             on_progress(&progress);
-            if let Some(w) = watch
+            if let Some(w) = hooks
+                .watch
                 .as_mut()
                 .filter(|_| pass >= 1 && elapsed >= next_watch && progress.fraction < 1.0)
             {
@@ -259,6 +310,17 @@ impl Driver<'_> {
             let stats = method.step(world, pass);
             rays += stats.rays;
             pass += 1;
+            if let Some((every, save)) = hooks.checkpoint.as_mut() {
+                let now = start.elapsed().as_secs_f64() - excluded;
+                if now >= next_checkpoint {
+                    let t0 = Instant::now();
+                    if let Some(s) = snapshot(method, pass, rays, now) {
+                        save(&s);
+                    }
+                    next_checkpoint = now + *every;
+                    excluded += t0.elapsed().as_secs_f64();
+                }
+            }
             if let Some(r) = self.reference {
                 let now = start.elapsed().as_secs_f64() - excluded;
                 if self.log_every > 0.0 && now >= next_log {
@@ -286,7 +348,13 @@ impl Driver<'_> {
             spp: method.spp(),
             rel_mse,
         });
+        let state = if hooks.keep_state {
+            snapshot(method, pass, rays, seconds)
+        } else {
+            None
+        };
         Ok(RenderResult {
+            state,
             method: method.name(),
             report: method.report(),
             image,

@@ -43,6 +43,7 @@ use rayon::prelude::*;
 use super::{Method, MethodError, StepStats, World};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
+use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb};
 use crate::transport::camera_pass::CameraPass;
@@ -141,10 +142,15 @@ pub struct LightTracer {
     settings: Settings,
     films: Vec<Film>,
     chains: Vec<Chain>,
-    /// Walks traced (walk variant).
+    /// Walks traced (walk variant), in all lanes: what one run of the same
+    /// passes traces, also when this process is a shard.
     walks: u64,
+    /// Walks traced in each lane by this process.
+    lane_walks: Vec<u64>,
     pixels: u64,
     camera_pass: CameraPass,
+    /// The lanes this process runs: l ≡ K (mod N) for shard K/N.
+    shard: Shard,
 }
 
 impl LightTracer {
@@ -162,9 +168,11 @@ impl LightTracer {
             ),
             films: (0..lanes).map(|_| Film::new(w, h)).collect(),
             chains: vec![Chain::default(); lanes],
+            lane_walks: vec![0; lanes],
             settings,
             walks: 0,
             pixels: w as u64 * h as u64,
+            shard: Shard::WHOLE,
         }
     }
 
@@ -192,13 +200,19 @@ impl Method for LightTracer {
         let n = self.per_pass();
         let lanes = self.films.len() as u64;
         let s = &self.settings;
+        let shard = self.shard;
         let rays: u64 = self
             .films
             .par_iter_mut()
             .zip(self.chains.par_iter_mut())
+            .zip(self.lane_walks.par_iter_mut())
             .enumerate()
-            .map(|(lane, (film, chain))| {
+            .map(|(lane, ((film, chain), lane_walks))| {
+                if !shard.owns(lane as u64) {
+                    return 0;
+                }
                 let count = n / lanes + u64::from((lane as u64) < n % lanes);
+                *lane_walks += count;
                 let mut rng = Pcg32::keyed(&[s.seed, pass, lane as u64, 0x11]);
                 match s.variant {
                     Variant::Walk => (0..count)
@@ -234,6 +248,126 @@ impl Method for LightTracer {
     fn spp(&self) -> f64 {
         self.walks as f64 / self.pixels as f64
     }
+
+    /// A shard runs the lanes l ≡ K (mod N) and the camera pass's rows
+    /// y ≡ K (mod N), every pass: each lane's film and each camera-pass sum
+    /// then runs over the same streams in the same order as in one run.
+    fn set_shard(&mut self, shard: Shard) -> Result<(), MethodError> {
+        if shard.count as usize > self.films.len() {
+            return Err(MethodError(format!(
+                "light splits into at most {} shards, not {}",
+                self.films.len(),
+                shard.count
+            )));
+        }
+        self.shard = shard;
+        self.camera_pass.set_shard(shard);
+        Ok(())
+    }
+
+    /// The films and counts of the lanes this process runs, and the camera
+    /// pass's sums: counters `walks` (all lanes), `laneL` (the lane's
+    /// divisor: walks, or steps counted by the iteration variant),
+    /// `camera_passes`; buffers `laneL`, `camera`.
+    fn state(&self) -> Option<State> {
+        let mut st = State {
+            counters: vec![("walks".into(), self.walks)],
+            ..Default::default()
+        };
+        for (l, film) in self.films.iter().enumerate() {
+            if self.shard.owns(l as u64) {
+                let n = match self.settings.variant {
+                    Variant::Walk => self.lane_walks[l],
+                    Variant::Iteration => self.chains[l].counted,
+                };
+                st.counters.push((format!("lane{l}"), n));
+                st.buffers.push((format!("lane{l}"), film.sum.clone()));
+            }
+        }
+        if let Some((sum, passes)) = self.camera_pass.state() {
+            st.counters.push(("camera_passes".into(), passes));
+            st.buffers.push(("camera".into(), sum.to_vec()));
+        }
+        Some(st)
+    }
+
+    fn restore(&mut self, state: &State) -> Result<(), MethodError> {
+        if self.settings.variant == Variant::Iteration {
+            return Err(MethodError(
+                "light --variant iteration cannot resume from a checkpoint: each chain carries \
+                 the surface point that received its last transfer from one pass to the next, \
+                 which is not saved; use --variant walk, or render without --resume"
+                    .into(),
+            ));
+        }
+        let pixels = self.pixels as usize;
+        for l in 0..self.films.len() {
+            if self.shard.owns(l as u64) {
+                let name = format!("lane{l}");
+                let film = state.need_buffer(&name, pixels)?;
+                self.lane_walks[l] = state.need_counter(&name)?;
+                self.films[l].sum.copy_from_slice(film);
+            }
+        }
+        self.walks = state.need_counter("walks")?;
+        if self.camera_pass.state().is_some() {
+            let sum = state.need_buffer("camera", pixels)?;
+            let passes = state.need_counter("camera_passes")?;
+            self.camera_pass.restore(sum, passes);
+        }
+        Ok(())
+    }
+}
+
+/// The image of a render split into shards, from the states of shards 0 to
+/// N − 1 in order, computed as [`LightTracer::image`] computes it in one
+/// run: the lanes' films summed in lane order and divided by the walks of
+/// all lanes, then each pixel's camera-pass mean, from the shard that owns
+/// its row.
+pub fn merge_image(states: &[&State], width: u32, height: u32) -> Result<Image, MethodError> {
+    let pixels = width as usize * height as usize;
+    let mut lanes: Vec<(usize, &[glam::DVec3], u64)> = Vec::new();
+    for st in states {
+        for (name, _) in &st.buffers {
+            if let Some(l) = name.strip_prefix("lane").and_then(|l| l.parse().ok()) {
+                lanes.push((l, st.need_buffer(name, pixels)?, st.need_counter(name)?));
+            }
+        }
+    }
+    lanes.sort_by_key(|l| l.0);
+    if lanes.iter().enumerate().any(|(i, l)| l.0 != i) {
+        return Err(MethodError(
+            "the shards' lanes are not each given once (parts of another split?)".into(),
+        ));
+    }
+    let mut total = Film::new(width, height);
+    let mut n = 0;
+    for (_, sum, walks) in &lanes {
+        for (a, b) in total.sum.iter_mut().zip(sum.iter()) {
+            *a += *b;
+        }
+        n += walks;
+    }
+    let mut img = total.mean(n);
+    if states.iter().all(|s| s.counter("camera_passes").is_some()) {
+        let cams = states
+            .iter()
+            .map(|s| {
+                Ok((
+                    s.need_buffer("camera", pixels)?,
+                    s.need_counter("camera_passes")?,
+                ))
+            })
+            .collect::<Result<Vec<_>, MethodError>>()?;
+        let k = states.len().max(1);
+        for (i, p) in img.data.iter_mut().enumerate() {
+            let (sum, passes) = cams[(i / width as usize) % k];
+            if passes > 0 {
+                *p += (sum[i] * (1.0 / passes as f64)).as_vec3();
+            }
+        }
+    }
+    Ok(img)
 }
 
 /// One light-tracing walk ([`light_walk`]), connected to the camera at its

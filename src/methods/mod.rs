@@ -22,9 +22,10 @@ pub mod light;
 pub mod path;
 pub mod plb;
 
-pub use driver::{Budget, Driver, LogRow, Progress, RenderResult, Setup, Watch};
+pub use driver::{Budget, Checkpoint, Driver, Hooks, LogRow, Progress, RenderResult, Setup, Watch};
 
 use crate::film::Image;
+use crate::partial::{Shard, State};
 pub use crate::world::World;
 
 /// What one step did.
@@ -67,6 +68,32 @@ pub trait Method: Send {
     /// memory), printed by the CLI after a render.
     fn report(&self) -> Option<String> {
         None
+    }
+    /// Restricts the method to shard `shard` of a render split exactly
+    /// (see [`crate::partial`]): from now on it runs only its part of the
+    /// random streams of each pass. The default refuses.
+    fn set_shard(&mut self, shard: Shard) -> Result<(), MethodError> {
+        let _ = shard;
+        Err(MethodError(format!(
+            "method '{}' cannot be split into exact shards",
+            self.name()
+        )))
+    }
+    /// The progressive state (counters and per-pixel sums) from which
+    /// [`Method::restore`] continues exactly, for checkpoints and shards;
+    /// None for a method whose state cannot be saved (the default). The
+    /// driver fills in its own counts.
+    fn state(&self) -> Option<State> {
+        None
+    }
+    /// Continues from a state that [`Method::state`] gave, after
+    /// [`Method::prepare`]. The default refuses.
+    fn restore(&mut self, state: &State) -> Result<(), MethodError> {
+        let _ = state;
+        Err(MethodError(format!(
+            "method '{}' cannot resume from a checkpoint: its state cannot be saved",
+            self.name()
+        )))
     }
 }
 

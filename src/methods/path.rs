@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use super::{Method, MethodError, StepStats, World};
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
+use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
 use crate::transport::{radiance_from, DepthLimits};
@@ -61,6 +62,8 @@ pub struct PathTracer {
     settings: Settings,
     film: Film,
     passes: u64,
+    /// The rows this process renders: y ≡ K (mod N) for shard K/N.
+    shard: Shard,
 }
 
 impl PathTracer {
@@ -70,6 +73,7 @@ impl PathTracer {
             settings,
             film: Film::new(world.camera.width, world.camera.height),
             passes: 0,
+            shard: Shard::WHOLE,
         }
     }
 }
@@ -83,6 +87,7 @@ impl Method for PathTracer {
         let w = world.camera.width as usize;
         let seed = self.settings.seed;
         let settings = &self.settings;
+        let shard = self.shard;
         // One sample per pixel; rows in parallel, each pixel with its own
         // stream keyed by (seed, pass, pixel), so the image does not depend on
         // the thread count.
@@ -93,6 +98,9 @@ impl Method for PathTracer {
             .enumerate()
             .map(|(y, row)| {
                 let mut rays = 0u64;
+                if !shard.owns(y as u64) {
+                    return 0;
+                }
                 for (x, acc) in row.iter_mut().enumerate() {
                     let pixel = (y * w + x) as u64;
                     let mut rng = Pcg32::keyed(&[seed, pass, pixel]);
@@ -118,6 +126,51 @@ impl Method for PathTracer {
     fn spp(&self) -> f64 {
         self.passes as f64
     }
+
+    /// A shard renders the rows y ≡ K (mod N), every pass: each pixel's
+    /// sum then runs over the same streams in the same order as in one run.
+    fn set_shard(&mut self, shard: Shard) -> Result<(), MethodError> {
+        self.shard = shard;
+        Ok(())
+    }
+
+    fn state(&self) -> Option<State> {
+        Some(State {
+            counters: vec![("passes".into(), self.passes)],
+            buffers: vec![("film".into(), self.film.sum.clone())],
+            ..Default::default()
+        })
+    }
+
+    fn restore(&mut self, state: &State) -> Result<(), MethodError> {
+        let film = state.need_buffer("film", self.film.sum.len())?;
+        self.passes = state.need_counter("passes")?;
+        self.film.sum.copy_from_slice(film);
+        Ok(())
+    }
+}
+
+/// The image of a render split into shards, from the states of shards 0 to
+/// N − 1 in order: each row from the shard that owns it, divided by that
+/// shard's passes, exactly as [`PathTracer::image`] divides in one run.
+pub fn merge_image(states: &[&State], width: u32, height: u32) -> Result<Image, MethodError> {
+    let pixels = width as usize * height as usize;
+    let n = states.len().max(1);
+    let films = states
+        .iter()
+        .map(|s| Ok((s.need_buffer("film", pixels)?, s.need_counter("passes")?)))
+        .collect::<Result<Vec<_>, MethodError>>()?;
+    let mut img = Image::new(width, height);
+    for (i, p) in img.data.iter_mut().enumerate() {
+        let (film, passes) = films[(i / width as usize) % n];
+        let scale = if passes == 0 {
+            0.0
+        } else {
+            1.0 / passes as f64
+        };
+        *p = (film[i] * scale).as_vec3();
+    }
+    Ok(img)
 }
 
 /// Radiance arriving along a primary `ray` and the number of rays traced for

@@ -64,6 +64,7 @@ use super::{radiance_from, DepthLimits};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
+use crate::partial::Shard;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
 use crate::world::World;
@@ -112,6 +113,8 @@ pub struct CameraPass {
     passes: u64,
     seed: u64,
     limits: DepthLimits,
+    /// The rows this process samples, y ≡ K (mod N) for shard K/N.
+    shard: Shard,
 }
 
 impl CameraPass {
@@ -147,7 +150,27 @@ impl CameraPass {
                 max_depth,
                 rr_depth: RR_DEPTH,
             },
+            shard: Shard::WHOLE,
         }
+    }
+
+    /// Restricts the pre-pass and the passes to the rows y ≡ K (mod N) of
+    /// `shard`; each pixel's sum is then that of one run.
+    pub fn set_shard(&mut self, shard: Shard) {
+        self.shard = shard;
+    }
+
+    /// The per-pixel sums and the pass count, when the pass is active and
+    /// prepared.
+    pub fn state(&self) -> Option<(&[DVec3], u64)> {
+        (self.active && self.prepared).then_some((self.sum.as_slice(), self.passes))
+    }
+
+    /// Continues from [`CameraPass::state`]'s sums and pass count, after
+    /// [`CameraPass::prepare`].
+    pub fn restore(&mut self, sum: &[DVec3], passes: u64) {
+        self.sum.copy_from_slice(sum);
+        self.passes = passes;
     }
 
     /// The pre-pass: marks the pixels whose first hit has a delta lobe or
@@ -161,9 +184,13 @@ impl CameraPass {
         let (w, h) = (world.camera.width as usize, world.camera.height as usize);
         let side = PRE_PASS_SIDE;
         let glossy = self.glossy;
+        let shard = self.shard;
         let marks: Vec<(bool, u64)> = (0..w * h)
             .into_par_iter()
             .map(|i| {
+                if !shard.owns((i / w) as u64) {
+                    return (false, 0);
+                }
                 let (x, y) = ((i % w) as f32, (i / w) as f32);
                 let mut rays = 0;
                 let marked = (0..side * side).any(|k| {
@@ -210,12 +237,16 @@ impl CameraPass {
         let w = world.camera.width as usize;
         let (seed, limits, glossy) = (self.seed, &self.limits, self.glossy);
         let marked = &self.marked;
+        let shard = self.shard;
         let rays: u64 = self
             .sum
             .par_chunks_mut(w)
             .enumerate()
             .map(|(y, row)| {
                 let mut rays = 0;
+                if !shard.owns(y as u64) {
+                    return 0;
+                }
                 for (x, acc) in row.iter_mut().enumerate() {
                     let i = y * w + x;
                     let mut rng = Pcg32::keyed(&[seed, pass, i as u64, 0xCA]);

@@ -14,6 +14,7 @@ mod camera_pass;
 mod cli;
 mod density;
 mod driver;
+mod farm;
 mod fuzz;
 mod geometry;
 mod image_io;

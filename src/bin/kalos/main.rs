@@ -2,6 +2,7 @@
 //! files. Everything else lives in the library.
 
 mod bake;
+mod merge;
 mod progress;
 mod render;
 mod signals;
@@ -73,6 +74,8 @@ enum Command {
     /// Show a baked mesh (.glb) or an HDR image (.exr, .pfm, .hdr) in the
     /// browser: serves a page on 127.0.0.1 and prints its address.
     View(view::ViewArgs),
+    /// Merge the partial results of `render --shard K/N` into one image.
+    Merge(merge::MergeArgs),
     /// Write a generated scene (sphereflake, teapot-room, terrain, big-room)
     /// as Mitsuba XML plus OBJ meshes.
     Gen {
@@ -226,6 +229,7 @@ fn main() {
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench(a),
         Command::Bake(a) => bake::run(*a),
+        Command::Merge(a) => merge::run(a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
         Command::View(a) => view::run(a),
     };

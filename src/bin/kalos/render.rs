@@ -14,6 +14,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kalos::image_io::{self, PngOptions};
 use kalos::methods::{self, cli as mcli, Budget, Common};
 use kalos::metrics;
+use kalos::partial::{self, Meta, Partial, Shard};
 use kalos::render::{self, Render};
 
 use crate::{
@@ -26,7 +27,8 @@ pub struct RenderArgs {
     /// Scene file (Mitsuba XML, OBJ, PLY, glTF); omit (or say `builtin`)
     /// for the built-in Cornell box.
     scene: Option<PathBuf>,
-    /// Output image (.exr, .pfm or .png).
+    /// Output image (.exr, .pfm or .png), or a partial result (.kpart) to
+    /// merge with `kalos merge` (what --shard writes).
     #[arg(short, long, default_value = "out.exr")]
     output: PathBuf,
     /// Samples per pixel (light paths per pixel for the light-based
@@ -84,6 +86,21 @@ pub struct RenderArgs {
     /// The viewer's port on 127.0.0.1 (default: a free one); needs --view.
     #[arg(long, requires = "view")]
     port: Option<u16>,
+    /// Render only shard K of N (K from 0), to a partial result (-o
+    /// NAME.kpart) that `kalos merge` combines with the others.
+    #[arg(long, value_name = "K/N", value_parser = Shard::parse)]
+    shard: Option<Shard>,
+    /// Write the render's state to this file (.kpart) every
+    /// --checkpoint-every seconds, on Ctrl-C and at the end, atomically.
+    #[arg(long, value_name = "FILE")]
+    checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints.
+    #[arg(long, value_name = "S", default_value_t = 300.0, value_parser = mcli::parse_positive)]
+    checkpoint_every: f64,
+    /// Continue from a checkpoint of the same render (same scene,
+    /// method, settings, seed, shard); the budget is the whole render's.
+    #[arg(long, value_name = "FILE")]
+    resume: Option<PathBuf>,
     /// Check the arguments and the method's settings, then exit without
     /// loading the scene or rendering (to vet a job before it is queued).
     #[arg(long)]
@@ -163,7 +180,38 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         budget.spp = Some(16.0);
     }
     budget.validate()?;
-    check_output(&a.output, &["exr", "pfm", "png"])?;
+    // An image, or a partial result (what --shard writes)
+    let partial_out = crate::extension(&a.output) == "kpart";
+    if partial_out {
+        check_output(&a.output, &["kpart"])?;
+    } else {
+        check_output(&a.output, &["exr", "pfm", "png"])?;
+    }
+    let shard = a.shard.unwrap_or(Shard::WHOLE);
+    if partial_out {
+        partial::check_shard(&cfg, shard)?;
+    }
+    if let Some(s) = a.shard {
+        partial::check_shard(&cfg, s)?;
+        if !partial_out {
+            bail!(
+                "--shard {s} writes a partial result: -o must end in .kpart (got '{}'); \
+                 `kalos merge` makes the image from the parts",
+                a.output.display()
+            );
+        }
+    }
+    if let Some(c) = &a.checkpoint {
+        partial::check_resumable(&cfg)?;
+        check_output(c, &["kpart"])?;
+    }
+    let resume = match &a.resume {
+        Some(p) => {
+            partial::check_resumable(&cfg)?;
+            Some(partial::read(p)?)
+        }
+        None => None,
+    };
     if let Some(log) = &a.log {
         check_output(log, &["csv"])?;
     }
@@ -249,11 +297,47 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     if let Some(l) = &mut live {
         l.set_reference(reference.clone());
     }
+    // The render's identity (the scene hash reads every vertex): only
+    // when a partial result is written or read
+    let meta = if partial_out || a.checkpoint.is_some() || resume.is_some() {
+        Some(Meta::new(&world.scene, &cfg, &common, shard)?)
+    } else {
+        None
+    };
+    if let (Some(r), Some(p), Some(m)) = (&resume, &a.resume, &meta) {
+        check_resume(m, r, p)?;
+    }
+    // checkpoints written during the render, and the seconds they took
+    let written = std::cell::Cell::new((0u32, 0.0f64));
+    let mut save = |state: &partial::State| {
+        if let (Some(c), Some(meta)) = (&a.checkpoint, &meta) {
+            let t0 = Instant::now();
+            // A failed checkpoint does not stop the render: the image is
+            // still written at the end
+            match partial::write(c, meta, state) {
+                Ok(()) => {
+                    let (n, s) = written.get();
+                    written.set((n + 1, s + t0.elapsed().as_secs_f64()));
+                }
+                Err(e) => eprintln!("warning: checkpoint not written: {e}"),
+            }
+        }
+    };
     let mut render = Render::new(&world)
         .method(cfg)
         .common(common)
         .budget(budget)
-        .cancel(cancel);
+        .cancel(cancel)
+        .shard(shard);
+    if partial_out || a.checkpoint.is_some() {
+        render = render.keep_state();
+    }
+    if a.checkpoint.is_some() {
+        render = render.checkpoint(a.checkpoint_every, &mut save);
+    }
+    if let Some(r) = &resume {
+        render = render.resume(&r.state);
+    }
     if let Some(r) = &reference {
         render = render.reference(r, if a.log.is_some() { a.log_every } else { 0.0 });
     }
@@ -299,7 +383,16 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
         exposure: a.exposure,
         tonemap: a.tonemap.into(),
     };
-    image_io::write_image(&a.output, &result.image, &png)?;
+    let state = result.state.as_ref();
+    if let (Some(c), Some(state), Some(meta)) = (&a.checkpoint, state, &meta) {
+        partial::write(c, meta, state)?;
+    }
+    if let (true, Some(meta)) = (partial_out, &meta) {
+        let state = state.context("the method gave no state to write as a partial result")?;
+        partial::write(&a.output, meta, state)?;
+    } else {
+        image_io::write_image(&a.output, &result.image, &png)?;
+    }
     if let Some(log) = &a.log {
         write_log(log, &result.log)?;
     }
@@ -320,12 +413,46 @@ pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
     if let Some(r) = &reference {
         line += &format!(", relMSE {:.4e}", metrics::rel_mse(&result.image, r)?);
     }
+    if a.shard.is_some() {
+        line += &format!(", shard {shard}");
+    }
+    if let Some(p) = &a.resume {
+        line += &format!(", resumed from {}", p.display());
+    }
+    if let Some(c) = &a.checkpoint {
+        let (n, s) = written.get();
+        line += &format!(", checkpoint {}", c.display());
+        if n > 0 {
+            line += &format!(
+                " ({n} written during the render, {:.1} ms each)",
+                s / n as f64 * 1e3
+            );
+        }
+    }
     if result.interrupted {
         line += " (interrupted: saved what was rendered)";
     }
     crate::say!("{line}");
     if let Some(r) = &result.report {
         crate::say!("{r}");
+    }
+    Ok(())
+}
+
+/// Refuses a checkpoint `r` (read from `path`) that is not of this render,
+/// naming what differs.
+fn check_resume(meta: &Meta, r: &Partial, path: &std::path::Path) -> Result<()> {
+    let name = format!("checkpoint {}", path.display());
+    if let Some(d) = meta.difference("this render", &r.meta, &name) {
+        bail!("{d}: a checkpoint resumes only the render that wrote it");
+    }
+    if r.meta.shard != meta.shard {
+        bail!(
+            "{name} is of shard {}, but this render is shard {}: a checkpoint resumes only the \
+             render that wrote it",
+            r.meta.shard,
+            meta.shard
+        );
     }
     Ok(())
 }

@@ -1,0 +1,331 @@
+//! The partial-result file (`.kpart`): a text header that `head` shows,
+//! then the sums as raw little-endian f64, so that they round-trip exactly
+//! (an EXR holds f32 at most, which would lose the exactness of a merge).
+//!
+//! ```text
+//! kalos-partial 1
+//! method path
+//! kind exact
+//! settings Path(Settings { seed: 0, max_depth: None, rr_depth: 5 })
+//! seed 0
+//! max_depth none
+//! scene 3f2a9c0d1b7e4410
+//! scene_source builtin:cornell-box
+//! size 256 256
+//! shard 0/4
+//! passes 16
+//! rays 2466813
+//! seconds 0.81
+//! spp 16
+//! counter NAME VALUE          (any number)
+//! buffer NAME PIXELS          (any number)
+//! end
+//! <for each buffer in order: PIXELS × (r, g, b) as f64 little-endian>
+//! ```
+
+use std::io::Write;
+use std::path::Path;
+
+use glam::DVec3;
+
+use super::{Meta, Partial, PartialError, Shard, ShardKind, State};
+use crate::image_io::{write_atomic, ImageIoError};
+
+const MAGIC: &str = "kalos-partial 1";
+
+/// Writes the partial result of `state` in the render `meta` to `path`,
+/// atomically (a temporary file, then a rename).
+pub fn write(path: &Path, meta: &Meta, state: &State) -> Result<(), PartialError> {
+    let head = header(meta, state);
+    write_atomic(path, |w| {
+        encode(&head, state, w).map_err(|source| ImageIoError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    })?;
+    Ok(())
+}
+
+/// The text header of a partial result, up to and with its `end` line.
+fn header(m: &Meta, s: &State) -> String {
+    let mut head = String::new();
+    let mut line = |k: &str, v: String| {
+        head += k;
+        head += " ";
+        head += &v;
+        head += "\n";
+    };
+    line("kalos-partial", "1".into());
+    line("method", m.method.clone());
+    line("kind", m.kind.word().into());
+    line("settings", one_line(&m.settings));
+    line("seed", m.seed.to_string());
+    line(
+        "max_depth",
+        m.max_depth.map_or("none".into(), |d| d.to_string()),
+    );
+    line("scene", format!("{:016x}", m.scene_hash));
+    line("scene_source", one_line(&m.scene_source));
+    line("size", format!("{} {}", m.width, m.height));
+    line("shard", m.shard.to_string());
+    line("passes", s.passes.to_string());
+    line("rays", s.rays.to_string());
+    line("seconds", s.seconds.to_string());
+    line("spp", s.spp.to_string());
+    for (k, v) in &s.counters {
+        line("counter", format!("{k} {v}"));
+    }
+    for (k, b) in &s.buffers {
+        line("buffer", format!("{k} {}", b.len()));
+    }
+    head += "end\n";
+    head
+}
+
+/// Writes the header `head` and the buffers of `state` to `w`, a buffer at
+/// a time (a film is not copied whole).
+fn encode(head: &str, state: &State, w: &mut impl Write) -> std::io::Result<()> {
+    w.write_all(head.as_bytes())?;
+    for (_, b) in &state.buffers {
+        for rows in b.chunks(4096) {
+            let bytes: Vec<u8> = rows
+                .iter()
+                .flat_map(|v| v.to_array())
+                .flat_map(f64::to_le_bytes)
+                .collect();
+            w.write_all(&bytes)?;
+        }
+    }
+    Ok(())
+}
+
+/// Text without line breaks (a header field is one line).
+fn one_line(s: &str) -> String {
+    s.replace(['\n', '\r'], " ")
+}
+
+/// Reads a partial result written by [`write`].
+pub fn read(path: &Path) -> Result<Partial, PartialError> {
+    let bytes = std::fs::read(path).map_err(|source| PartialError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    decode(&bytes).map_err(|reason| PartialError::Malformed {
+        path: path.to_path_buf(),
+        reason,
+    })
+}
+
+/// Parses the bytes of a partial-result file.
+fn decode(bytes: &[u8]) -> Result<Partial, String> {
+    if !bytes.starts_with(MAGIC.as_bytes()) {
+        return Err(format!(
+            "not a kalos partial result (expected a first line '{MAGIC}', as `kalos render --shard` \
+             and `--checkpoint` write)"
+        ));
+    }
+    let end = find(bytes, b"\nend\n").ok_or("the header has no 'end' line (truncated file?)")?;
+    let head = std::str::from_utf8(&bytes[..end]).map_err(|_| "the header is not UTF-8")?;
+    let mut data = &bytes[end + 5..];
+
+    let mut field = std::collections::HashMap::new();
+    let mut counters = Vec::new();
+    let mut buffers: Vec<(String, usize)> = Vec::new();
+    for (n, l) in head.lines().enumerate().skip(1) {
+        let line_no = n + 1;
+        let (k, v) = l
+            .split_once(' ')
+            .ok_or_else(|| format!("header line {line_no}: expected 'KEY VALUE', got '{l}'"))?;
+        match k {
+            "counter" | "buffer" => {
+                let (name, num) = v.rsplit_once(' ').ok_or_else(|| {
+                    format!("header line {line_no}: expected '{k} NAME NUMBER', got '{l}'")
+                })?;
+                let num: u64 = num
+                    .parse()
+                    .map_err(|_| format!("header line {line_no}: '{num}' is not a whole number"))?;
+                if k == "counter" {
+                    counters.push((name.to_string(), num));
+                } else {
+                    buffers.push((name.to_string(), num as usize));
+                }
+            }
+            _ => {
+                if field
+                    .insert(k.to_string(), (v.to_string(), line_no))
+                    .is_some()
+                {
+                    return Err(format!("header line {line_no}: '{k}' given twice"));
+                }
+            }
+        }
+    }
+    let get = |k: &str| {
+        field
+            .get(k)
+            .map(|(v, n)| (v.as_str(), *n))
+            .ok_or_else(|| format!("the header has no '{k}' line"))
+    };
+    fn num<T: std::str::FromStr>(k: &str, (v, n): (&str, usize)) -> Result<T, String> {
+        v.parse()
+            .map_err(|_| format!("header line {n}: '{k}' expects a number, got '{v}'"))
+    }
+    let (size, size_line) = get("size")?;
+    let (w, h) = size
+        .split_once(' ')
+        .ok_or_else(|| format!("header line {size_line}: 'size' expects 'W H'"))?;
+    let (w, h): (u32, u32) = (num("size", (w, size_line))?, num("size", (h, size_line))?);
+    let (shard, shard_line) = get("shard")?;
+    let shard =
+        Shard::parse(shard).map_err(|e| format!("header line {shard_line}: 'shard': {e}"))?;
+    let kind = match get("kind")? {
+        ("exact", _) => ShardKind::Exact,
+        ("chains", _) => ShardKind::Chains,
+        (v, n) => {
+            return Err(format!(
+                "header line {n}: 'kind' expects exact or chains, got '{v}'"
+            ))
+        }
+    };
+    let max_depth = match get("max_depth")? {
+        ("none", _) => None,
+        v => Some(num("max_depth", v)?),
+    };
+    let (scene, scene_line) = get("scene")?;
+    let scene_hash = u64::from_str_radix(scene, 16)
+        .map_err(|_| format!("header line {scene_line}: 'scene' expects 16 hex digits"))?;
+    let meta = Meta {
+        method: get("method")?.0.to_string(),
+        settings: get("settings")?.0.to_string(),
+        seed: num("seed", get("seed")?)?,
+        max_depth,
+        scene_hash,
+        scene_source: get("scene_source")?.0.to_string(),
+        width: w,
+        height: h,
+        shard,
+        kind,
+    };
+
+    // The sums, each checked against the size the header gives
+    let pixels = w as usize * h as usize;
+    let mut out = Vec::new();
+    for (name, len) in buffers {
+        if len != pixels {
+            return Err(format!(
+                "buffer '{name}' has {len} pixels but the film is {w}x{h}"
+            ));
+        }
+        let need = len * 24;
+        if data.len() < need {
+            return Err(format!(
+                "buffer '{name}' needs {need} bytes but the file has {} left (truncated file?)",
+                data.len()
+            ));
+        }
+        let (b, rest) = data.split_at(need);
+        data = rest;
+        let f = |i: usize| f64::from_le_bytes(b[i * 8..i * 8 + 8].try_into().expect("8 bytes"));
+        let v: Vec<DVec3> = (0..len)
+            .map(|i| DVec3::new(f(3 * i), f(3 * i + 1), f(3 * i + 2)))
+            .collect();
+        if v.iter().any(|p| !p.is_finite()) {
+            return Err(format!("buffer '{name}' holds a NaN or infinite sum"));
+        }
+        out.push((name, v));
+    }
+    if !data.is_empty() {
+        return Err(format!(
+            "{} bytes follow the last buffer (a damaged file?)",
+            data.len()
+        ));
+    }
+    let seconds: f64 = num("seconds", get("seconds")?)?;
+    let spp: f64 = num("spp", get("spp")?)?;
+    if !(seconds.is_finite() && seconds >= 0.0 && spp.is_finite() && spp >= 0.0) {
+        return Err("'seconds' and 'spp' must be finite and ≥ 0".into());
+    }
+    Ok(Partial {
+        meta,
+        state: State {
+            passes: num("passes", get("passes")?)?,
+            rays: num("rays", get("rays")?)?,
+            seconds,
+            spp,
+            counters,
+            buffers: out,
+        },
+    })
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> (Meta, State) {
+        let meta = Meta {
+            method: "path".into(),
+            settings: "Path(Settings { rr_depth: 5 })".into(),
+            seed: 7,
+            max_depth: Some(3),
+            scene_hash: 0x0123_4567_89ab_cdef,
+            scene_source: "builtin".into(),
+            width: 3,
+            height: 2,
+            shard: Shard { index: 1, count: 4 },
+            kind: ShardKind::Exact,
+        };
+        let state = State {
+            passes: 5,
+            rays: 1234,
+            seconds: 0.1 + 0.2,
+            spp: 5.0,
+            counters: vec![("passes".into(), 5)],
+            buffers: vec![(
+                "film".into(),
+                (0..6)
+                    .map(|i| DVec3::new(i as f64 / 3.0, 1e-300, 1e300))
+                    .collect(),
+            )],
+        };
+        (meta, state)
+    }
+
+    fn bytes(meta: &Meta, state: &State) -> Vec<u8> {
+        let mut v = Vec::new();
+        encode(&header(meta, state), state, &mut v).expect("in memory");
+        v
+    }
+
+    #[test]
+    fn a_partial_result_reads_back_exactly() {
+        let (meta, state) = sample();
+        let back = decode(&bytes(&meta, &state)).expect("decodes");
+        assert_eq!(back, Partial { meta, state });
+    }
+
+    #[test]
+    fn damaged_files_are_refused_with_the_reason() {
+        let (meta, state) = sample();
+        let good = bytes(&meta, &state);
+        let cut = decode(&good[..good.len() - 1]).unwrap_err();
+        assert!(cut.contains("truncated"), "{cut}");
+        let mut long = good.clone();
+        long.push(0);
+        assert!(decode(&long)
+            .unwrap_err()
+            .contains("follow the last buffer"));
+        let text = String::from_utf8_lossy(&good[..good.len() - 144]).into_owned();
+        let bad = text.replace("seed 7", "seed x");
+        let e = decode(bad.as_bytes()).unwrap_err();
+        assert!(e.contains("line 5") && e.contains("'seed'"), "{e}");
+        let e = decode(b"P6\n").unwrap_err();
+        assert!(e.contains("not a kalos partial result"), "{e}");
+        let e = decode(text.replace("shard 1/4", "shard 4/4").as_bytes()).unwrap_err();
+        assert!(e.contains("'shard'"), "{e}");
+    }
+}
