@@ -56,6 +56,7 @@
 
 pub mod baked;
 pub mod control;
+pub mod dataflow;
 pub mod decimate;
 pub mod hitfile;
 pub mod hits;
