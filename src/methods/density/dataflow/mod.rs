@@ -34,7 +34,7 @@ use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
@@ -178,6 +178,12 @@ pub fn bake_dataflow(
     let (tx, rx) = mpsc::channel::<Tick>();
     let (builders, others) = config.try_build().map_err(DataflowError::Network)?;
     let flag = Arc::clone(&cancel);
+    let local_workers = builders.len();
+    // The workers' results go through this rather than their threads'
+    // return values: when a peer process dies, timely's network threads
+    // panic and the join of the workers panics with them
+    let finished = Arc::new(Mutex::new(Vec::new()));
+    let sink = Arc::clone(&finished);
     let guards =
         timely::execute::execute_from(builders, others, WorkerConfig::default(), move |worker| {
             let tx = tx.clone();
@@ -188,7 +194,8 @@ pub fn bake_dataflow(
             if worker.index() == first_local {
                 c = c.on_tick(&mut forward);
             }
-            run_worker(worker, &world, &surfaces, &settings, &mut c)
+            let r = run_worker(worker, &world, &surfaces, &settings, &mut c);
+            sink.lock().unwrap_or_else(|e| e.into_inner()).push(r);
         })
         .map_err(DataflowError::Network)?;
 
@@ -206,11 +213,14 @@ pub fn bake_dataflow(
             cancel.store(true, Ordering::Relaxed);
         }
     }
-    let results: Vec<Result<Part, DataflowError>> = guards
-        .join()
-        .into_iter()
-        .map(|r| r.unwrap_or_else(|p| Err(DataflowError::Worker(p))))
-        .collect();
+    let joined = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| guards.join()));
+    let mut results = std::mem::take(&mut *finished.lock().unwrap_or_else(|e| e.into_inner()));
+    let panicked = joined.map_or(true, |j| j.iter().any(|r| r.is_err()));
+    if panicked || results.len() < local_workers {
+        results.push(Err(DataflowError::Worker(
+            "the connection to another process was lost, or the worker panicked".into(),
+        )));
+    }
 
     // This process's outcome: its own failures first, then a bake
     let mut done = DataflowBake {
