@@ -587,7 +587,6 @@ fn trace_exchange(
     // Batch by batch (the single-process batches: their order is the
     // order of the hits), this worker's slice of each
     let batch = particles::BUDGET_BATCH;
-    let mut stop: Option<DataflowError> = None;
     let mut c0 = 0;
     ctl.start_tracing();
     ctl.tick(Phase::Trace, 0, s.particles);
@@ -644,30 +643,39 @@ fn trace_exchange(
         }
     }
 
-    // A stop here is told to every peer before the input closes
-    if ctl.cancelled() || failed_here {
-        let code = if failed_here { FAILED } else { CANCELLED };
-        let mut why = vec![code];
-        why.extend_from_slice(b"could not make its hit file");
+    // A stop here (cancelled, no hit file, a failed write) is told to
+    // every peer before the input closes, so that they stop tracing too
+    let write_error = recv.borrow_mut().error.take();
+    let stop: Option<(Status, DataflowError)> = if failed_here {
+        let st = (FAILED, "could not make its scratch directory".to_string());
+        Some((st, DataflowError::Worker("no hit file".into())))
+    } else if let Some(e) = write_error {
+        let e = DataflowError::from(DensityError::from(e));
+        Some(((FAILED, error_chain(&e)), e))
+    } else if ctl.cancelled() {
+        let e = DensityError::Cancelled { rays: tr.rays }.into();
+        Some(((CANCELLED, String::new()), e))
+    } else {
+        None
+    };
+    if let Some(((code, reason), _)) = &stop {
+        let mut why = vec![*code];
+        why.extend_from_slice(reason.as_bytes());
         for w in 0..peers {
             input.send((w as u32, ABORT, me as u64, why.clone()));
         }
-        stop = Some(if failed_here {
-            DataflowError::Worker("no hit file".into())
-        } else {
-            DensityError::Cancelled { rays: tr.rays }.into()
-        });
     }
     drop(input);
     while !probe.done() {
         worker.step_or_park(Some(Duration::from_millis(5)));
     }
-    let mut r = recv.borrow_mut();
-    if let Some(e) = stop {
+    if let Some((_, e)) = stop {
         return Err(e);
     }
+    let mut r = recv.borrow_mut();
     if let Some(e) = r.error.take() {
-        // the peers hear of it at the white point round
+        // a write failed after the last batch: the peers hear of it at
+        // the white point round
         return Err(DensityError::from(e).into());
     }
     if let Some((worker, st)) = r.abort.take() {
