@@ -198,3 +198,49 @@ fn a_bad_hostfile_or_process_index_is_a_clear_error() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--workers must be at least 1"));
     assert!(!out.exists());
 }
+
+/// Ctrl-C stops a bake of 2 worker threads as it stops a single-process
+/// one: exit code 130, every worker's scratch directory removed, nothing
+/// written. The signal is sent once a worker's scratch directory holds
+/// files, so the handler is set.
+#[cfg(unix)]
+#[test]
+fn sigint_stops_a_two_worker_bake_and_removes_its_scratch_files() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let base = dir.path().join("scratch");
+    std::fs::create_dir(&base).expect("scratch base");
+    let out = dir.path().join("o.glb");
+    let mut child = kalos()
+        .args(["bake", "-q", "--particles", "400M", "--workers", "2", "-o"])
+        .arg(&out)
+        .arg("--scratch")
+        .arg(&base)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("kalos runs");
+    let entries = || -> Vec<PathBuf> {
+        std::fs::read_dir(&base)
+            .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
+            .unwrap_or_default()
+    };
+    let has_files = || {
+        entries()
+            .iter()
+            .any(|d| std::fs::read_dir(d).is_ok_and(|mut e| e.next().is_some()))
+    };
+    let t0 = Instant::now();
+    while !has_files() && t0.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(has_files(), "the bake wrote no scratch files");
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(sent.success());
+    let status = wait_bounded(&mut child, Duration::from_secs(60));
+    assert_eq!(status.and_then(|s| s.code()), Some(130));
+    assert_eq!(entries(), Vec::<PathBuf>::new());
+    assert!(!out.exists());
+}
