@@ -3,6 +3,8 @@
 use crate::common;
 #[path = "density/budget.rs"]
 mod budget;
+#[path = "density/dataflow.rs"]
+mod dataflow;
 #[path = "density/storage.rs"]
 mod storage;
 

@@ -9,6 +9,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::methods::density::control::{Control, Limits, Phase, Tick};
+use kalos::methods::density::dataflow::{self, DataflowError, Workers};
 use kalos::methods::density::{DensityError, Storage};
 use kalos::methods::{density, MethodConfig};
 
@@ -51,6 +52,43 @@ pub struct BakeArgs {
     /// The density method's settings.
     #[command(flatten)]
     density: density::Settings,
+    #[command(flatten)]
+    dataflow: DataflowArgs,
+}
+
+/// The flags of a bake on timely dataflow (threads or processes).
+#[derive(Args)]
+struct DataflowArgs {
+    /// Bake on a timely dataflow of N worker threads (per process with
+    /// --processes): hits exchanged by surface, each worker estimating and
+    /// decimating its own surfaces; the same bytes as without.
+    #[arg(long, value_name = "N")]
+    workers: Option<usize>,
+    /// This process's index, from 0, in a bake across processes (needs
+    /// --processes and --hostfile); process 0 writes the output.
+    #[arg(long, value_name = "I", requires_all = ["processes", "hostfile"])]
+    process: Option<usize>,
+    /// Processes in a bake across processes.
+    #[arg(long, value_name = "N", requires_all = ["process", "hostfile"])]
+    processes: Option<usize>,
+    /// The processes' addresses, one host:port a line, in process order.
+    #[arg(long, value_name = "FILE", requires_all = ["process", "processes"])]
+    hostfile: Option<PathBuf>,
+}
+
+impl DataflowArgs {
+    /// The dataflow's layout; None for the single-process bake.
+    fn layout(&self) -> Result<Option<Workers>> {
+        let threads = self.workers.unwrap_or(1);
+        if threads == 0 {
+            bail!("--workers must be at least 1");
+        }
+        match (self.process, self.processes, &self.hostfile) {
+            (Some(p), Some(n), Some(file)) => Ok(Some(Workers::cluster(threads, p, n, file)?)),
+            _ if self.workers.is_some() => Ok(Some(Workers::Threads(threads))),
+            _ => Ok(None),
+        }
+    }
 }
 
 /// Peak resident memory of this process (VmHWM), in bytes, when known.
@@ -81,9 +119,13 @@ pub fn run(a: BakeArgs) -> Result<()> {
     if a.max_depth == Some(0) {
         bail!("--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)");
     }
+    let layout = a.dataflow.layout()?;
     set_threads(a.threads)?;
     let t0 = Instant::now();
-    let world = crate::progress::build_world(load_scene(a.scene.as_deref(), &a.defines)?);
+    let world = std::sync::Arc::new(crate::progress::build_world(load_scene(
+        a.scene.as_deref(),
+        &a.defines,
+    )?));
     let load_s = t0.elapsed().as_secs_f64();
     if world.lights.is_empty() {
         bail!("the scene has no emitters: nothing to bake");
@@ -98,9 +140,36 @@ pub fn run(a: BakeArgs) -> Result<()> {
     let mut on_tick = |t: &Tick| bars.tick(t);
     let mut ctl =
         Control::new(Instant::now(), Limits::default(), Some(cancel)).on_tick(&mut on_tick);
-    let baked = density::bake_within(&world, &s, Storage::Disk, &mut ctl);
+    let baked = match &layout {
+        None => density::bake_within(&world, &s, Storage::Disk, &mut ctl).map(Some),
+        Some(w) => match dataflow::bake_dataflow(world.clone(), &s, w, &mut ctl) {
+            Ok(d) => {
+                if a.stats && d.hits_sent > 0 {
+                    say!(
+                        "exchanged        {} hits to other workers, {:.2} bytes per hit",
+                        d.hits_sent,
+                        d.bytes_sent as f64 / d.hits_sent as f64
+                    );
+                }
+                Ok(d.bake)
+            }
+            Err(DataflowError::Density(e)) => Err(e),
+            Err(e) => {
+                bars.clear();
+                return Err(e.into());
+            }
+        },
+    };
     let b = match baked {
-        Ok(b) => b,
+        Ok(Some(b)) => b,
+        Ok(None) => {
+            bars.finish();
+            say!(
+                "this process's part of the bake is done; process 0 writes {}",
+                a.output.display()
+            );
+            return Ok(());
+        }
         Err(DensityError::Cancelled { .. }) => {
             bars.clear();
             eprintln!(

@@ -13,6 +13,9 @@
 //!    mesh in (u, v, brightness) space, with a priority queue and the
 //!    height-field check.
 //!
+//! [`dataflow`] runs the same phases as a timely dataflow across worker
+//! threads or processes (`kalos bake --workers N`), with the same bytes out.
+//!
 //! The image is the paper's view-dependent second pass: a camera ray that
 //! meets a diffuse surface reads L = R·H/π from the display mesh ([`mesh`]);
 //! mirrors, glass and the non-diffuse part of other surfaces (a glossy lobe,
@@ -56,6 +59,7 @@
 
 pub mod baked;
 pub mod control;
+pub mod dataflow;
 pub mod decimate;
 pub mod hitfile;
 pub mod hits;

@@ -188,6 +188,22 @@ pub fn estimate_within(
     phi: f64,
     ctl: &mut Control,
 ) -> Result<Estimated, DensityError> {
+    estimate_owned(scene, surfaces, s, hits, phi, ctl, &|_| true)
+}
+
+/// [`estimate_within`] for a worker of the dataflow bake
+/// ([`super::dataflow`]): `hits` holds only the surfaces it owns, and the
+/// black meshes of hitless front sides are made only where `owns` says so
+/// (every surface is owned by exactly one worker).
+pub fn estimate_owned(
+    scene: &Scene,
+    surfaces: &Surfaces,
+    s: &Settings,
+    hits: &impl HitSource,
+    phi: f64,
+    ctl: &mut Control,
+    owns: &dyn Fn(SurfaceId) -> bool,
+) -> Result<Estimated, DensityError> {
     let mut read = Reads {
         done: 0,
         total: hits.hit_count(),
@@ -205,7 +221,7 @@ pub fn estimate_within(
         estimate_planar(scene, surfaces, hits, &params, cap, &mut read)?;
     let (curved, in_memory_curved) =
         estimate_curved(scene, surfaces, s.c1, hits, phi, cap, &mut read)?;
-    add_black_fronts(scene, surfaces, &params, &mut planar);
+    add_black_fronts(scene, surfaces, &params, &mut planar, owns);
     planar.sort_by_key(|m| m.surface);
     Ok(Estimated {
         planar,
@@ -422,11 +438,12 @@ fn add_black_fronts(
     surfaces: &Surfaces,
     params: &Params,
     planar: &mut Vec<PlanarMesh>,
+    owns: &dyn Fn(SurfaceId) -> bool,
 ) {
     let have: std::collections::HashSet<SurfaceId> = planar.iter().map(|m| m.surface).collect();
     for (sid, surf) in surfaces.list.iter().enumerate() {
         let front = SurfaceId::front(sid as u32);
-        if surf.kind == Kind::Planar && surf.diffuse && !have.contains(&front) {
+        if surf.kind == Kind::Planar && surf.diffuse && !have.contains(&front) && owns(front) {
             let ct = surf.chart_tris(scene);
             let est =
                 kernel::estimate_planar(surf.rectangle, surf.size, surf.area, &ct, &[], params);
@@ -439,7 +456,7 @@ fn add_black_fronts(
 
 /// R at the vertices of a planar mesh: one value for an untextured
 /// surface, else the texture at each vertex (§3.2: L = R(u, v)·H(u, v)/π).
-fn reflectance(scene: &Scene, surfaces: &Surfaces, m: &PlanarMesh) -> Vec<Vec3> {
+pub fn reflectance(scene: &Scene, surfaces: &Surfaces, m: &PlanarMesh) -> Vec<Vec3> {
     let surf = surfaces.of(m.surface);
     if surf.textured {
         surf.reflectance_at(scene, &m.verts)
@@ -451,7 +468,13 @@ fn reflectance(scene: &Scene, surfaces: &Surfaces, m: &PlanarMesh) -> Vec<Vec3> 
 /// The white point w0 of the brightness axis (§4.3): the 99th percentile
 /// of the vertex radiance R·H/π (luminance) over the planar over-meshes.
 pub fn white_point(scene: &Scene, surfaces: &Surfaces, planar: &[PlanarMesh]) -> f32 {
-    let mut lum: Vec<f32> = planar
+    white_point_of(vertex_luminances(scene, surfaces, planar))
+}
+
+/// The positive vertex radiances R·H/π (luminance) of the planar
+/// over-meshes, in no particular order: what [`white_point_of`] ranks.
+pub fn vertex_luminances(scene: &Scene, surfaces: &Surfaces, planar: &[PlanarMesh]) -> Vec<f32> {
+    planar
         .par_iter()
         .flat_map_iter(|m| {
             let r = reflectance(scene, surfaces, m);
@@ -462,7 +485,12 @@ pub fn white_point(scene: &Scene, surfaces: &Surfaces, planar: &[PlanarMesh]) ->
                 .collect::<Vec<_>>()
         })
         .filter(|v| *v > 0.0)
-        .collect();
+        .collect()
+}
+
+/// The 99th percentile of `lum` (1 when empty): a function of the set of
+/// values alone, so that workers may gather them in any order.
+pub fn white_point_of(mut lum: Vec<f32>) -> f32 {
     lum.sort_by(f32::total_cmp);
     lum.get(((lum.len() as f64 * 0.99) as usize).min(lum.len().saturating_sub(1)))
         .copied()
