@@ -185,7 +185,7 @@ impl<'a> Render<'a> {
     /// Calls `on_image` with the current estimate at most every
     /// `every_seconds` of render time (a live preview); the time it and the
     /// estimate take is not counted as render time
-    /// ([`Watch`](crate::methods::Watch)).
+    /// ([`Watch`]).
     pub fn watch(
         mut self,
         every_seconds: f64,

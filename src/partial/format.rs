@@ -104,7 +104,7 @@ fn one_line(s: &str) -> String {
     s.replace(['\n', '\r'], " ")
 }
 
-/// Reads a partial result written by [`write`].
+/// Reads a partial result written by [`write()`].
 pub fn read(path: &Path) -> Result<Partial, PartialError> {
     let bytes = std::fs::read(path).map_err(|source| PartialError::Io {
         path: path.to_path_buf(),

@@ -36,7 +36,7 @@ pub struct Merged {
 /// needs every shard (a missing one would leave rows or lanes black, and
 /// the error lists them); a chain method may miss some (the average of
 /// fewer chains is an estimate of the same image, with more variance), and
-/// [`Merged::missing`] lists them.
+/// the merged result's `missing` lists them.
 pub fn merge(parts: &[(PathBuf, Partial)]) -> Result<Merged, PartialError> {
     let Some((first_path, first)) = parts.first() else {
         return Err(PartialError::Incompatible("no parts to merge".into()));
