@@ -378,10 +378,11 @@ impl Bundle {
 
     /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
     /// corner ids) and of the transient per-iteration buffers per patch
-    /// (incoming radiance, sort key, projection, and the band entries: a
-    /// patch is in the list of one band, or of two when it straddles a band
-    /// edge; the figure counts two, so it is an upper bound). The map
-    /// itself is not per patch: 20 bytes per map pixel for the painter.
+    /// (incoming radiance, sort key, projection, and the tile entries: a
+    /// patch is in the list of every map tile its projection crosses; the
+    /// figure counts two, an upper bound while projections are shorter than
+    /// a tile, 25 rows at the default map). The map itself is not per
+    /// patch: one tile of it per thread ([`visibility::map_bytes`]).
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
         let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
