@@ -483,7 +483,7 @@ impl Density {
 }
 
 /// `e` and its sources, joined by ": ", as one line.
-fn error_chain(e: &dyn std::error::Error) -> String {
+pub(crate) fn error_chain(e: &dyn std::error::Error) -> String {
     let mut line = e.to_string();
     let mut source = e.source();
     while let Some(s) = source {

@@ -76,6 +76,27 @@ pub fn trace(
     trace_within(world, surfaces, s, sink, &mut Control::none())
 }
 
+/// The particle tracers of a bake: one RGB run, or one per channel
+/// (`--per-channel`); a channel whose luminaires emit nothing has none.
+pub(super) fn tracers<'a>(
+    world: &'a World,
+    surfaces: &'a Surfaces,
+    lums: &'a [particles::Luminaire],
+    s: &Settings,
+) -> Vec<particles::Tracer<'a>> {
+    let channels: Vec<Channel> = if s.per_channel {
+        (0..3).map(Channel::Single).collect()
+    } else {
+        vec![Channel::Rgb]
+    };
+    channels
+        .into_iter()
+        .filter_map(|ch| {
+            particles::Tracer::new(world, surfaces, lums, s.particles, ch, s.seed, s.max_depth)
+        })
+        .collect()
+}
+
 /// [`trace`] in batches of whole chunks while `ctl` allows (the render's
 /// budget, the cancel flag), reporting progress after each. At least one
 /// batch is traced, so that there is an estimate to make; the channel runs
@@ -89,17 +110,7 @@ pub fn trace_within(
     ctl: &mut Control,
 ) -> Result<Traced, DensityError> {
     let lums = particles::luminaires(world);
-    let channels: Vec<Channel> = if s.per_channel {
-        (0..3).map(Channel::Single).collect()
-    } else {
-        vec![Channel::Rgb]
-    };
-    let tracers: Vec<_> = channels
-        .into_iter()
-        .filter_map(|ch| {
-            particles::Tracer::new(world, surfaces, &lums, s.particles, ch, s.seed, s.max_depth)
-        })
-        .collect();
+    let tracers = tracers(world, surfaces, &lums, s);
     let mut traced = Traced::default();
     let Some(first) = tracers.first() else {
         traced.phi = particles::phi_unit(&lums, s.particles);

@@ -53,7 +53,7 @@ use super::control::{Control, Limits, Phase, Tick};
 use super::decimate::{self as decimation, Report};
 use super::hits::{Hit, HitSink, HIT_BYTES};
 use super::mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
-use super::particles::{self, Channel};
+use super::particles;
 use super::pipeline;
 use super::scratch::ScratchDir;
 use super::surfaces::{Kind, SurfaceId, Surfaces};
@@ -106,19 +106,8 @@ fn status_of<T, E: std::error::Error + 'static>(r: &Result<T, E>) -> Status {
     if cancelled {
         (CANCELLED, String::new())
     } else {
-        (FAILED, error_chain(e))
+        (FAILED, super::error_chain(e))
     }
-}
-
-fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut line = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        line.push_str(": ");
-        line.push_str(&s.to_string());
-        source = s.source();
-    }
-    line
 }
 
 /// After a round that carried every worker's status: this worker's own
@@ -559,17 +548,7 @@ fn trace_exchange(
 
     // The tracers, as in `pipeline::trace_within`
     let lums = particles::luminaires(world);
-    let channels: Vec<Channel> = if s.per_channel {
-        (0..3).map(Channel::Single).collect()
-    } else {
-        vec![Channel::Rgb]
-    };
-    let tracers: Vec<_> = channels
-        .into_iter()
-        .filter_map(|ch| {
-            particles::Tracer::new(world, surfaces, &lums, s.particles, ch, s.seed, s.max_depth)
-        })
-        .collect();
+    let tracers = super::pipeline::tracers(world, surfaces, &lums, s);
     let chunks = tracers.first().map_or(0, |t| t.chunks());
     let per_run = tracers
         .first()
@@ -651,7 +630,7 @@ fn trace_exchange(
         Some((st, DataflowError::Worker("no hit file".into())))
     } else if let Some(e) = write_error {
         let e = DataflowError::from(DensityError::from(e));
-        Some(((FAILED, error_chain(&e)), e))
+        Some(((FAILED, super::error_chain(&e)), e))
     } else if ctl.cancelled() {
         let e = DensityError::Cancelled { rays: tr.rays }.into();
         Some(((CANCELLED, String::new()), e))
