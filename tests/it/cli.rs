@@ -3,18 +3,8 @@
 //! that cannot honour `--max-depth` says so, and a failed setup exits
 //! non-zero with the reason.
 
+use crate::common::{kalos, stderr};
 use std::process::{Command, Output};
-
-fn kalos(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_kalos"))
-        .args(args)
-        .output()
-        .expect("kalos runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()

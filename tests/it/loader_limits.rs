@@ -4,6 +4,7 @@
 //! The inputs are small equivalents of the reproducers of issue 18, built
 //! here in a temporary folder.
 
+use crate::common::kalos;
 use std::path::{Path, PathBuf};
 
 use kalos::scene::{self, EmitterDesc};
@@ -488,13 +489,6 @@ fn gltf_emissive_strength_scales_the_emission() {
 
 // ---------------------------------------------------------------------------
 // What the command line says about it
-
-fn kalos(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_kalos"))
-        .args(args)
-        .output()
-        .expect("run kalos")
-}
 
 #[test]
 fn cli_says_where_light_and_budget_come_from() {

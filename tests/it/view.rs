@@ -3,27 +3,17 @@
 //! truncated .glb, a port in use) and the bake's camera. The page itself is
 //! tested in Chromium by `tests/browser/test_view.py`.
 
+use crate::common::{kalos, stderr};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use glam::{Mat4, Vec3};
 use kalos::bake::BakedMesh;
 use kalos::camera::Camera;
 use kalos::scene::CameraDesc;
-
-fn kalos(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_kalos"))
-        .args(args)
-        .output()
-        .expect("kalos runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// Two triangles of baked radiance, as `kalos bake` would write them.
 fn quad() -> BakedMesh {

@@ -197,3 +197,16 @@ pub fn max_block_z(
     }
     worst
 }
+
+/// Runs the kalos binary with `args` and returns what it did.
+pub fn kalos(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_kalos"))
+        .args(args)
+        .output()
+        .expect("kalos runs")
+}
+
+/// A command's stderr as text.
+pub fn stderr(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}

@@ -7,16 +7,9 @@
 mod chains;
 mod recipe;
 
+use crate::common::kalos;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-/// Runs the kalos binary with `args`.
-fn kalos(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_kalos"))
-        .args(args)
-        .output()
-        .expect("kalos runs")
-}
+use std::process::Command;
 
 /// Runs kalos and fails the test, with its stderr, unless it succeeds.
 fn ok(args: &[&str]) {
