@@ -543,6 +543,21 @@ pub fn decimate_within(
     epsilon: f32,
     ctl: &mut Control,
 ) -> Result<(Vec<PlanarMesh>, Decimated), DensityError> {
+    let out = decimate_each(scene, surfaces, planar, w0, epsilon, ctl)?;
+    let d = Decimated::of(out.iter().map(|(_, r)| r));
+    Ok((out.into_iter().map(|(m, _)| m).collect(), d))
+}
+
+/// The loop of [`decimate_within`]: every mesh with its own report (the
+/// dataflow bake sends them to the worker that assembles the bake).
+pub fn decimate_each(
+    scene: &Scene,
+    surfaces: &Surfaces,
+    planar: Vec<PlanarMesh>,
+    w0: f32,
+    epsilon: f32,
+    ctl: &mut Control,
+) -> Result<Vec<(PlanarMesh, Report)>, DensityError> {
     let total = planar.len() as u64;
     let slice = 4 * rayon::current_num_threads().max(1);
     let mut todo = planar.into_iter().peekable();
@@ -561,26 +576,28 @@ pub fn decimate_within(
         }));
         ctl.tick(Phase::Decimate, out.len() as u64, total);
     }
-    let mut max_error = 0.0f32;
-    let mut sum_error = 0.0f64;
-    let mut removed = 0u64;
-    let mut planar = Vec::with_capacity(out.len());
-    for (m, r) in out {
-        max_error = max_error.max(r.max_error);
-        sum_error += r.sum_error;
-        removed += r.removed;
-        planar.push(m);
-    }
-    let mean_error = if removed > 0 {
-        (sum_error / removed as f64) as f32
-    } else {
-        0.0
-    };
-    Ok((
-        planar,
+    Ok(out)
+}
+
+impl Decimated {
+    /// The errors over all removed vertices, from each mesh's report.
+    pub fn of<'a>(reports: impl IntoIterator<Item = &'a Report>) -> Self {
+        let mut max_error = 0.0f32;
+        let mut sum_error = 0.0f64;
+        let mut removed = 0u64;
+        for r in reports {
+            max_error = max_error.max(r.max_error);
+            sum_error += r.sum_error;
+            removed += r.removed;
+        }
+        let mean_error = if removed > 0 {
+            (sum_error / removed as f64) as f32
+        } else {
+            0.0
+        };
         Decimated {
             max_error,
             mean_error,
-        },
-    ))
+        }
+    }
 }

@@ -37,7 +37,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use rayon::prelude::*;
 use timely::container::CapacityContainerBuilder;
 use timely::dataflow::channels::pact::Exchange;
 use timely::dataflow::operators::{Operator, Probe};
@@ -50,11 +49,11 @@ mod layout;
 pub use layout::{read_hostfile, DataflowError, Workers};
 
 use super::control::{Control, Limits, Phase, Tick};
-use super::decimate::{self as decimation, Report};
+use super::decimate::Report;
 use super::hits::{Hit, HitSink, HIT_BYTES};
 use super::mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
 use super::particles;
-use super::pipeline;
+use super::pipeline::{self, Decimated};
 use super::scratch::ScratchDir;
 use super::surfaces::{Kind, SurfaceId, Surfaces};
 use super::{Bake, BakeStats, DensityError, MethodError, Settings, World};
@@ -729,20 +728,7 @@ fn decimate_owned(
         let n = planar.len();
         return Ok((planar, vec![Report::default(); n]));
     }
-    let total = planar.len() as u64;
-    let slice = 4 * rayon::current_num_threads().max(1);
-    let mut todo = planar.into_iter().peekable();
-    let mut out: Vec<(PlanarMesh, Report)> = Vec::with_capacity(total as usize);
-    ctl.tick(Phase::Decimate, 0, total);
-    while todo.peek().is_some() {
-        ctl.check()?;
-        let part: Vec<PlanarMesh> = todo.by_ref().take(slice).collect();
-        out.par_extend(part.into_par_iter().map(|m| {
-            let r = pipeline::reflectance(scene, surfaces, &m);
-            decimation::decimate_planar(m, &r, w0, s.epsilon)
-        }));
-        ctl.tick(Phase::Decimate, out.len() as u64, total);
-    }
+    let out = pipeline::decimate_each(scene, surfaces, planar, w0, s.epsilon, ctl)?;
     Ok(out.into_iter().unzip())
 }
 
@@ -786,7 +772,7 @@ fn assemble(surfaces: &Surfaces, s: &Settings, w0: f32, parts: Vec<PartWire>) ->
         surfaces: surfaces.list.len(),
         ..Default::default()
     };
-    let mut planar: Vec<(PlanarMesh, f32, f64, u64)> = Vec::new();
+    let mut planar: Vec<(PlanarMesh, Report)> = Vec::new();
     let mut curved: Vec<CurvedMesh> = Vec::new();
     for (_, _, f, wp, wc) in parts {
         stats.hits += f.0;
@@ -801,7 +787,15 @@ fn assemble(surfaces: &Surfaces, s: &Settings, w0: f32, parts: Vec<PartWire>) ->
                 .map(|c| Vec3::new(c[0], c[1], c[2]))
                 .collect();
             let m = PlanarMesh::unindexed(SurfaceId::decode(id), verts, tris, h, bw, hits);
-            planar.push((m, max_e, sum_e, removed));
+            planar.push((
+                m,
+                Report {
+                    max_error: max_e,
+                    sum_error: sum_e,
+                    removed,
+                    ..Report::default()
+                },
+            ));
         }
         for (shape, back, tris, h) in wc {
             let h = h
@@ -823,23 +817,15 @@ fn assemble(surfaces: &Surfaces, s: &Settings, w0: f32, parts: Vec<PartWire>) ->
         }
     }
     planar.sort_by_key(|p| p.0.surface);
+    let (planar, reports): (Vec<PlanarMesh>, Vec<Report>) = planar.into_iter().unzip();
     curved.sort_by_key(|m| (m.shape, m.back));
-    let (mut max_error, mut sum_error, mut removed) = (0.0f32, 0.0f64, 0u64);
-    for p in &planar {
-        max_error = max_error.max(p.1);
-        sum_error += p.2;
-        removed += p.3;
-    }
     if s.decimate {
-        stats.max_brightness_error = max_error;
-        stats.mean_brightness_error = if removed > 0 {
-            (sum_error / removed as f64) as f32
-        } else {
-            0.0
-        };
+        let d = Decimated::of(&reports);
+        stats.max_brightness_error = d.max_error;
+        stats.mean_brightness_error = d.mean_error;
     }
     stats.hit_file_bytes = stats.hits * HIT_BYTES as u64;
-    let mesh = DisplayMesh::new(planar.into_iter().map(|p| p.0).collect(), curved);
+    let mesh = DisplayMesh::new(planar, curved);
     stats.tris_after = mesh.triangle_count();
     Bake {
         surfaces: surfaces.clone(),
