@@ -7,7 +7,7 @@
 //! flips it, and a mesh with per-vertex normals faces its normals. Area
 //! lights emit on that side.
 
-use glam::{Mat3, Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec2, Vec3};
 use pbrt4::param::ParamType;
 
 use super::lexer::Directive;
@@ -69,6 +69,34 @@ fn face_normals(mesh: &mut MeshData) {
     }
 }
 
+/// A mesh's optional normals `N` and uvs `uv`, each checked to hold one
+/// entry per vertex of its `n` positions.
+#[allow(clippy::type_complexity)]
+fn per_vertex(
+    b: &Builder,
+    ps: &mut Params<'_>,
+    line: u32,
+    n: usize,
+) -> Result<(Option<Vec<Vec3>>, Option<Vec<Vec2>>)> {
+    let normals = ps.vec3s(&b.cx, "N", &[ParamType::Normal, ParamType::Normal3])?;
+    let uv = ps.vec2s(&b.cx, "uv")?;
+    for (name, len) in [
+        ("N", normals.as_ref().map(Vec::len)),
+        ("uv", uv.as_ref().map(Vec::len)),
+    ] {
+        if len.is_some_and(|l| l != n) {
+            return Err(b.cx.err(
+                line,
+                format!(
+                    "{}: `{name}` must have one entry per vertex of P ({n})",
+                    ps.what
+                ),
+            ));
+        }
+    }
+    Ok((normals, uv))
+}
+
 /// Indices as triangles, checked against the vertex count.
 fn triangles(
     b: &Builder,
@@ -115,7 +143,6 @@ impl Builder {
             ps.ignore(&["alpha"]);
         }
         ps.ignore(&["emissionfilename"]);
-        let normals = [ParamType::Normal, ParamType::Normal3];
         let (ctm, reverse) = (self.g.ctm, self.g.reverse_orientation);
 
         // Geometry in object space
@@ -130,13 +157,7 @@ impl Builder {
                     None => return Err(self.cx.err(d.line, format!("{} needs \"integer indices\"", ps.what))),
                 };
                 let tris = triangles(self, &ps, &idx, 3, p.len())?;
-                let n = ps.vec3s(&self.cx, "N", &normals)?;
-                let uv = ps.vec2s(&self.cx, "uv")?;
-                for (name, len) in [("N", n.as_ref().map(Vec::len)), ("uv", uv.as_ref().map(Vec::len))] {
-                    if len.is_some_and(|l| l != p.len()) {
-                        return Err(self.cx.err(d.line, format!("{}: `{name}` must have one entry per vertex of P ({})", ps.what, p.len())));
-                    }
-                }
+                let (n, uv) = per_vertex(self, &mut ps, d.line, p.len())?;
                 if ty == "loopsubdiv" {
                     ps.ignore(&["levels"]);
                     self.warn(d.line, "loopsubdiv drawn as its control mesh (kalos does not subdivide)");
@@ -159,13 +180,7 @@ impl Builder {
                     None => return Err(self.cx.err(d.line, format!("{} needs \"integer indices\"", ps.what))),
                 };
                 let quads = triangles(self, &ps, &idx, 4, p.len())?;
-                let n = ps.vec3s(&self.cx, "N", &normals)?;
-                let uv = ps.vec2s(&self.cx, "uv")?;
-                for (name, len) in [("N", n.as_ref().map(Vec::len)), ("uv", uv.as_ref().map(Vec::len))] {
-                    if len.is_some_and(|l| l != p.len()) {
-                        return Err(self.cx.err(d.line, format!("{}: `{name}` must have one entry per vertex of P ({})", ps.what, p.len())));
-                    }
-                }
+                let (n, uv) = per_vertex(self, &mut ps, d.line, p.len())?;
                 ps.ignore(&["faceIndices"]);
                 // pbrt's patch corners are p00 p10 p01 p11; two triangles
                 // are exact for a planar patch
