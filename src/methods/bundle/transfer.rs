@@ -61,10 +61,7 @@ pub fn eval_local(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
             // (n + 1)/(2π) cos^n α, which integrates to 1 over the sphere
             // of wi around r: the albedo ∫ f cos θ_i dω_i is then F, as for
             // the mirror, while the lobe stays above the horizon.
-            let r = Vec3::new(-wo.x, -wo.y, wo.z);
-            let c = r.dot(wi).max(0.0);
-            let n = MIRROR_EXPONENT;
-            s * fresnel_conductor(wo.z, eta, k) * ((n + 1.0) / (2.0 * PI) * c.powf(n) / wi.z)
+            s * fresnel_conductor(wo.z, eta, k) * widened(Vec3::new(-wo.x, -wo.y, wo.z), wi)
         }
         _ => bsdf.eval(wo, wi, Mode::Radiance),
     }
