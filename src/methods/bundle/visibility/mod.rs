@@ -65,7 +65,7 @@ mod raster;
 
 use std::time::Instant;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::patches::Patches;
@@ -73,7 +73,7 @@ use crate::geometry::Frame;
 use crate::scene::Rgb;
 pub use painter::LAYERS;
 use painter::{painter_band, zbuffer_band, Px};
-use raster::{order_bits, Proj, Projector};
+use raster::{order_bits, Proj, Projector, ToMap};
 
 /// Pixel value of the sky (nothing upstream).
 pub const SKY: u32 = u32::MAX;
@@ -246,15 +246,13 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
     // Project every patch onto the plane, in patch order, into the bins of
     // the tiles it touches; Russian roulette for sub-pixel ones
     let t0 = Instant::now();
-    let to_map = |x: Vec3| -> (Vec2, f32) {
-        let r = x - inp.center;
-        (
-            Vec2::new(
-                (r.dot(frame.s) + inp.radius) / delta + jitter.x,
-                (r.dot(frame.t) + inp.radius) / delta + jitter.y,
-            ),
-            r.dot(d),
-        )
+    let to_map = ToMap {
+        center: inp.center,
+        frame,
+        d,
+        radius: inp.radius,
+        delta,
+        jitter,
     };
     let pj = Projector {
         w,
@@ -276,17 +274,11 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
         .for_each(|(chunk, (ps, cb))| {
             for (j, p) in ps.iter().enumerate() {
                 let id = (chunk * chunk_len + j) as u32;
+                let (t, z, centroid) = to_map.patch(&p.v);
                 // the painter's order is the centroid's depth (§6); the
                 // z-buffer keeps patch order
-                let key = if painter {
-                    order_bits(p.centroid().dot(d))
-                } else {
-                    0
-                };
-                let (a, za) = to_map(p.v[0]);
-                let (b, zb) = to_map(p.v[1]);
-                let (c, zc) = to_map(p.v[2]);
-                if let Some(pr) = Proj::new(&pj, id, [a, b, c], [za, zb, zc], key) {
+                let key = if painter { order_bits(centroid) } else { 0 };
+                if let Some(pr) = Proj::new(&pj, id, t, z, key) {
                     let (ta, tb) = (pr.y0 / rows_per_tile, pr.y1 / rows_per_tile);
                     for bin in &mut cb[ta as usize..=tb as usize] {
                         bin.push(pr);

@@ -9,7 +9,9 @@
 //! The lanes compute exactly the scalar expressions, in the same order, so
 //! the fragments and their depths are bit for bit those of a scalar scan.
 
-use glam::{BVec4A, Vec2, Vec4};
+use glam::{BVec4A, Vec2, Vec3, Vec4};
+
+use crate::geometry::Frame;
 
 use crate::sampling::{uniform_triangle, Pcg32};
 
@@ -47,6 +49,67 @@ pub(super) fn ceil_i32(v: f32) -> i32 {
         i.saturating_add(1)
     } else {
         i
+    }
+}
+
+/// The map coordinates of a point: (x − c)·s and (x − c)·t scaled to
+/// pixels, with the map's offset, and the depth (x − c)·d.
+pub(super) struct ToMap {
+    /// Centre of the scene's bounding sphere.
+    pub center: Vec3,
+    /// The plane's frame (n = d).
+    pub frame: Frame,
+    /// The flow direction.
+    pub d: Vec3,
+    /// Radius of the bounding sphere.
+    pub radius: f32,
+    /// Pixel size.
+    pub delta: f32,
+    /// The map's sub-pixel offset this iteration.
+    pub jitter: Vec2,
+}
+
+impl ToMap {
+    /// One point, as the sweep computes it.
+    #[cfg(test)]
+    fn point(&self, x: Vec3) -> (Vec2, f32) {
+        let r = x - self.center;
+        (
+            Vec2::new(
+                (r.dot(self.frame.s) + self.radius) / self.delta + self.jitter.x,
+                (r.dot(self.frame.t) + self.radius) / self.delta + self.jitter.y,
+            ),
+            r.dot(self.d),
+        )
+    }
+
+    /// The three corners on the map, their depths, and the depth of the
+    /// centroid along d (from the origin, the sort key): [`ToMap::point`]
+    /// and `centroid().dot(d)`, four lanes at once (the corners and the
+    /// centroid) with the same operations in the same order, so the bits
+    /// are the same.
+    #[inline(always)]
+    pub fn patch(&self, v: &[Vec3; 3]) -> ([Vec2; 3], [f32; 3], f32) {
+        let m = (v[0] + v[1] + v[2]) / 3.0;
+        let c = self.center;
+        // the centroid lane subtracts 0, which leaves it as it is
+        let x = Vec4::new(v[0].x, v[1].x, v[2].x, m.x) - Vec4::new(c.x, c.x, c.x, 0.0);
+        let y = Vec4::new(v[0].y, v[1].y, v[2].y, m.y) - Vec4::new(c.y, c.y, c.y, 0.0);
+        let z = Vec4::new(v[0].z, v[1].z, v[2].z, m.z) - Vec4::new(c.z, c.z, c.z, 0.0);
+        let dot = |w: Vec3| x * Vec4::splat(w.x) + y * Vec4::splat(w.y) + z * Vec4::splat(w.z);
+        let (r, delta) = (Vec4::splat(self.radius), Vec4::splat(self.delta));
+        let u = (dot(self.frame.s) + r) / delta + Vec4::splat(self.jitter.x);
+        let w = (dot(self.frame.t) + r) / delta + Vec4::splat(self.jitter.y);
+        let depth = dot(self.d);
+        (
+            [
+                Vec2::new(u.x, w.x),
+                Vec2::new(u.y, w.y),
+                Vec2::new(u.z, w.z),
+            ],
+            [depth.x, depth.y, depth.z],
+            depth.w,
+        )
     }
 }
 
@@ -351,6 +414,35 @@ mod tests {
             assert_eq!(got, want, "triangle {t:?}");
         }
         assert!(covered > 10_000, "the triangles covered {covered} pixels");
+    }
+
+    /// The 4-lane projection gives the bits of the scalar one, and the
+    /// centroid's depth those of `centroid().dot(d)`.
+    #[test]
+    fn patch_projection_matches_scalar() {
+        let mut rng = Pcg32::keyed(&[80]);
+        let mut r3 = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 20.0 - 10.0;
+        for _ in 0..2000 {
+            let d = r3().normalize();
+            let m = ToMap {
+                center: r3(),
+                frame: Frame::from_normal(d),
+                d,
+                radius: 17.3,
+                delta: 0.0337,
+                jitter: Vec2::new(0.31, 0.77),
+            };
+            let v = [r3(), r3(), r3()];
+            let (t, z, key) = m.patch(&v);
+            for k in 0..3 {
+                let (tk, zk) = m.point(v[k]);
+                assert_eq!(
+                    (t[k].x.to_bits(), t[k].y.to_bits(), z[k].to_bits()),
+                    (tk.x.to_bits(), tk.y.to_bits(), zk.to_bits())
+                );
+            }
+            assert_eq!(key.to_bits(), ((v[0] + v[1] + v[2]) / 3.0).dot(d).to_bits());
+        }
     }
 
     /// The integer floor and ceiling agree with `floor`/`ceil` then `as
