@@ -378,20 +378,22 @@ impl Bundle {
 
     /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
     /// corner ids) and of the transient per-iteration buffers per patch
-    /// (incoming radiance, and the tile entries: a patch is in the bin of
-    /// every map tile its projection crosses, with its projection, its sort
-    /// key twice and its band entry; the figure counts two, an upper bound
-    /// while projections are shorter than a tile, 25 rows at the default
-    /// map). The map itself is not per patch: one tile of it per thread
+    /// (incoming radiance, the projection, and the tile entries: a patch
+    /// is in every map tile its projection crosses, with a copy of its
+    /// projection, its id, its two accumulators, and in the buffers of the
+    /// thread that scans the tile its sort key twice and its two radiance
+    /// values; the figure counts two tiles, an upper bound while
+    /// projections are shorter than a tile, 25 rows at the default map).
+    /// The map itself is not per patch: one tile of it per thread
     /// ([`visibility::map_bytes`]).
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
         let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
-        // projection, sort key and radix buffer, patch id, the two radiance
-        // values and the two accumulators of a tile entry
+        // projection, patch id, the two accumulators, sort key and radix
+        // buffer, and the two radiance values of a tile entry
         let tile_entry =
-            visibility::PROJ_BYTES + 2 * size_of::<u64>() + size_of::<u32>() + 4 * size_of::<Rgb>();
-        let transient = 2 * size_of::<Rgb>() + 2 * tile_entry;
+            visibility::PROJ_BYTES + size_of::<u32>() + 2 * size_of::<u64>() + 4 * size_of::<Rgb>();
+        let transient = 2 * size_of::<Rgb>() + visibility::PROJ_BYTES + 2 * tile_entry;
         (state, transient)
     }
 }

@@ -162,24 +162,51 @@ impl Src<'_> {
 
 /// Buffers a sweep reuses from one iteration to the next, so that an
 /// iteration allocates nothing of the size of the patch set or the map.
+/// Each is sized by the iteration's exact count (per chunk, or in all),
+/// not by the largest count any one tile ever had, so that they do not
+/// grow with the number of directions swept.
 #[derive(Default)]
 pub struct Scratch {
-    /// Per chunk of patches, per tile: the projections that touch it.
-    bins: Vec<Vec<Vec<Proj>>>,
-    /// Per tile: its sort keys and what it gathers.
-    tiles: Vec<Tile>,
+    /// Per chunk of patches, its projections grouped by tile.
+    chunks: Vec<Chunk>,
+    /// Per tile entry, tile after tile in sorted order: the patch id and
+    /// what it received along +d and −d.
+    gid: Vec<u32>,
+    ep: Vec<Rgb>,
+    em: Vec<Rgb>,
+    /// Each tile's first entry in `gid`, `ep` and `em` (one more at the end).
+    start: Vec<usize>,
+    /// Fragments scanned per tile.
+    frags: Vec<u64>,
 }
 
-/// One tile's keys and accumulators.
+/// One chunk's projections.
 #[derive(Default)]
-struct Tile {
+struct Chunk {
+    /// In patch order.
+    by_id: Vec<Proj>,
+    /// Grouped by tile, in patch order within a tile: tile t's are
+    /// `by_tile[start[t]..start[t + 1]]`.
+    by_tile: Vec<Proj>,
+    start: Vec<usize>,
+    /// Where the next projection of each tile goes.
+    next: Vec<usize>,
+}
+
+/// A thread's buffers for the tile it scans.
+#[derive(Default)]
+struct Work {
     /// Sort keys of the tile's projections, and the radix sort's second
     /// buffer.
     keys: Vec<u64>,
     spare: Vec<u64>,
-    band: Band,
-    /// Fragments scanned.
-    frags: u64,
+    /// L(+d) and L(−d) of the tile's patches in sorted order.
+    lp: Vec<Rgb>,
+    lm: Vec<Rgb>,
+}
+
+thread_local! {
+    static WORK: std::cell::RefCell<Work> = std::cell::RefCell::default();
 }
 
 /// Bytes of map one tile may hold, so that a tile of the painter's map
@@ -241,10 +268,17 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
     let painter = inp.visibility == Visibility::Painter;
     let rows_per_tile = tile_rows(w as usize) as i32;
     let ntiles = (h as usize).div_ceil(rows_per_tile as usize);
-    let Scratch { bins, tiles } = scratch;
+    let Scratch {
+        chunks,
+        gid,
+        ep,
+        em,
+        start,
+        frags,
+    } = scratch;
 
-    // Project every patch onto the plane, in patch order, into the bins of
-    // the tiles it touches; Russian roulette for sub-pixel ones
+    // Project every patch onto the plane, in patch order, and group the
+    // projections by the tiles they touch; Russian roulette for sub-pixel ones
     let t0 = Instant::now();
     let to_map = ToMap {
         center: inp.center,
@@ -260,18 +294,19 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
         centre_rr: inp.centre_rr,
         keys: inp.keys,
     };
-    bins.resize_with(CHUNKS, Vec::new);
-    for cb in bins.iter_mut() {
-        cb.resize_with(ntiles, Vec::new);
-        cb.iter_mut().for_each(Vec::clear);
-    }
+    chunks.resize_with(CHUNKS, Default::default);
     let chunk_len = n.div_ceil(CHUNKS).max(1);
+    let tiles_of = |pr: &Proj| (pr.y0 / rows_per_tile) as usize..=(pr.y1 / rows_per_tile) as usize;
     patches
         .p
         .par_chunks(chunk_len)
-        .zip(bins.par_iter_mut())
+        .zip(chunks.par_iter_mut())
         .enumerate()
-        .for_each(|(chunk, (ps, cb))| {
+        .for_each(|(chunk, (ps, ck))| {
+            // project, counting each tile's projections
+            ck.by_id.clear();
+            ck.start.clear();
+            ck.start.resize(ntiles + 1, 0);
             for (j, p) in ps.iter().enumerate() {
                 let id = (chunk * chunk_len + j) as u32;
                 let (t, z, centroid) = to_map.patch(&p.v);
@@ -279,65 +314,115 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
                 // z-buffer keeps patch order
                 let key = if painter { order_bits(centroid) } else { 0 };
                 if let Some(pr) = Proj::new(&pj, id, t, z, key) {
-                    let (ta, tb) = (pr.y0 / rows_per_tile, pr.y1 / rows_per_tile);
-                    for bin in &mut cb[ta as usize..=tb as usize] {
-                        bin.push(pr);
+                    for t in tiles_of(&pr) {
+                        ck.start[t + 1] += 1;
                     }
+                    ck.by_id.push(pr);
+                }
+            }
+            // group by tile (a counting sort, which keeps patch order)
+            for t in 0..ntiles {
+                ck.start[t + 1] += ck.start[t];
+            }
+            ck.next.clear();
+            ck.next.extend_from_slice(&ck.start[..ntiles]);
+            ck.by_tile.clear();
+            if let Some(&first) = ck.by_id.first() {
+                ck.by_tile.resize(ck.start[ntiles], first);
+            }
+            for pr in &ck.by_id {
+                for t in tiles_of(pr) {
+                    ck.by_tile[ck.next[t]] = *pr;
+                    ck.next[t] += 1;
                 }
             }
         });
+    // chunks past the patches (fewer than CHUNKS of them) hold nothing
+    for ck in chunks.iter_mut().skip(n.div_ceil(chunk_len)) {
+        ck.by_tile.clear();
+        ck.start.clear();
+        ck.start.resize(ntiles + 1, 0);
+    }
     let t_project = t0.elapsed().as_secs_f64();
 
     // Per tile: sort its projections by depth, then scan-convert them
     let t1 = Instant::now();
-    tiles.resize_with(ntiles, Default::default);
-    let bins = &*bins;
-    tiles.par_iter_mut().enumerate().for_each(|(tile, tb)| {
-        let y0 = tile as i32 * rows_per_tile;
-        let y1 = (y0 + rows_per_tile).min(h);
-        let src = Src {
-            bins: std::array::from_fn(|c| &bins[c][tile][..]),
-        };
-        // keys in patch order: depth high, (chunk, slot) low
-        tb.keys.clear();
-        for (c, bin) in src.bins.iter().enumerate() {
-            let hi = (c as u64) << SLOT_BITS;
-            tb.keys.extend(
-                bin.iter()
-                    .enumerate()
-                    .map(|(i, pr)| (pr.key as u64) << 32 | hi | i as u64),
-            );
-        }
-        radix_sort_hi(&mut tb.keys, &mut tb.spare);
-        let acc = &mut tb.band;
-        acc.gid.clear();
-        acc.gid.extend(tb.keys.iter().map(|&k| src.at(k).id));
-        acc.lp.clear();
-        acc.lp
-            .extend(acc.gid.iter().map(|&g| inp.l_plus[g as usize]));
-        acc.lm.clear();
-        acc.lm
-            .extend(acc.gid.iter().map(|&g| inp.l_minus[g as usize]));
-        acc.ep.clear();
-        acc.ep.resize(tb.keys.len(), Rgb::ZERO);
-        acc.em.clear();
-        acc.em.resize(tb.keys.len(), Rgb::ZERO);
-        tb.frags = match inp.visibility {
-            Visibility::Painter => painter_band(&src, &tb.keys, inp, y0..y1, w, acc),
-            Visibility::ZBuffer => zbuffer_band(&src, &tb.keys, inp, y0..y1, w, acc),
-        };
-    });
+    start.clear();
+    start.push(0);
+    for t in 0..ntiles {
+        let count: usize = chunks.iter().map(|c| c.start[t + 1] - c.start[t]).sum();
+        start.push(start[t] + count);
+    }
+    let total = start[ntiles];
+    gid.clear();
+    gid.resize(total, 0);
+    ep.clear();
+    ep.resize(total, Rgb::ZERO);
+    em.clear();
+    em.resize(total, Rgb::ZERO);
+    // each tile's share of the entries, as disjoint slices
+    let mut parts = Vec::with_capacity(ntiles);
+    let (mut g, mut p, mut m) = (&mut gid[..], &mut ep[..], &mut em[..]);
+    for t in 0..ntiles {
+        let k = start[t + 1] - start[t];
+        let (g0, g1) = std::mem::take(&mut g).split_at_mut(k);
+        let (p0, p1) = std::mem::take(&mut p).split_at_mut(k);
+        let (m0, m1) = std::mem::take(&mut m).split_at_mut(k);
+        parts.push((t, g0, p0, m0));
+        (g, p, m) = (g1, p1, m1);
+    }
+    let chunks = &*chunks;
+    parts
+        .into_par_iter()
+        .map(|(tile, gid, ep, em)| {
+            let y0 = tile as i32 * rows_per_tile;
+            let y1 = (y0 + rows_per_tile).min(h);
+            let src = Src {
+                bins: std::array::from_fn(|c| {
+                    let ck = &chunks[c];
+                    &ck.by_tile[ck.start[tile]..ck.start[tile + 1]]
+                }),
+            };
+            WORK.with_borrow_mut(|wk| {
+                // keys in patch order: depth high, (chunk, slot) low
+                wk.keys.clear();
+                for (c, bin) in src.bins.iter().enumerate() {
+                    let hi = (c as u64) << SLOT_BITS;
+                    wk.keys.extend(
+                        bin.iter()
+                            .enumerate()
+                            .map(|(i, pr)| (pr.key as u64) << 32 | hi | i as u64),
+                    );
+                }
+                radix_sort_hi(&mut wk.keys, &mut wk.spare);
+                for (g, &k) in gid.iter_mut().zip(&wk.keys) {
+                    *g = src.at(k).id;
+                }
+                wk.lp.clear();
+                wk.lp.extend(gid.iter().map(|&g| inp.l_plus[g as usize]));
+                wk.lm.clear();
+                wk.lm.extend(gid.iter().map(|&g| inp.l_minus[g as usize]));
+                let mut acc = Band {
+                    lp: &wk.lp,
+                    lm: &wk.lm,
+                    ep,
+                    em,
+                };
+                match inp.visibility {
+                    Visibility::Painter => painter_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
+                    Visibility::ZBuffer => zbuffer_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
+                }
+            })
+        })
+        .collect_into_vec(frags);
 
     // Sum the tiles in a fixed order
     let da = delta * delta;
     let mut e_plus = vec![Rgb::ZERO; n];
     let mut e_minus = vec![Rgb::ZERO; n];
-    for tb in tiles.iter() {
-        let b = &tb.band;
-        for (j, &g) in b.gid.iter().enumerate() {
-            e_plus[g as usize] += b.ep[j];
-            e_minus[g as usize] += b.em[j];
-        }
+    for ((&g, &p), &m) in gid.iter().zip(ep.iter()).zip(em.iter()) {
+        e_plus[g as usize] += p;
+        e_minus[g as usize] += m;
     }
     e_plus
         .par_iter_mut()
@@ -346,7 +431,7 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
             *p *= da;
             *m *= da;
         });
-    let fragments = tiles.iter().map(|t| t.frags).sum();
+    let fragments = frags.iter().sum();
     Incoming {
         e_plus,
         e_minus,
@@ -362,20 +447,17 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
 /// stay small enough for the cache, instead of one full-length pair per
 /// band; the band's copy of their radiance is read in that order too,
 /// instead of a scattered read of the whole array per fragment.
-#[derive(Default)]
-struct Band {
-    /// Patch id of each local number.
-    gid: Vec<u32>,
+struct Band<'a> {
     /// L(+d) and L(−d) of each local number.
-    lp: Vec<Rgb>,
-    lm: Vec<Rgb>,
+    lp: &'a [Rgb],
+    lm: &'a [Rgb],
     /// Σ L(+d) δP/δP received along +d, per local number.
-    ep: Vec<Rgb>,
+    ep: &'a mut [Rgb],
     /// The same along −d.
-    em: Vec<Rgb>,
+    em: &'a mut [Rgb],
 }
 
-impl Band {
+impl Band<'_> {
     /// Adds (sign = 1) or removes (sign = −1) the transfer between `a`
     /// (upstream, or [`SKY`]) and `b` (downstream) through one pixel; `a`
     /// and `b` are local numbers.

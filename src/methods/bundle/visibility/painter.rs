@@ -70,7 +70,7 @@ pub(super) fn painter_band(
     inp: &SweepInput,
     rows: std::ops::Range<i32>,
     w: i32,
-    acc: &mut Band,
+    acc: &mut Band<'_>,
 ) -> u64 {
     let (y0, y1) = (rows.start, rows.end);
     TILE.with_borrow_mut(|tile| {
@@ -116,19 +116,19 @@ pub(super) fn painter_band(
 }
 
 /// The painter's update of one pixel by one fragment of patch `cur`.
-struct Fragment<'a, 'b> {
+struct Fragment<'a, 'b, 'c> {
     buf: &'a mut [Px],
     w: usize,
     y0: i32,
     inp: &'a SweepInput<'b>,
-    acc: &'a mut Band,
+    acc: &'a mut Band<'c>,
     /// Local number of the patch being scanned.
     cur: u32,
     /// Fragments so far.
     frags: u64,
 }
 
-impl Visit for Fragment<'_, '_> {
+impl Visit for Fragment<'_, '_, '_> {
     #[inline(always)]
     fn visit(&mut self, x: i32, y: i32, z: f32) {
         let (cur, inp) = (self.cur, self.inp);
@@ -202,7 +202,7 @@ pub(super) fn zbuffer_band(
     inp: &SweepInput,
     rows: std::ops::Range<i32>,
     w: i32,
-    acc: &mut Band,
+    acc: &mut Band<'_>,
 ) -> u64 {
     let (y0, y1) = (rows.start, rows.end);
     let size = (w * (y1 - y0)) as usize;
