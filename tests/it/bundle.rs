@@ -211,6 +211,67 @@ fn painter_pairs_equal_zbuffer_on_cbox() {
     assert_eq!(bad, 0, "{bad} of 300 directions pair patches differently");
 }
 
+/// One sweep gives the same bits with 1, 2 and 3 threads. The sweep
+/// splits the patches into chunks and the map into tiles, then sorts each
+/// tile. Here there are enough patches (cbox, 5000) and tiles (the 1024²
+/// map has 42) that a partition that followed the thread count would
+/// change the sums' grouping. Radiance varies per patch, so every pairing
+/// shows in the sums. A second, different direction must change them.
+#[test]
+fn sweep_same_whatever_the_thread_count() {
+    let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
+    let lights = Lights::new(&scene);
+    let patches = Patches::build(
+        &scene,
+        &lights,
+        kalos::methods::bundle::patches::edge_for_count(&scene, 5000),
+    );
+    let n = patches.len();
+    let l_plus: Vec<Vec3> = (0..n).map(|i| Vec3::splat(1.0 + (i % 7) as f32)).collect();
+    let l_minus: Vec<Vec3> = (0..n).map(|i| Vec3::splat(1.0 + (i % 11) as f32)).collect();
+    let run = |threads: usize, k: u64, visibility: Visibility, res: u32| {
+        let d = uniform_sphere(Pcg32::keyed(&[2, k]).next_2d());
+        let inp = SweepInput {
+            d,
+            l_plus: &l_plus,
+            l_minus: &l_minus,
+            sky_plus: Vec3::new(0.5, 0.25, 0.125),
+            sky_minus: Vec3::new(0.125, 0.25, 0.5),
+            res,
+            center: lights.center,
+            radius: lights.radius,
+            keys: [9, k],
+            visibility,
+            centre_rr: true,
+        };
+        let inc = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| sweep(&patches, &inp, &mut Default::default()));
+        let bits = |v: &[Vec3]| -> Vec<[u32; 3]> {
+            v.iter().map(|x| x.to_array().map(f32::to_bits)).collect()
+        };
+        (bits(&inc.e_plus), bits(&inc.e_minus), inc.fragments)
+    };
+    for (visibility, res) in [(Visibility::Painter, 1024), (Visibility::ZBuffer, 128)] {
+        for k in 0..3 {
+            let one = run(1, k, visibility, res);
+            assert!(one.2 > 0, "{visibility:?}: no fragments");
+            for threads in [2, 3] {
+                assert!(
+                    run(threads, k, visibility, res) == one,
+                    "{visibility:?}, direction {k}: {threads} threads differ from 1"
+                );
+            }
+            assert!(
+                run(2, k + 10, visibility, res) != one,
+                "the direction changes nothing"
+            );
+        }
+    }
+}
+
 fn render(
     base: &bundle::Settings,
     scene: &Scene,

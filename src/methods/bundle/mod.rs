@@ -263,9 +263,9 @@ pub const MAX_AUTO_MAP_RES: u32 = 4096;
 pub struct Timings {
     /// Building the patches and the view (once).
     pub setup: f64,
-    /// Sorting along ω.
-    pub sort: f64,
-    /// Projection and scan conversion.
+    /// Projecting the patches into the map tiles' bins.
+    pub project: f64,
+    /// Sorting each tile by depth along ω, scan conversion and the tiles' sum.
     pub raster: f64,
     /// The transfer into ω_{m+1}.
     pub transfer: f64,
@@ -378,18 +378,22 @@ impl Bundle {
 
     /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
     /// corner ids) and of the transient per-iteration buffers per patch
-    /// (incoming radiance, sort key, projection, and the tile entries: a
-    /// patch is in the list of every map tile its projection crosses; the
-    /// figure counts two, an upper bound while projections are shorter than
-    /// a tile, 25 rows at the default map). The map itself is not per
-    /// patch: one tile of it per thread ([`visibility::map_bytes`]).
+    /// (incoming radiance, the projection, and the tile entries: a patch
+    /// is in every map tile its projection crosses, with a copy of its
+    /// projection, its id, its two accumulators, and in the buffers of the
+    /// thread that scans the tile its sort key twice and its two radiance
+    /// values; the figure counts two tiles, an upper bound while
+    /// projections are shorter than a tile, 25 rows at the default map).
+    /// The map itself is not per patch: one tile of it per thread
+    /// ([`visibility::map_bytes`]).
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
         let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
-        // list index, patch id and the two accumulators of a band entry
-        let band_entry = 2 * size_of::<u32>() + 2 * size_of::<Rgb>();
-        let transient =
-            2 * size_of::<Rgb>() + size_of::<u64>() + visibility::PROJ_BYTES + 2 * band_entry;
+        // projection, patch id, the two accumulators, sort key and radix
+        // buffer, and the two radiance values of a tile entry
+        let tile_entry =
+            visibility::PROJ_BYTES + size_of::<u32>() + 2 * size_of::<u64>() + 4 * size_of::<Rgb>();
+        let transient = 2 * size_of::<Rgb>() + visibility::PROJ_BYTES + 2 * tile_entry;
         (state, transient)
     }
 }
@@ -465,7 +469,7 @@ impl Method for Bundle {
             },
             &mut self.scratch,
         );
-        self.timings.sort += inc.t_sort;
+        self.timings.project += inc.t_project;
         self.timings.raster += inc.t_raster;
         rays += inc.fragments;
 
@@ -542,14 +546,14 @@ impl Method for Bundle {
         let (state, transient) = Bundle::bytes_per_patch();
         Some(format!(
             "bundle: {} patches (edge {:.4}), map {}², {} iterations; setup {:.2} s; \
-             per iteration: sort {:.2} ms, scan {:.2} ms, transfer {:.2} ms, image {:.2} ms; \
+             per iteration: project {:.2} ms, scan {:.2} ms, transfer {:.2} ms, image {:.2} ms; \
              memory per patch {} B state + {} B transient",
             setup.patches.len(),
             setup.patches.edge,
             setup.res,
             self.iter,
             t.setup,
-            t.sort / it,
+            t.project / it,
             t.raster / it,
             t.transfer / it,
             t.image / it,
