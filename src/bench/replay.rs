@@ -9,11 +9,13 @@
 
 use std::time::Instant;
 
+use glam::DVec3;
 use rayon::prelude::*;
 
 use super::rayset::{RaySets, SetKind};
 use crate::accel::Accel;
 use crate::geometry::Ray;
+use crate::scene::Scene;
 
 /// Rays handed to a core at once (one rayon task).
 const CHUNK: usize = 1024;
@@ -174,6 +176,119 @@ pub fn agreement(reference: &Answers, other: &Answers) -> Agreement {
         _ => {}
     }
     g
+}
+
+/// Who is right where two cores disagree, by a brute-force search of every
+/// triangle in f64 (edges inclusive).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Verdict {
+    /// Disagreeing rays judged (the first [`JUDGED`] at most).
+    pub judged: usize,
+    /// Rays where only the reference core (kalos) answers as the search.
+    pub reference_right: usize,
+    /// Rays where only the other core answers as the search.
+    pub other_right: usize,
+    /// Rays where both do (ties: another triangle at the search's distance).
+    pub both_right: usize,
+    /// Rays where neither does.
+    pub neither_right: usize,
+    /// Judged rays whose closest hit in the search lies within 1e-5
+    /// (barycentric) of its triangle's edge: where a core that is not
+    /// watertight may miss, or see the neighbour.
+    pub on_edge: usize,
+}
+
+/// At most this many disagreeing rays are judged: each costs a pass over
+/// every triangle.
+pub const JUDGED: usize = 200;
+
+/// The closest hit of `r` over every triangle of `scene` by Möller–Trumbore
+/// in f64, edges included, within `[tmin, tmax)`: the distance and the
+/// smallest barycentric weight there (0 on an edge), or None.
+fn brute_force(scene: &Scene, r: &Ray, any: bool) -> Option<(f64, f64)> {
+    let v = |p: glam::Vec3| DVec3::new(p.x as f64, p.y as f64, p.z as f64);
+    let (o, d) = (v(r.o), v(r.d));
+    let (tmin, tmax) = (r.tmin as f64, r.tmax as f64);
+    let mut best: Option<(f64, f64)> = None;
+    for i in 0..scene.triangles.len() as u32 {
+        let [a, b, c] = scene.tri_vertices(i).map(v);
+        let (e1, e2) = (b - a, c - a);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det == 0.0 {
+            continue;
+        }
+        let inv = 1.0 / det;
+        let s = o - a;
+        let u = s.dot(p) * inv;
+        let q = s.cross(e1);
+        let w = d.dot(q) * inv;
+        if u < 0.0 || w < 0.0 || u + w > 1.0 {
+            continue;
+        }
+        let t = e2.dot(q) * inv;
+        if t >= tmin && t < tmax && best.is_none_or(|(bt, _)| t < bt) {
+            best = Some((t, u.min(w).min(1.0 - u - w)));
+            if any {
+                break;
+            }
+        }
+    }
+    best
+}
+
+/// Judges the first [`JUDGED`] rays of `rays` on which `reference` and
+/// `other` disagree against [`brute_force`]. An answer is right when it
+/// misses where the search misses, or hits within 1e-4 (relative) of the
+/// search's distance (for occlusion: blocked where the search finds a hit).
+pub fn judge(scene: &Scene, rays: &[Ray], reference: &Answers, other: &Answers) -> Verdict {
+    let close = |a: &Answer, t: Option<f64>| match t {
+        None => !a.is_hit(),
+        Some(t) => a.is_hit() && (a.t as f64 - t).abs() <= 1e-4 * t.abs().max(1e-3),
+    };
+    let edge = |h: Option<(f64, f64)>| h.is_some_and(|(_, m)| m < 1e-5);
+    let rights: Vec<(bool, bool, bool)> = match (reference, other) {
+        (Answers::Closest(a), Answers::Closest(b)) => {
+            let idx: Vec<usize> = (0..a.len().min(b.len()).min(rays.len()))
+                .filter(|&i| a[i].tri != b[i].tri)
+                .take(JUDGED)
+                .collect();
+            idx.par_iter()
+                .map(|&i| {
+                    let h = brute_force(scene, &rays[i], false);
+                    let t = h.map(|(t, _)| t);
+                    (close(&a[i], t), close(&b[i], t), edge(h))
+                })
+                .collect()
+        }
+        (Answers::Occluded(a), Answers::Occluded(b)) => {
+            let idx: Vec<usize> = (0..a.len().min(b.len()).min(rays.len()))
+                .filter(|&i| a[i] != b[i])
+                .take(JUDGED)
+                .collect();
+            idx.par_iter()
+                .map(|&i| {
+                    let h = brute_force(scene, &rays[i], true);
+                    (a[i] == h.is_some(), b[i] == h.is_some(), edge(h))
+                })
+                .collect()
+        }
+        _ => Vec::new(),
+    };
+    let mut v = Verdict {
+        judged: rights.len(),
+        ..Verdict::default()
+    };
+    for (r, o, e) in rights {
+        v.on_edge += e as usize;
+        match (r, o) {
+            (true, true) => v.both_right += 1,
+            (true, false) => v.reference_right += 1,
+            (false, true) => v.other_right += 1,
+            (false, false) => v.neither_right += 1,
+        }
+    }
+    v
 }
 
 /// The timings of one core on one set at one thread count.

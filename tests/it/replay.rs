@@ -185,3 +185,45 @@ fn bench_replays_what_it_recorded_and_refuses_another_scene() {
         "{e}"
     );
 }
+
+#[test]
+fn the_brute_force_referee_sides_with_the_right_answer() {
+    let world = cbox(16);
+    let sets = rayset::record(&world, 5);
+    let core = KalosTracer(&world.accel);
+    let kind = SetKind::Camera;
+    let right = replay::answers(&core, &sets, kind);
+    let replay::Answers::Closest(answers) = &right else {
+        panic!("camera rays ask for closest hits");
+    };
+    // a core that misses where kalos hits, on three rays
+    let mut wrong = answers.clone();
+    let hits: Vec<usize> = (0..wrong.len()).filter(|&i| wrong[i].is_hit()).collect();
+    for &i in &hits[..3] {
+        wrong[i] = replay::Answer::MISS;
+    }
+    let wrong = replay::Answers::Closest(wrong);
+    let g = replay::agreement(&right, &wrong);
+    assert_eq!((g.differ, g.hit_vs_miss), (3, 3));
+    let v = replay::judge(&world.scene, sets.rays(kind), &right, &wrong);
+    assert_eq!((v.judged, v.reference_right, v.other_right), (3, 3, 0));
+    // and the other way round
+    let v = replay::judge(&world.scene, sets.rays(kind), &wrong, &right);
+    assert_eq!((v.reference_right, v.other_right), (0, 3));
+
+    // occlusion: flipping one flag is caught the same way
+    let kind = SetKind::Shadow;
+    let right = replay::answers(&core, &sets, kind);
+    let replay::Answers::Occluded(flags) = &right else {
+        panic!("shadow rays ask for occlusion");
+    };
+    let mut flipped = flags.clone();
+    flipped[0] = !flipped[0];
+    let v = replay::judge(
+        &world.scene,
+        sets.rays(kind),
+        &right,
+        &replay::Answers::Occluded(flipped),
+    );
+    assert_eq!((v.judged, v.reference_right, v.other_right), (1, 1, 0));
+}

@@ -11,6 +11,7 @@ use clap::Args;
 
 use kalos::bench::rayset::{self, RaySets, SetKind};
 use kalos::bench::replay::{self, KalosTracer, Timing, Tracer};
+use kalos::scene::Scene;
 use kalos::world::World;
 
 use crate::{check_output, load_scene, parse_res, progress, say, Defines};
@@ -131,7 +132,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let run_with = |others: &[&dyn Tracer]| -> Result<()> {
         let mut tracers: Vec<&dyn Tracer> = vec![&kalos_core];
         tracers.extend_from_slice(others);
-        report_answers(&sets, &tracers);
+        report_answers(&world.scene, &sets, &tracers);
         let timings =
             replay::measure(&sets, &tracers, &threads, repeat).context("making a thread pool")?;
         report_timings(&timings, repeat);
@@ -173,7 +174,7 @@ fn embree_or_not(
 
 /// The answers of each core to each set, untimed (this also warms the
 /// caches): kalos's hit counts, and how far every other core agrees.
-fn report_answers(sets: &RaySets, tracers: &[&dyn Tracer]) {
+fn report_answers(scene: &Scene, sets: &RaySets, tracers: &[&dyn Tracer]) {
     for kind in SetKind::ALL {
         let Some((first, others)) = tracers.split_first() else {
             return;
@@ -191,7 +192,8 @@ fn report_answers(sets: &RaySets, tracers: &[&dyn Tracer]) {
             sets.rays(kind).len()
         );
         for t in others.iter().filter(|t| t.traces(kind)) {
-            let g = replay::agreement(&reference, &replay::answers(*t, sets, kind));
+            let theirs = replay::answers(*t, sets, kind);
+            let g = replay::agreement(&reference, &theirs);
             if kind.closest_hit() {
                 say!(
                     "  {} differs from kalos on {} rays: {} ties (another triangle at the same distance), {} hit vs miss, {} other",
@@ -206,6 +208,19 @@ fn report_answers(sets: &RaySets, tracers: &[&dyn Tracer]) {
                     "  {} differs from kalos on {} occlusion flags",
                     t.name(),
                     g.differ
+                );
+            }
+            if g.differ > 0 {
+                let v = replay::judge(scene, sets.rays(kind), &reference, &theirs);
+                say!(
+                    "    brute force (f64, every triangle) on {} of them: kalos alone right {}, {} alone right {}, both {}, neither {}; {} within 1e-5 of an edge",
+                    v.judged,
+                    v.reference_right,
+                    t.name(),
+                    v.other_right,
+                    v.both_right,
+                    v.neither_right,
+                    v.on_edge
                 );
             }
         }
