@@ -178,9 +178,26 @@ pub fn agreement(reference: &Answers, other: &Answers) -> Agreement {
     g
 }
 
+/// A closest-hit ray on which the reference core (kalos) is wrong, for a
+/// bug report: replay the set and look at ray `index`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Example {
+    /// The ray's index in its set.
+    pub index: usize,
+    /// The reference core's answer.
+    pub reference: Answer,
+    /// The other core's answer.
+    pub other: Answer,
+    /// The search's distance and smallest barycentric weight, or None.
+    pub search: Option<(f64, f64)>,
+}
+
+/// At most this many [`Example`]s are kept.
+pub const EXAMPLES: usize = 3;
+
 /// Who is right where two cores disagree, by a brute-force search of every
 /// triangle in f64 (edges inclusive).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Verdict {
     /// Disagreeing rays judged (the first [`JUDGED`] at most).
     pub judged: usize,
@@ -196,6 +213,9 @@ pub struct Verdict {
     /// (barycentric) of its triangle's edge: where a core that is not
     /// watertight may miss, or see the neighbour.
     pub on_edge: usize,
+    /// The first closest-hit rays on which the reference core alone is
+    /// wrong.
+    pub examples: Vec<Example>,
 }
 
 /// At most this many disagreeing rays are judged: each costs a pass over
@@ -247,19 +267,33 @@ pub fn judge(scene: &Scene, rays: &[Ray], reference: &Answers, other: &Answers) 
         Some(t) => a.is_hit() && (a.t as f64 - t).abs() <= 1e-4 * t.abs().max(1e-3),
     };
     let edge = |h: Option<(f64, f64)>| h.is_some_and(|(_, m)| m < 1e-5);
+    let mut examples = Vec::new();
     let rights: Vec<(bool, bool, bool)> = match (reference, other) {
         (Answers::Closest(a), Answers::Closest(b)) => {
             let idx: Vec<usize> = (0..a.len().min(b.len()).min(rays.len()))
                 .filter(|&i| a[i].tri != b[i].tri)
                 .take(JUDGED)
                 .collect();
-            idx.par_iter()
+            let judged: Vec<_> = idx
+                .par_iter()
                 .map(|&i| {
                     let h = brute_force(scene, &rays[i], false);
                     let t = h.map(|(t, _)| t);
-                    (close(&a[i], t), close(&b[i], t), edge(h))
+                    (i, h, (close(&a[i], t), close(&b[i], t), edge(h)))
                 })
-                .collect()
+                .collect();
+            examples = judged
+                .iter()
+                .filter(|(_, _, (r, o, _))| !r && *o)
+                .take(EXAMPLES)
+                .map(|&(index, search, _)| Example {
+                    index,
+                    reference: a[index],
+                    other: b[index],
+                    search,
+                })
+                .collect();
+            judged.into_iter().map(|(_, _, r)| r).collect()
         }
         (Answers::Occluded(a), Answers::Occluded(b)) => {
             let idx: Vec<usize> = (0..a.len().min(b.len()).min(rays.len()))
@@ -277,6 +311,7 @@ pub fn judge(scene: &Scene, rays: &[Ray], reference: &Answers, other: &Answers) 
     };
     let mut v = Verdict {
         judged: rights.len(),
+        examples,
         ..Verdict::default()
     };
     for (r, o, e) in rights {

@@ -222,6 +222,27 @@ fn report_answers(scene: &Scene, sets: &RaySets, tracers: &[&dyn Tracer]) {
                     v.neither_right,
                     v.on_edge
                 );
+                let hit = |a: &replay::Answer| {
+                    if a.is_hit() {
+                        format!("triangle {} at t {:.6}", a.tri, a.t)
+                    } else {
+                        "a miss".to_string()
+                    }
+                };
+                for e in &v.examples {
+                    let search = match e.search {
+                        Some((t, m)) => format!("a hit at t {t:.6}, smallest barycentric {m:.1e}"),
+                        None => "a miss".into(),
+                    };
+                    say!(
+                        "    e.g. {} ray {}: kalos {}, {} {}, the search {search}",
+                        kind.name(),
+                        e.index,
+                        hit(&e.reference),
+                        t.name(),
+                        hit(&e.other)
+                    );
+                }
             }
         }
     }
