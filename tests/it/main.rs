@@ -24,5 +24,6 @@ mod methods;
 mod pbrt;
 mod plb;
 mod reference;
+mod replay;
 mod transport;
 mod view;

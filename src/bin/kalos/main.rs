@@ -2,6 +2,7 @@
 //! files. Everything else lives in the library.
 
 mod bake;
+mod bench;
 mod merge;
 mod progress;
 mod render;
@@ -10,7 +11,6 @@ mod view;
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -66,8 +66,9 @@ enum Command {
     },
     /// Plot convergence logs (CSV from `render --log`): error against time.
     Plot(PlotArgs),
-    /// Measure the ray core's throughput (Mrays/s), one thread and all.
-    Bench(BenchArgs),
+    /// Measure the ray core's throughput (Mrays/s), one thread and all:
+    /// incoherent rays, and recorded camera, bounce and shadow rays.
+    Bench(bench::BenchArgs),
     /// Bake view-independent lighting by density estimation into a glTF
     /// binary display mesh (vertex colours), optionally an irradiance PLY.
     Bake(Box<bake::BakeArgs>),
@@ -149,20 +150,6 @@ enum XArg {
     Spp,
 }
 
-#[derive(Args)]
-struct BenchArgs {
-    /// Scene to trace (omit for a generated scene of about 1 M triangles).
-    scene: Option<PathBuf>,
-    /// Rays per measurement.
-    #[arg(long, default_value_t = 4_000_000)]
-    rays: u64,
-    #[command(flatten)]
-    defines: Defines,
-    /// Triangles in the generated scene.
-    #[arg(long, default_value_t = 1_000_000)]
-    triangles: u64,
-}
-
 fn parse_res(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -227,7 +214,7 @@ fn main() {
         Command::Compare(a) => compare(a),
         Command::Info { scene, defines } => info(scene.as_deref(), &defines),
         Command::Plot(a) => plot_cmd(a),
-        Command::Bench(a) => bench(a),
+        Command::Bench(a) => bench::run(a),
         Command::Bake(a) => bake::run(*a),
         Command::Merge(a) => merge::run(a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
@@ -416,36 +403,6 @@ fn plot_cmd(a: PlotArgs) -> Result<()> {
     opts.y_label = a.y_label;
     plot::plot_convergence(&series, &a.output, &opts)?;
     say!("plot written to {}", a.output.display());
-    Ok(())
-}
-
-fn bench(a: BenchArgs) -> Result<()> {
-    let scene = match &a.scene {
-        Some(p) => load_scene(Some(p), &a.defines)?,
-        None => kalos::scenegen::bench_scene(a.triangles),
-    };
-    say!(
-        "scene: {} ({} triangles)",
-        scene.source,
-        scene.triangles.len()
-    );
-    let t = Instant::now();
-    let world = progress::build_world(scene);
-    say!("BVH build: {:.2} s", t.elapsed().as_secs_f64());
-    let one = kalos::bench::incoherent_closest_hits(&world, a.rays, 1);
-    let all_threads = rayon::current_num_threads();
-    let all = kalos::bench::incoherent_closest_hits(&world, a.rays, all_threads);
-    say!(
-        "incoherent closest hits, 1 thread:  {:.2} Mrays/s ({} hits of {} rays)",
-        one.mrays_per_s,
-        one.hits,
-        one.rays
-    );
-    say!(
-        "incoherent closest hits, {all_threads} threads: {:.2} Mrays/s (ratio {:.2}x)",
-        all.mrays_per_s,
-        all.mrays_per_s / one.mrays_per_s
-    );
     Ok(())
 }
 

@@ -1,6 +1,13 @@
 //! Ray-core measurements for `kalos bench`: incoherent closest-hit
-//! throughput (the default scene is [`crate::scenegen::bench_scene`]).
-//! Benchmarks measure; nothing here is asserted by tests.
+//! throughput (the default scene is [`crate::scenegen::bench_scene`]), and
+//! recorded ray sets ([`rayset`]) replayed through kalos's ray core and, with
+//! the `embree` feature, through Embree on the same rays ([`replay`]).
+//! Benchmarks measure; no test asserts a time.
+
+#[cfg(feature = "embree")]
+pub mod embree;
+pub mod rayset;
+pub mod replay;
 
 use std::time::Instant;
 

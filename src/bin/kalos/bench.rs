@@ -1,0 +1,303 @@
+//! `kalos bench`: ray-core throughput. Incoherent closest hits, then the
+//! recorded ray sets (camera, diffuse bounce, shadow) replayed through
+//! kalos's BVH and, when built with the `embree` feature, through Embree on
+//! the same rays, with the ratio and the answers compared.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::Args;
+
+use kalos::bench::rayset::{self, RaySets, SetKind};
+use kalos::bench::replay::{self, KalosTracer, Timing, Tracer};
+use kalos::scene::Scene;
+use kalos::world::World;
+
+use crate::{check_output, load_scene, parse_res, progress, say, Defines};
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Scene to trace (omit for a generated scene of about 1 M triangles).
+    scene: Option<PathBuf>,
+    /// Incoherent rays per measurement (0 skips that measurement).
+    #[arg(long, default_value_t = 4_000_000)]
+    rays: u64,
+    #[command(flatten)]
+    defines: Defines,
+    /// Triangles in the generated scene.
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+    /// Film resolution of the recorded camera rays, WxH (default: the
+    /// scene's).
+    #[arg(long, value_parser = parse_res, conflicts_with = "replay")]
+    res: Option<(u32, u32)>,
+    /// Seed of the recorded ray sets.
+    #[arg(long, default_value_t = 1, conflicts_with = "replay")]
+    seed: u64,
+    /// Save the recorded ray sets to FILE (.krays).
+    #[arg(long, value_name = "FILE", conflicts_with = "replay")]
+    record: Option<PathBuf>,
+    /// Replay the ray sets of FILE (from `--record`) instead of recording
+    /// them; the scene must be the one they were recorded from.
+    #[arg(long, value_name = "FILE")]
+    replay: Option<PathBuf>,
+    /// Timed repetitions of each set (the median is reported).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    repeat: u64,
+    /// Leave Embree out (in a build with the `embree` feature).
+    #[arg(long)]
+    no_embree: bool,
+}
+
+/// The one-minute, five-minute and fifteen-minute load averages, for the
+/// record (the machine may be shared).
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|| "unknown".into())
+}
+
+pub fn run(a: BenchArgs) -> Result<()> {
+    // Files first: a bad ray-set file or an unwritable --record fails
+    // before the scene loads
+    if let Some(p) = &a.record {
+        check_output(p, &["krays"])?;
+    }
+    let replayed = match &a.replay {
+        Some(p) => Some(rayset::read(p)?),
+        None => None,
+    };
+    let mut scene = match &a.scene {
+        Some(p) => load_scene(Some(p), &a.defines)?,
+        None => kalos::scenegen::bench_scene(a.triangles),
+    };
+    if let Some(s) = &replayed {
+        scene.set_resolution(s.width, s.height);
+    } else if let Some((w, h)) = a.res {
+        scene.set_resolution(w, h);
+    }
+    say!(
+        "scene: {} ({} triangles); load average {}",
+        scene.source,
+        scene.triangles.len(),
+        load_average()
+    );
+    let t = Instant::now();
+    let world = progress::build_world(scene);
+    say!("kalos BVH build: {:.2} s", t.elapsed().as_secs_f64());
+
+    let all_threads = rayon::current_num_threads();
+    if a.rays > 0 {
+        incoherent(&world, a.rays, all_threads);
+    }
+
+    // The ray sets: recorded now, or read from --replay
+    let sets = match (replayed, &a.replay) {
+        (Some(s), Some(p)) => {
+            rayset::check_scene(p, &s, kalos::partial::scene_hash(&world.scene))?;
+            s
+        }
+        _ => {
+            let t = Instant::now();
+            let s = rayset::record(&world, a.seed);
+            say!(
+                "recorded the ray sets in {:.2} s",
+                t.elapsed().as_secs_f64()
+            );
+            s
+        }
+    };
+    if let Some(p) = &a.record {
+        rayset::write(p, &sets).with_context(|| "saving the ray sets".to_string())?;
+        say!("ray sets written to {}", p.display());
+    }
+    say!(
+        "ray sets ({}x{}, seed {}): {}",
+        sets.width,
+        sets.height,
+        sets.seed,
+        SetKind::ALL
+            .map(|k| format!("{} {} rays", k.name(), sets.rays(k).len()))
+            .join(", ")
+    );
+    let threads: Vec<usize> = if all_threads > 1 {
+        vec![1, all_threads]
+    } else {
+        vec![1]
+    };
+    let kalos_core = KalosTracer(&world.accel);
+    let repeat = a.repeat as usize;
+    let run_with = |others: &[&dyn Tracer]| -> Result<()> {
+        let mut tracers: Vec<&dyn Tracer> = vec![&kalos_core];
+        tracers.extend_from_slice(others);
+        report_answers(&world.scene, &sets, &tracers);
+        let timings =
+            replay::measure(&sets, &tracers, &threads, repeat).context("making a thread pool")?;
+        report_timings(&timings, repeat);
+        Ok(())
+    };
+    embree_or_not(&world, a.no_embree, &run_with)?;
+    say!("load average at the end: {}", load_average());
+    Ok(())
+}
+
+/// Runs `run_with` with Embree's tracers when built with them and not
+/// refused, else with none.
+#[cfg(feature = "embree")]
+fn embree_or_not(
+    world: &World,
+    no_embree: bool,
+    run_with: &dyn Fn(&[&dyn Tracer]) -> Result<()>,
+) -> Result<()> {
+    if no_embree || world.scene.triangles.is_empty() {
+        return run_with(&[]);
+    }
+    kalos::bench::embree::with_tracers(&world.scene, |one, stream, secs| {
+        say!("Embree BVH build: {secs:.2} s");
+        run_with(&[one, stream])
+    })
+}
+
+#[cfg(not(feature = "embree"))]
+fn embree_or_not(
+    _world: &World,
+    no_embree: bool,
+    run_with: &dyn Fn(&[&dyn Tracer]) -> Result<()>,
+) -> Result<()> {
+    if !no_embree {
+        say!("Embree: not in this build (cargo build --release --features embree)");
+    }
+    run_with(&[])
+}
+
+/// The answers of each core to each set, untimed (this also warms the
+/// caches): kalos's hit counts, and how far every other core agrees.
+fn report_answers(scene: &Scene, sets: &RaySets, tracers: &[&dyn Tracer]) {
+    for kind in SetKind::ALL {
+        let Some((first, others)) = tracers.split_first() else {
+            return;
+        };
+        let reference = replay::answers(*first, sets, kind);
+        let what = if kind.closest_hit() {
+            "hit"
+        } else {
+            "occluded"
+        };
+        say!(
+            "{}: {} of {} rays {what} (kalos)",
+            kind.name(),
+            reference.hits(),
+            sets.rays(kind).len()
+        );
+        for t in others.iter().filter(|t| t.traces(kind)) {
+            let theirs = replay::answers(*t, sets, kind);
+            let g = replay::agreement(&reference, &theirs);
+            if kind.closest_hit() {
+                say!(
+                    "  {} differs from kalos on {} rays: {} ties (another triangle at the same distance), {} hit vs miss, {} other",
+                    t.name(),
+                    g.differ,
+                    g.ties,
+                    g.hit_vs_miss,
+                    g.differ - g.ties - g.hit_vs_miss
+                );
+            } else {
+                say!(
+                    "  {} differs from kalos on {} occlusion flags",
+                    t.name(),
+                    g.differ
+                );
+            }
+            if g.differ > 0 {
+                let v = replay::judge(scene, sets.rays(kind), &reference, &theirs);
+                say!(
+                    "    brute force (f64, every triangle) on {} of them: kalos alone right {}, {} alone right {}, both {}, neither {}; {} within 1e-5 of an edge",
+                    v.judged,
+                    v.reference_right,
+                    t.name(),
+                    v.other_right,
+                    v.both_right,
+                    v.neither_right,
+                    v.on_edge
+                );
+                let hit = |a: &replay::Answer| {
+                    if a.is_hit() {
+                        format!("triangle {} at t {:.6}", a.tri, a.t)
+                    } else {
+                        "a miss".to_string()
+                    }
+                };
+                for e in &v.examples {
+                    let search = match e.search {
+                        Some((t, m)) => format!("a hit at t {t:.6}, smallest barycentric {m:.1e}"),
+                        None => "a miss".into(),
+                    };
+                    say!(
+                        "    e.g. {} ray {}: kalos {}, {} {}, the search {search}",
+                        kind.name(),
+                        e.index,
+                        hit(&e.reference),
+                        t.name(),
+                        hit(&e.other)
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// One line per set and thread count: each core's Mrays/s (median of the
+/// repetitions) and, for the others, kalos's ratio to it.
+fn report_timings(timings: &[Timing], repeat: usize) {
+    say!("replay, Mrays/s (median of {repeat}; the cores alternate within each repetition):");
+    let mut i = 0;
+    while i < timings.len() {
+        let (kind, threads) = (timings[i].kind, timings[i].threads);
+        let group: Vec<&Timing> = timings[i..]
+            .iter()
+            .take_while(|t| t.kind == kind && t.threads == threads)
+            .collect();
+        i += group.len();
+        let kalos = group[0].mrays_per_s();
+        let mut line = format!(
+            "  {:<6} {} thread{} {:>9} rays: {} {:.2}",
+            kind.name(),
+            threads,
+            if threads == 1 { " " } else { "s" },
+            group[0].rays,
+            group[0].tracer,
+            kalos
+        );
+        for t in &group[1..] {
+            let m = t.mrays_per_s();
+            line += &format!(
+                ", {} {:.2} (kalos/{} {:.2})",
+                t.tracer,
+                m,
+                t.tracer,
+                kalos / m
+            );
+        }
+        say!("{line}");
+    }
+}
+
+/// The incoherent closest-hit measurement (uniform origins in the scene's
+/// bounds, uniform directions), one thread and all.
+fn incoherent(world: &World, rays: u64, all_threads: usize) {
+    let one = kalos::bench::incoherent_closest_hits(world, rays, 1);
+    let all = kalos::bench::incoherent_closest_hits(world, rays, all_threads);
+    say!(
+        "incoherent closest hits, 1 thread:  {:.2} Mrays/s ({} hits of {} rays)",
+        one.mrays_per_s,
+        one.hits,
+        one.rays
+    );
+    say!(
+        "incoherent closest hits, {all_threads} threads: {:.2} Mrays/s (ratio {:.2}x)",
+        all.mrays_per_s,
+        all.mrays_per_s / one.mrays_per_s
+    );
+}
