@@ -1,7 +1,7 @@
 //! Patch budgets: how the patches that `--patches` (or `--patch-edge`)
 //! asks for are spread over the surfaces.
 //!
-//! - `area` (the paper's): one uniform edge length everywhere
+//! - `area` (the paper's, and the default): one uniform edge length everywhere
 //!   ([`Layout::area`]), so a surface gets patches in proportion to its area,
 //!   seen or not. Every triangle keeps at least one patch, so a finely
 //!   tessellated object (sphereflake's 56,814 sphere triangles) takes its
@@ -15,11 +15,13 @@
 //!   w_c = β A_c / A + (1 − β) P_c / P,
 //!
 //!   where A_c is the cell's area, P_c the number of camera rays (one per
-//!   pixel centre, through delta chains) whose visible point is in the
-//!   cell, and β = [`AREA_SHARE`]. The P term is the patch's pixel
-//!   footprint: image error from a constant-radiance patch grows with the
-//!   pixels it covers, so equal footprints spend patches where the image
-//!   sees them. The A term keeps the surfaces the camera does not see (which
+//!   pixel centre, through delta chains) that read the patch solution in
+//!   the cell, and β = [`AREA_SHARE`]. A pixel reads the patch of its
+//!   visible point, except that with the final gather a glossy pixel reads
+//!   the patch its gather ray lands on (one BSDF-sampled bounce, as the
+//!   gather draws it). The P term is the patch's pixel footprint: image
+//!   error from a constant-radiance patch grows with the pixels that read
+//!   it, so equal footprints spend patches where the image sees them. The A term keeps the surfaces the camera does not see (which
 //!   still light the ones it does) meshed at a fraction of the uniform
 //!   density instead of one patch a cell.
 //!
@@ -57,11 +59,13 @@ const MAX_DELTA: u32 = 8;
 
 /// The projected budget for target edge `edge`: the layout, and the camera
 /// rays traced to measure the footprints.
-pub fn projected(world: &World, edge: f32) -> (Layout, u64) {
+/// `gather`: the final gather is on (glossy pixels read the patch their
+/// gather ray lands on).
+pub fn projected(world: &World, edge: f32, gather: bool) -> (Layout, u64) {
     let scene = &world.scene;
     let target = Layout::area(scene, edge).patch_count();
     let mut layout = Layout::cells(scene, CELL_EDGES * edge);
-    let (pixels, rays) = coverage(world, &layout);
+    let (pixels, rays) = coverage(world, &layout, gather);
     let area: Vec<f64> = (0..scene.triangles.len() as u32)
         .flat_map(|t| {
             let m = layout.m[t as usize] as usize;
@@ -91,15 +95,16 @@ pub fn projected(world: &World, edge: f32) -> (Layout, u64) {
 
 /// Camera rays per cell: one ray through each pixel centre, followed
 /// through delta bounces (one sampled branch, keyed by the pixel) to the
-/// first non-delta surface. Returns the counts and the rays traced.
-pub fn coverage(world: &World, layout: &Layout) -> (Vec<u32>, u64) {
+/// first non-delta surface, and with `gather` from a glossy one through one
+/// BSDF-sampled bounce more. Returns the counts and the rays traced.
+pub fn coverage(world: &World, layout: &Layout, gather: bool) -> (Vec<u32>, u64) {
     let (w, h) = (world.camera.width as usize, world.camera.height as usize);
     let seen: Vec<(Option<u32>, u64)> = (0..w * h)
         .into_par_iter()
         .map(|pix| {
             let (x, y) = ((pix % w) as f32 + 0.5, (pix / w) as f32 + 0.5);
             let mut rng = Pcg32::keyed(&[pix as u64, 0xB0D6]);
-            visible_cell(world, layout, world.camera.ray(x, y), &mut rng)
+            read_cell(world, layout, world.camera.ray(x, y), gather, &mut rng)
         })
         .collect();
     let mut count = vec![0u32; layout.cell_count()];
@@ -111,15 +116,16 @@ pub fn coverage(world: &World, layout: &Layout) -> (Vec<u32>, u64) {
     (count, seen.iter().map(|s| s.1).sum())
 }
 
-/// The cell of the first non-delta surface along `ray`, and the rays traced.
-fn visible_cell(
+/// The cell whose patch the pixel of `ray` reads, and the rays traced.
+fn read_cell(
     world: &World,
     layout: &Layout,
     mut ray: Ray,
+    mut gather: bool,
     rng: &mut Pcg32,
 ) -> (Option<u32>, u64) {
     let mut rays = 0;
-    for _ in 0..=MAX_DELTA {
+    for _ in 0..=MAX_DELTA + 1 {
         rays += 1;
         let Some(hit) = world.accel.intersect(&ray) else {
             break;
@@ -127,10 +133,12 @@ fn visible_cell(
         let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
         let material = world.scene.material_of(&sp);
         let bsdf = material.bsdf(sp.uv);
-        if !bsdf.is_delta() {
+        let glossy = gather && bsdf.has_glossy();
+        if !bsdf.is_delta() && !glossy {
             return (Some(layout.cell_of(hit.tri, hit.b1, hit.b2).0), rays);
         }
-        // Follow one branch of the delta chain
+        // Follow one branch of the delta chain, or the gather's bounce
+        gather &= !glossy;
         let wo_world = -ray.d;
         let (frame, ng) = orient(sp.frame, sp.ng, wo_world, material.is_two_sided());
         let wo = frame.to_local(wo_world);

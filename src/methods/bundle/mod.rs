@@ -120,12 +120,12 @@ pub struct Settings {
     /// patches).
     #[cfg_attr(feature = "cli", arg(long = "patch-edge"))]
     pub edge: Option<f32>,
-    /// How the patches are spread: uniformly by area (the paper's mesh),
-    /// or by what the camera sees at the same count; `auto` is `area` for
-    /// the paper's form and `projected` otherwise ([`budget`]).
+    /// How the patches are spread: uniformly by area (the paper's mesh,
+    /// the default), or by what the camera sees at the same count
+    /// ([`budget`]).
     #[cfg_attr(
         feature = "cli",
-        arg(long = "patch-budget", value_enum, default_value = "auto")
+        arg(long = "patch-budget", value_enum, default_value = "area")
     )]
     pub budget: PatchBudget,
     /// Visibility-map resolution across the scene's bounding sphere; when
@@ -176,10 +176,9 @@ pub struct Settings {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum PatchBudget {
-    /// `area` with the paper's form (`--direct bundles --positions fixed
-    /// --gather off --glass off`), else `projected`.
-    Auto,
-    /// One uniform edge length: patches in proportion to area (the paper).
+    /// One uniform edge length: patches in proportion to area (the paper,
+    /// and the default: at equal patch count and iterations it measured no
+    /// worse than `projected`, see BENCHMARKS.md).
     Area,
     /// The same count, spread by area and by the camera's pixel footprint.
     Projected,
@@ -233,24 +232,6 @@ fn subpixel_rule(s: &str) -> Result<bool, String> {
 }
 
 impl Settings {
-    /// True for the paper's form: `--direct bundles --positions fixed
-    /// --gather off --glass off`.
-    pub fn is_paper_form(&self) -> bool {
-        self.direct == Direct::Bundles
-            && self.positions == Positions::Fixed
-            && self.gather == Gather::Off
-            && self.glass == Glass::Off
-    }
-
-    /// The patch budget in use: `auto` resolved.
-    pub fn patch_budget(&self) -> PatchBudget {
-        match self.budget {
-            PatchBudget::Auto if self.is_paper_form() => PatchBudget::Area,
-            PatchBudget::Auto => PatchBudget::Projected,
-            b => b,
-        }
-    }
-
     /// Rejects settings that cannot work.
     pub fn validate(&self) -> Result<(), MethodError> {
         if self.patches == 0 {
@@ -280,7 +261,7 @@ impl Default for Settings {
             seed: 0,
             patches: 5_000,
             edge: None,
-            budget: PatchBudget::Auto,
+            budget: PatchBudget::Area,
             map_res: None,
             sequence: Sequence::Random,
             image: ImageMode::Phong,
@@ -373,15 +354,16 @@ impl Bundle {
         let edge = settings
             .edge
             .unwrap_or_else(|| patches::edge_for_count(&world.scene, settings.patches));
-        let (mut patches, budget_rays) = match settings.patch_budget() {
+        let (mut patches, budget_rays) = match settings.budget {
             PatchBudget::Projected => {
-                let (layout, rays) = budget::projected(world, edge);
+                let (layout, rays) =
+                    budget::projected(world, edge, settings.gather == Gather::Glossy);
                 (
                     Patches::with_layout(&world.scene, &world.lights, layout, edge),
                     rays,
                 )
             }
-            _ => (Patches::build(&world.scene, &world.lights, edge), 0),
+            PatchBudget::Area => (Patches::build(&world.scene, &world.lights, edge), 0),
         };
         patches.set_glass(settings.glass == Glass::Lobes);
         let radius = world.lights.radius;
@@ -595,9 +577,9 @@ impl Method for Bundle {
              per iteration: sort {:.2} ms, scan {:.2} ms, transfer {:.2} ms, image {:.2} ms; \
              memory per patch {} B state + {} B transient",
             setup.patches.len(),
-            match self.settings.patch_budget() {
+            match self.settings.budget {
                 PatchBudget::Projected => "projected",
-                _ => "area",
+                PatchBudget::Area => "area",
             },
             setup.patches.edge,
             setup.res,

@@ -98,7 +98,7 @@ fn projected_count_and_coverage() {
         let world = World::new(scene);
         let edge = edge_for_count(&world.scene, n);
         let target = Layout::area(&world.scene, edge).patch_count();
-        let (layout, rays) = budget::projected(&world, edge);
+        let (layout, rays) = budget::projected(&world, edge, true);
         assert!(rays > 0, "the footprints trace camera rays");
         let count = layout.patch_count();
         let k_min = layout.k.iter().copied().min().expect("cells") as usize;
@@ -141,7 +141,7 @@ fn projected_count_and_coverage() {
 fn locate_on_cells() {
     let world = World::new(corridor());
     let edge = edge_for_count(&world.scene, 3000);
-    let (layout, _) = budget::projected(&world, edge);
+    let (layout, _) = budget::projected(&world, edge, true);
     assert!(layout.m[0] > 1, "the floor is cut into cells");
     let ks: std::collections::BTreeSet<u16> = layout.k.iter().copied().collect();
     assert!(ks.len() > 2, "cells of several subdivisions: {ks:?}");
@@ -178,7 +178,7 @@ fn locate_on_cells() {
 fn projected_is_finer_near_the_camera() {
     let world = World::new(corridor());
     let edge = edge_for_count(&world.scene, 3000);
-    let (layout, _) = budget::projected(&world, edge);
+    let (layout, _) = budget::projected(&world, edge, true);
     let projected = Patches::with_layout(&world.scene, &world.lights, layout, edge);
     let area = Patches::build(&world.scene, &world.lights, edge);
     let (pn, pf) = near_far_density(&projected);
@@ -190,24 +190,9 @@ fn projected_is_finer_near_the_camera() {
     assert!(pn > 2.0 * pf, "projected: near {pn}, far {pf}");
 }
 
-/// `auto` is the paper's area budget with the paper's form, and projected
-/// otherwise.
+/// The default is the paper's area budget, in the paper's form and ours.
 #[test]
-fn auto_budget() {
-    use kalos::methods::bundle::image::Positions;
-    use kalos::methods::bundle::{Direct, Gather, Glass, PatchBudget, Settings};
-    let paper = Settings {
-        direct: Direct::Bundles,
-        positions: Positions::Fixed,
-        gather: Gather::Off,
-        glass: Glass::Off,
-        ..Default::default()
-    };
-    assert_eq!(paper.patch_budget(), PatchBudget::Area);
-    assert_eq!(Settings::default().patch_budget(), PatchBudget::Projected);
-    let forced = Settings {
-        budget: PatchBudget::Projected,
-        ..paper
-    };
-    assert_eq!(forced.patch_budget(), PatchBudget::Projected);
+fn default_budget_is_area() {
+    use kalos::methods::bundle::{PatchBudget, Settings};
+    assert_eq!(Settings::default().budget, PatchBudget::Area);
 }
