@@ -25,6 +25,7 @@ use kalos::metrics::{rel_mse, rel_mse_pair};
 use kalos::sampling::{uniform_sphere, Pcg32};
 use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
 
+mod budget;
 mod transfer;
 
 fn root() -> PathBuf {

@@ -59,6 +59,7 @@ fn each_method_help_lists_only_its_own_flags() {
             &[
                 "--patches",
                 "--patch-edge",
+                "--patch-budget",
                 "--map-res",
                 "--sequence",
                 "--bundle-image",

@@ -86,6 +86,7 @@
 //! through them, with a sampled chain, in the image estimate), and smooth
 //! plastic's coat (its diffuse base is kept).
 
+pub mod budget;
 pub mod image;
 pub mod patches;
 pub mod sequence;
@@ -119,6 +120,14 @@ pub struct Settings {
     /// patches).
     #[cfg_attr(feature = "cli", arg(long = "patch-edge"))]
     pub edge: Option<f32>,
+    /// How the patches are spread: uniformly by area (the paper's mesh,
+    /// the default), or by what the camera sees at the same count
+    /// ([`budget`]).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long = "patch-budget", value_enum, default_value = "area")
+    )]
+    pub budget: PatchBudget,
     /// Visibility-map resolution across the scene's bounding sphere; when
     /// not given, 8R/h (four pixels per patch edge), clamped to 1024..=4096.
     #[cfg_attr(feature = "cli", arg(long))]
@@ -161,6 +170,18 @@ pub struct Settings {
     /// lobes (the default), or left out as the paper's code did.
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "lobes"))]
     pub glass: Glass,
+}
+
+/// How the patch count is spread over the surfaces ([`budget`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum PatchBudget {
+    /// One uniform edge length: patches in proportion to area (the paper,
+    /// and the default: at equal patch count and iterations it measured no
+    /// worse than `projected`, see BENCHMARKS.md).
+    Area,
+    /// The same count, spread by area and by the camera's pixel footprint.
+    Projected,
 }
 
 /// How glass (smooth and thin dielectrics) takes part in the transfer.
@@ -240,6 +261,7 @@ impl Default for Settings {
             seed: 0,
             patches: 5_000,
             edge: None,
+            budget: PatchBudget::Area,
             map_res: None,
             sequence: Sequence::Random,
             image: ImageMode::Phong,
@@ -332,7 +354,17 @@ impl Bundle {
         let edge = settings
             .edge
             .unwrap_or_else(|| patches::edge_for_count(&world.scene, settings.patches));
-        let mut patches = Patches::build(&world.scene, &world.lights, edge);
+        let (mut patches, budget_rays) = match settings.budget {
+            PatchBudget::Projected => {
+                let (layout, rays) =
+                    budget::projected(world, edge, settings.gather == Gather::Glossy);
+                (
+                    Patches::with_layout(&world.scene, &world.lights, layout, edge),
+                    rays,
+                )
+            }
+            PatchBudget::Area => (Patches::build(&world.scene, &world.lights, edge), 0),
+        };
         patches.set_glass(settings.glass == Glass::Lobes);
         let radius = world.lights.radius;
         let res = settings.map_res.unwrap_or_else(|| {
@@ -347,7 +379,7 @@ impl Bundle {
             settings.direct == Direct::Nee,
             settings.gather == Gather::Glossy,
         );
-        let rays = view.rays;
+        let rays = view.rays + budget_rays;
         let n = patches.len();
         self.l_plus = vec![Rgb::ZERO; n];
         self.l_minus = vec![Rgb::ZERO; n];
@@ -545,10 +577,14 @@ impl Method for Bundle {
         let it = self.iter.max(1) as f64 * 1e-3;
         let (state, transient) = Bundle::bytes_per_patch();
         Some(format!(
-            "bundle: {} patches (edge {:.4}), map {}², {} iterations; setup {:.2} s; \
+            "bundle: {} patches ({} budget, edge {:.4}), map {}², {} iterations; setup {:.2} s; \
              per iteration: project {:.2} ms, scan {:.2} ms, transfer {:.2} ms, image {:.2} ms; \
              memory per patch {} B state + {} B transient",
             setup.patches.len(),
+            match self.settings.budget {
+                PatchBudget::Projected => "projected",
+                PatchBudget::Area => "area",
+            },
             setup.patches.edge,
             setup.res,
             self.iter,

@@ -1,12 +1,20 @@
 //! Patches: the finite elements of §5 (eq. (23)). Every scene triangle is cut
-//! into k² congruent sub-triangles (k chosen per triangle so that no edge is
-//! longer than the target edge length), and each sub-triangle is a patch with
-//! constant emission L_i^e(ω), BRDF f̃_i, area A_i and radiance L\[i\].
+//! into m² congruent cells, and every cell into k² congruent sub-triangles;
+//! each sub-triangle is a patch with constant emission L_i^e(ω), BRDF f̃_i,
+//! area A_i and radiance L\[i\]. The [`Layout`] holds m per triangle and k
+//! per cell:
 //!
-//! The sub-triangles of triangle t are numbered row by row in the barycentric
-//! grid (b1 = i/k, b2 = j/k): row j holds k − j "up" and k − j − 1 "down"
-//! triangles, interleaved, so that a ray hit (t, b1, b2) finds its patch in
-//! O(1) ([`Patches::locate`]).
+//! - the area budget (the paper's uniform mesh, [`Layout::area`]) has m = 1
+//!   and k chosen per triangle so that no edge is longer than the target
+//!   edge length;
+//! - the projected budget ([`super::budget`]) cuts large triangles into
+//!   cells a few target edges long, then spends the patches cell by cell.
+//!
+//! The cells of a triangle, and the sub-triangles of a cell, are numbered
+//! row by row in the barycentric grid (b1 = i/k, b2 = j/k): row j holds
+//! k − j "up" and k − j − 1 "down" triangles, interleaved, so that a ray
+//! hit (t, b1, b2) finds its cell and then its patch in O(1)
+//! ([`Patches::locate`]).
 
 use std::collections::HashMap;
 
@@ -57,26 +65,150 @@ impl Patch {
     }
 }
 
+/// The two-level subdivision: m per scene triangle, k per cell.
+#[derive(Clone, Debug)]
+pub struct Layout {
+    /// Cells per edge m of each scene triangle (m² cells).
+    pub m: Vec<u16>,
+    /// First cell of each scene triangle.
+    pub cell0: Vec<u32>,
+    /// Sub-triangles per edge k of each cell (k² patches).
+    pub k: Vec<u16>,
+}
+
+/// The largest m or k: a cell or a patch row beyond this is not useful,
+/// and it keeps the counts in `u16`.
+pub const MAX_SPLIT: u32 = 256;
+
+/// Index within a row-by-row numbered grid of n² triangles, and the local
+/// barycentrics (u, v) in that triangle, of grid coordinates (`u`, `v`)
+/// (each scaled by n, so that the grid cells are unit). "Down" triangles
+/// have corners (1,0), (1,1), (0,1) of their square and local coordinates
+/// relative to the first.
+#[inline]
+fn grid_cell(n: u32, u: f32, v: f32) -> (u32, f32, f32) {
+    let (u, v) = (u.max(0.0), v.max(0.0));
+    let j = (v.floor() as u32).min(n - 1);
+    let i = (u.floor() as u32).min(n - 1 - j);
+    let (fu, fv) = (u - i as f32, v - j as f32);
+    let row = 2 * n * j - j * j;
+    let down = fu + fv > 1.0 && i + j + 1 < n;
+    let idx = row + 2 * i + down as u32;
+    if down {
+        let t = 1.0 - fu;
+        (idx, fv - t, t)
+    } else {
+        (idx, fu, fv)
+    }
+}
+
+/// The grid triangles of an n² grid in index order, as the grid
+/// coordinates of their three corners (counter-clockwise, as the parent).
+fn grid_triangles(n: u32) -> impl Iterator<Item = [(u32, u32); 3]> {
+    (0..n).flat_map(move |j| {
+        (0..n - j).flat_map(move |i| {
+            let up = [(i, j), (i + 1, j), (i, j + 1)];
+            let down = (i + j + 1 < n).then_some([(i + 1, j), (i + 1, j + 1), (i, j + 1)]);
+            std::iter::once(up).chain(down)
+        })
+    })
+}
+
+/// Longest edge of scene triangle `t`.
+fn longest_edge(scene: &Scene, t: u32) -> f32 {
+    let [a, b, c] = scene.tri_vertices(t);
+    (b - a).length().max((c - b).length()).max((a - c).length())
+}
+
+impl Layout {
+    /// The paper's uniform mesh: one cell per triangle, k so that no patch
+    /// edge is longer than `edge`.
+    pub fn area(scene: &Scene, edge: f32) -> Self {
+        let nt = scene.triangles.len();
+        Layout {
+            m: vec![1; nt],
+            cell0: (0..nt as u32).collect(),
+            k: (0..nt as u32)
+                .map(|t| subdivision(longest_edge(scene, t), edge) as u16)
+                .collect(),
+        }
+    }
+
+    /// Cells no longer than `cell_edge` (each with k = 1, for a budget to
+    /// fill).
+    pub fn cells(scene: &Scene, cell_edge: f32) -> Self {
+        let nt = scene.triangles.len();
+        let mut m = Vec::with_capacity(nt);
+        let mut cell0 = Vec::with_capacity(nt);
+        let mut n = 0u32;
+        for t in 0..nt as u32 {
+            let mt = subdivision(longest_edge(scene, t), cell_edge);
+            m.push(mt as u16);
+            cell0.push(n);
+            n += mt * mt;
+        }
+        Layout {
+            m,
+            cell0,
+            k: vec![1; n as usize],
+        }
+    }
+
+    /// Number of cells.
+    pub fn cell_count(&self) -> usize {
+        self.k.len()
+    }
+
+    /// Number of patches: Σ k² over the cells.
+    pub fn patch_count(&self) -> usize {
+        self.k.iter().map(|&k| (k as usize).pow(2)).sum()
+    }
+
+    /// The cell holding barycentrics (`b1`, `b2`) of scene triangle `tri`,
+    /// and the point's barycentrics within the cell.
+    #[inline]
+    pub fn cell_of(&self, tri: u32, b1: f32, b2: f32) -> (u32, f32, f32) {
+        let m = self.m[tri as usize] as u32;
+        if m == 1 {
+            return (self.cell0[tri as usize], b1, b2);
+        }
+        let mf = m as f32;
+        let (c, u, v) = grid_cell(m, b1 * mf, b2 * mf);
+        (self.cell0[tri as usize] + c, u, v)
+    }
+
+    /// The barycentrics, in scene triangle `tri`, of the corners of each of
+    /// its cells, in cell order.
+    fn cell_corners(&self, tri: u32) -> impl Iterator<Item = [Vec2; 3]> {
+        let m = self.m[tri as usize] as u32;
+        let mf = m as f32;
+        grid_triangles(m).map(move |cs| cs.map(|(i, j)| Vec2::new(i as f32, j as f32) / mf))
+    }
+}
+
 /// All patches with their bookkeeping.
 pub struct Patches {
     /// The patches.
     pub p: Vec<Patch>,
-    /// Shared vertex index of each patch corner (for Gouraud smoothing).
+    /// Shared vertex index of each patch corner (for Gouraud smoothing;
+    /// where two cells of different k meet, the finer cell's extra corners
+    /// are not shared).
     pub vid: Vec<[u32; 3]>,
     /// Number of shared vertices.
     pub vertex_count: usize,
-    /// First patch of each scene triangle.
+    /// The cells and their subdivisions.
+    layout: Layout,
+    /// First patch of each cell.
     first: Vec<u32>,
-    /// Subdivision k of each scene triangle.
-    k: Vec<u16>,
-    /// The edge length the tessellation aimed at.
+    /// The edge length the tessellation aimed at (the area budget's: it
+    /// sets the visibility map's resolution whatever the budget).
     pub edge: f32,
 }
 
 /// Subdivision of a triangle with longest edge `longest` for target `edge`.
 fn subdivision(longest: f32, edge: f32) -> u32 {
     if edge > 0.0 && edge.is_finite() {
-        ((longest / edge).ceil() as u32).clamp(1, 256)
+        ((longest / edge).ceil() as u32).clamp(1, MAX_SPLIT)
     } else {
         1
     }
@@ -88,10 +220,7 @@ fn subdivision(longest: f32, edge: f32) -> u32 {
 pub fn edge_for_count(scene: &Scene, n: usize) -> f32 {
     let n = n.max(1) as f64;
     let longest: Vec<f32> = (0..scene.triangles.len() as u32)
-        .map(|t| {
-            let [a, b, c] = scene.tri_vertices(t);
-            (b - a).length().max((c - b).length()).max((a - c).length())
-        })
+        .map(|t| longest_edge(scene, t))
         .collect();
     let total: f64 = (0..scene.triangles.len() as u32)
         .map(|t| scene.tri_area(t) as f64)
@@ -112,13 +241,18 @@ pub fn edge_for_count(scene: &Scene, n: usize) -> f32 {
 
 impl Patches {
     /// Tessellates `scene` with edges no longer than `edge` (plus the
-    /// triangles' own shape: a thin sliver keeps its aspect ratio).
+    /// triangles' own shape: a thin sliver keeps its aspect ratio): the
+    /// area budget, the paper's uniform mesh.
     pub fn build(scene: &Scene, lights: &Lights, edge: f32) -> Self {
+        Self::with_layout(scene, lights, Layout::area(scene, edge), edge)
+    }
+
+    /// Tessellates `scene` as `layout` says; `edge` is only recorded.
+    pub fn with_layout(scene: &Scene, lights: &Lights, layout: Layout, edge: f32) -> Self {
         let nt = scene.triangles.len();
         let mut p = Vec::new();
         let mut vid = Vec::new();
-        let mut first = Vec::with_capacity(nt);
-        let mut ks = Vec::with_capacity(nt);
+        let mut first = Vec::with_capacity(layout.cell_count());
         // corners are shared between patches of one shape when their positions
         // agree after quantisation to 1e-5 of the scene size
         let (lo, hi) = scene.bounds();
@@ -138,46 +272,54 @@ impl Patches {
         };
         for t in 0..nt as u32 {
             let [a, b, c] = scene.tri_vertices(t);
-            let longest = (b - a).length().max((c - b).length()).max((a - c).length());
-            let k = subdivision(longest, edge);
-            first.push(p.len() as u32);
-            ks.push(k as u16);
             let shape = scene.tri_shape[t as usize];
             let material = &scene.materials[scene.shapes[shape as usize].material as usize];
             let two_sided = material.is_two_sided();
             let ng = (b - a).cross(c - a).normalize_or(Vec3::Z);
             let le = lights.le_tri(t, ng, ng);
-            let kf = k as f32;
-            let at = |i: u32, j: u32| a + (b - a) * (i as f32 / kf) + (c - a) * (j as f32 / kf);
-            for j in 0..k {
-                for i in 0..k - j {
-                    // up triangle (i, j), then down triangle (i, j) when it exists
-                    let mut corners = vec![[(i, j), (i + 1, j), (i, j + 1)]];
-                    if i + j + 1 < k {
-                        corners.push([(i + 1, j), (i + 1, j + 1), (i, j + 1)]);
-                    }
-                    for cs in corners {
-                        let v = cs.map(|(ii, jj)| at(ii, jj));
-                        let bary: Vec2 = cs
-                            .iter()
-                            .map(|&(ii, jj)| Vec2::new(ii as f32, jj as f32) / kf)
-                            .sum::<Vec2>()
-                            / 3.0;
-                        let sp = scene.surface_point(t, bary.x, bary.y);
-                        let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length();
-                        let bsdf = material.bsdf(sp.uv);
-                        p.push(Patch {
-                            v,
-                            ng,
-                            ns: sp.frame.n,
-                            area: area.max(1e-30),
-                            le,
-                            glass: super::transfer::is_glass(&bsdf),
-                            bsdf,
-                            two_sided,
-                        });
-                        vid.push(v.map(|x| vkey(shape, x)));
-                    }
+            let m = layout.m[t as usize];
+            for (ci, cb) in layout.cell_corners(t).enumerate() {
+                let cell = layout.cell0[t as usize] as usize + ci;
+                first.push(p.len() as u32);
+                // a whole triangle keeps its exact corners, so that the area
+                // budget's patches are those of the uniform mesh bit for bit
+                let [ca, cb_, cc] = if m == 1 {
+                    [a, b, c]
+                } else {
+                    cb.map(|x| a + (b - a) * x.x + (c - a) * x.y)
+                };
+                let k = layout.k[cell] as u32;
+                let kf = k as f32;
+                let at = |i: u32, j: u32| {
+                    ca + (cb_ - ca) * (i as f32 / kf) + (cc - ca) * (j as f32 / kf)
+                };
+                for cs in grid_triangles(k) {
+                    let v = cs.map(|(ii, jj)| at(ii, jj));
+                    // the centroid's barycentrics in the cell, then in t
+                    let bl: Vec2 = cs
+                        .iter()
+                        .map(|&(ii, jj)| Vec2::new(ii as f32, jj as f32) / kf)
+                        .sum::<Vec2>()
+                        / 3.0;
+                    let bary = if m == 1 {
+                        bl
+                    } else {
+                        cb[0] + (cb[1] - cb[0]) * bl.x + (cb[2] - cb[0]) * bl.y
+                    };
+                    let sp = scene.surface_point(t, bary.x, bary.y);
+                    let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length();
+                    let bsdf = material.bsdf(sp.uv);
+                    p.push(Patch {
+                        v,
+                        ng,
+                        ns: sp.frame.n,
+                        area: area.max(1e-30),
+                        le,
+                        glass: super::transfer::is_glass(&bsdf),
+                        bsdf,
+                        two_sided,
+                    });
+                    vid.push(v.map(|x| vkey(shape, x)));
                 }
             }
         }
@@ -186,10 +328,22 @@ impl Patches {
             p,
             vid,
             vertex_count,
+            layout,
             first,
-            k: ks,
             edge,
         }
+    }
+
+    /// The cells and their subdivisions.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// The patches of each cell, as a range of patch indices.
+    pub fn cell_patches(&self, cell: usize) -> std::ops::Range<usize> {
+        let k = self.layout.k[cell] as usize;
+        let f = self.first[cell] as usize;
+        f..f + k * k
     }
 
     /// Turns the glass transfer off (`--glass off`: glass neither reflects
@@ -213,23 +367,14 @@ impl Patches {
     /// The patch holding barycentrics (`b1`, `b2`) of scene triangle `tri`,
     /// and the point's barycentric weights on that patch's three corners.
     pub fn locate(&self, tri: u32, b1: f32, b2: f32) -> (u32, Vec3) {
-        let k = self.k[tri as usize] as u32;
+        let (cell, b1, b2) = self.layout.cell_of(tri, b1, b2);
+        let k = self.layout.k[cell as usize] as u32;
         let kf = k as f32;
-        let (u, v) = ((b1 * kf).max(0.0), (b2 * kf).max(0.0));
-        let j = (v.floor() as u32).min(k - 1);
-        let i = (u.floor() as u32).min(k - 1 - j);
-        let (fu, fv) = (u - i as f32, v - j as f32);
-        let row = 2 * k * j - j * j;
-        let down = fu + fv > 1.0 && i + j + 1 < k;
-        let idx = self.first[tri as usize] + row + 2 * i + down as u32;
-        let w = if down {
-            // corners (1,0), (1,1), (0,1) of the cell
-            let t = 1.0 - fu;
-            let s = fv - t;
-            Vec3::new(1.0 - s - t, s, t)
-        } else {
-            Vec3::new(1.0 - fu - fv, fu, fv)
-        };
-        (idx, w.clamp(Vec3::ZERO, Vec3::ONE))
+        let (idx, s, t) = grid_cell(k, b1 * kf, b2 * kf);
+        let w = Vec3::new(1.0 - s - t, s, t);
+        (
+            self.first[cell as usize] + idx,
+            w.clamp(Vec3::ZERO, Vec3::ONE),
+        )
     }
 }
