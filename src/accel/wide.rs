@@ -6,15 +6,20 @@
 //! The collapse follows Wald et al., "Getting rid of packets" (2008): a wide
 //! node takes the two children of a binary node, then keeps opening the
 //! largest (by surface area, the likeliest to be entered) of its children
-//! until it has four. A subtree of at most [`LEAF_MAX`] triangles becomes one
-//! leaf: testing four triangles costs about as much as testing four boxes.
+//! until it has four. Small subtrees become leaves where the surface area
+//! heuristic says so ([`leaf_choice`]): testing four triangles costs about
+//! as much as testing four boxes.
 
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 
-/// A subtree with at most this many triangles is stored as one leaf.
+/// A subtree with more triangles than this is never stored as one leaf.
 pub(super) const LEAF_MAX: usize = 4;
+
+/// The cost of a binary node's box tests per unit area, relative to one
+/// pack of four triangle tests (see [`leaf_choice`]).
+const C_NODE: f32 = 0.5;
 
 /// Entries of the traversal stack. A wide node pushes at most three (it
 /// descends into the fourth), so a tree of depth `d` needs at most `3d`;
@@ -67,7 +72,7 @@ impl Wide {
     /// when the result would be too deep for the fixed traversal stack, or
     /// too large for a child reference's bits.
     pub fn from_bvh2(bvh2: &Bvh2, tris: &[Triangle]) -> Option<Wide> {
-        let counts = subtree_counts(bvh2);
+        let leaves = leaf_choice(bvh2);
         let mut out = Wide {
             nodes: Vec::with_capacity(bvh2.nodes.len() / 3 + 1),
             packs: Vec::with_capacity(tris.len() / 3 + 1),
@@ -82,7 +87,7 @@ impl Wide {
                 return None;
             }
             let node = &bvh2.nodes[n as usize];
-            let r = if node.is_leaf() || counts[n as usize] as usize <= LEAF_MAX {
+            let r = if node.is_leaf() || leaves[n as usize] {
                 scratch.clear();
                 collect_prims(bvh2, n, &mut scratch);
                 out.leaf(&scratch, tris)?
@@ -95,7 +100,7 @@ impl Wide {
                         .enumerate()
                         .filter(|&(_, &k)| {
                             let k = k as usize;
-                            !bvh2.nodes[k].is_leaf() && counts[k] as usize > LEAF_MAX
+                            !bvh2.nodes[k].is_leaf() && !leaves[k]
                         })
                         .max_by(|a, b| {
                             let area = |k: u32| bvh2.nodes[k as usize].aabb().half_area();
@@ -175,9 +180,17 @@ impl Wide {
     }
 }
 
-/// The number of triangles under each node of `bvh2`.
-fn subtree_counts(bvh2: &Bvh2) -> Vec<u32> {
+/// Which nodes of `bvh2` become leaves: those with at most [`LEAF_MAX`]
+/// triangles where the surface area heuristic prices one leaf no higher
+/// than the best split below. A leaf costs its area times its packs (one
+/// four-wide test each); a binary node costs [`C_NODE`] times its area (its
+/// two child boxes take half of a four-wide node's test) plus its children.
+/// Where two triangles of a leaf face different ways (the walls of a room)
+/// their joint box is much larger than their own, and splitting pays.
+fn leaf_choice(bvh2: &Bvh2) -> Vec<bool> {
     let mut counts = vec![0u32; bvh2.nodes.len()];
+    let mut cost = vec![0f32; bvh2.nodes.len()];
+    let mut leaf = vec![false; bvh2.nodes.len()];
     // Preorder, then children before parents by walking it backwards
     let mut order = Vec::with_capacity(bvh2.nodes.len());
     let mut stack = vec![0u32];
@@ -190,13 +203,26 @@ fn subtree_counts(bvh2: &Bvh2) -> Vec<u32> {
     }
     for &n in order.iter().rev() {
         let node = &bvh2.nodes[n as usize];
-        counts[n as usize] = if node.is_leaf() {
-            node.prim_count
+        let n = n as usize;
+        let area = node.aabb().half_area();
+        if node.is_leaf() {
+            counts[n] = node.prim_count;
+            cost[n] = area * (node.prim_count as f32 / 4.0).ceil();
+            leaf[n] = true;
         } else {
-            counts[node.first_index as usize] + counts[node.first_index as usize + 1]
-        };
+            let (l, r) = (node.first_index as usize, node.first_index as usize + 1);
+            counts[n] = counts[l] + counts[r];
+            let split = C_NODE * area + cost[l] + cost[r];
+            let packs = (counts[n] as f32 / 4.0).ceil();
+            if counts[n] as usize <= LEAF_MAX && area * packs <= split {
+                cost[n] = area * packs;
+                leaf[n] = true;
+            } else {
+                cost[n] = split;
+            }
+        }
     }
-    counts
+    leaf
 }
 
 /// Appends the triangle indices under node `n` of `bvh2` to `out`.
