@@ -1,8 +1,9 @@
 //! The ray core: a BVH over every triangle of the scene, with closest-hit and
 //! occlusion queries. This is the only module that knows how rays meet
-//! geometry; it wraps obvhs (pinned to an exact version in Cargo.toml), whose
-//! compressed wide BVH (CWBVH, Ylitie et al. 2017) is built in parallel by
-//! PLOC with rayon.
+//! geometry. obvhs (pinned to an exact version in Cargo.toml) builds a binary
+//! BVH in parallel by PLOC with rayon; `accel/wide.rs` collapses it into a
+//! 4-wide BVH whose nodes and triangles the kernels of `accel/traverse.rs`
+//! test four at a time (SSE2 on x86_64, `accel/simd.rs`).
 //!
 //! PLOC merges only pairs of clusters that are each other's nearest
 //! neighbour, and some inputs have almost no such pairs: many copies of one
@@ -15,21 +16,20 @@
 //! O(n log n) time whatever the input.
 
 mod sah;
+mod simd;
+mod traverse;
+mod wide;
 
-use std::time::Duration;
-
-use glam::{Vec3, Vec3A};
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
-use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
-use obvhs::cwbvh::CwBvh;
+use glam::Vec3;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+use obvhs::bvh2::Bvh2;
 use obvhs::ploc::PlocBuilder;
-use obvhs::ray::{Ray as ORay, RayHit};
-use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
 use crate::geometry::Ray;
 use crate::scene::Scene;
+use wide::Wide;
 
 /// A closest hit.
 #[derive(Clone, Copy, Debug)]
@@ -46,13 +46,8 @@ pub struct Hit {
 
 /// The acceleration structure.
 pub struct Accel {
-    bvh: CwBvh,
-    /// Triangles in BVH leaf order (duplicated where spatial splits put one
-    /// triangle in several leaves), so that traversal reads them in sequence;
-    /// stored with precomputed edges and normal for the intersection test.
-    tris: Vec<RtTriangle>,
-    /// Scene triangle index of each entry of `tris`.
-    ids: Vec<u32>,
+    /// `None` for a scene without triangles.
+    wide: Option<Wide>,
 }
 
 impl Accel {
@@ -76,60 +71,49 @@ impl Accel {
             })
             .collect();
         if tris.is_empty() {
-            return Accel {
-                bvh: CwBvh::default(),
-                tris: Vec::new(),
-                ids: Vec::new(),
-            };
+            return Accel { wide: None };
         }
         let params = BvhBuildParams::medium_build();
-        let bvh = if ploc_is_safe(&tris, params) {
+        let ploc = if ploc_is_safe(&tris, params) {
             on_phase(format!("building the BVH over {} triangles", tris.len()));
-            build_cwbvh_from_tris(&tris, params, &mut Duration::default())
+            let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
+                params.ploc_search_distance,
+                &tris,
+                (0..tris.len() as u32).collect(),
+                params.sort_precision,
+                params.search_depth_threshold,
+            );
+            ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+            Wide::from_bvh2(&bvh2, &tris)
         } else {
+            None
+        };
+        // The top-down tree's depth is bounded (see accel/sah.rs), so its
+        // wide form always fits the traversal stack; the pack indices run
+        // out only past a billion triangles, which would not fit in memory
+        let wide = ploc.unwrap_or_else(|| {
             on_phase(format!(
                 "building the BVH over {} triangles top-down (PLOC would take quadratic time on this input)",
                 tris.len()
             ));
-            let bvh2 = sah::build(&tris);
-            bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false)
-        };
-        let ids: Vec<u32> = bvh.primitive_indices.clone();
-        let ordered = ids
-            .iter()
-            .map(|&i| RtTriangle::from(&tris[i as usize]))
-            .collect();
-        Accel {
-            bvh,
-            tris: ordered,
-            ids,
-        }
+            let bvh2: Bvh2 = sah::build(&tris);
+            Wide::from_bvh2(&bvh2, &tris)
+                .expect("a scene of over a billion triangles exceeds the BVH's index range")
+        });
+        Accel { wide: Some(wide) }
     }
 
     /// The closest hit along `ray` in `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        if self.tris.is_empty() {
-            return None;
-        }
-        let oray = obvhs_ray(ray.o, ray.d, ray.tmin, ray.tmax);
-        let mut hit = RayHit::none();
-        let tris = &self.tris;
-        if self
-            .bvh
-            .ray_traverse(oray, &mut hit, |r, id| tris[id].intersect(r))
-        {
-            let slot = hit.primitive_id as usize;
-            let (b1, b2) = barycentric(&self.tris[slot], ray.o, ray.d);
-            Some(Hit {
-                t: hit.t,
-                tri: self.ids[slot],
-                b1,
-                b2,
-            })
-        } else {
-            None
-        }
+        let w = self.wide.as_ref()?;
+        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?;
+        Some(Hit {
+            t: h.t,
+            tri: w.ids[h.slot],
+            b1: h.b1,
+            b2: h.b2,
+        })
     }
 
     /// True when something blocks the open segment from `a` to `b`. Both
@@ -137,38 +121,18 @@ impl Accel {
     /// ([`crate::geometry::offset_point`]); the segment stops just short of `b`.
     #[inline]
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
-        if self.tris.is_empty() {
-            return false;
-        }
-        let d = b - a;
-        let oray = obvhs_ray(a, d, 0.0, 1.0 - 1e-4);
-        let tris = &self.tris;
-        !self
-            .bvh
-            .ray_traverse_miss(oray, |r, id| tris[id].intersect(r))
+        self.wide
+            .as_ref()
+            .is_some_and(|w| traverse::any(w, a, b - a, 0.0, 1.0 - 1e-4))
     }
 
     /// True when something blocks the ray within `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn occluded_ray(&self, ray: &Ray) -> bool {
-        if self.tris.is_empty() {
-            return false;
-        }
-        let oray = obvhs_ray(ray.o, ray.d, ray.tmin, ray.tmax);
-        let tris = &self.tris;
-        !self
-            .bvh
-            .ray_traverse_miss(oray, |r, id| tris[id].intersect(r))
+        self.wide
+            .as_ref()
+            .is_some_and(|w| traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax))
     }
-}
-
-/// The obvhs ray for `o + t d`. A direction component of −0 becomes +0:
-/// obvhs inverts a zero component to ±1/ε by its sign, and its wide-BVH
-/// traversal then misses every node along a direction such as `-Vec3::Z`
-/// (whose x and y are −0), while the same ray with +0 hits.
-#[inline]
-fn obvhs_ray(o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> ORay {
-    ORay::new(Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO, tmin, tmax)
 }
 
 /// Triangles of the sample that [`ploc_is_safe`] builds PLOC on. PLOC takes
@@ -207,34 +171,15 @@ fn ploc_is_safe(tris: &[Triangle], params: BvhBuildParams) -> bool {
     bvh2.max_depth <= obvhs::bvh2::DEFAULT_MAX_STACK_DEPTH
 }
 
-/// Barycentric weights (of the second and third vertex) of the point where
-/// the line `o + t d` meets the triangle's plane (Möller–Trumbore), clamped
-/// into the triangle. obvhs's own helper divides by a normalised normal, so
-/// its weights are scaled by twice the triangle's area; we compute our own.
-#[inline]
-fn barycentric(tri: &RtTriangle, o: Vec3, d: Vec3) -> (f32, f32) {
-    // RtTriangle keeps e1 = v0 − v1 and e2 = v2 − v0
-    let v0 = Vec3::from(tri.v0);
-    let e1 = -Vec3::from(tri.e1);
-    let e2 = Vec3::from(tri.e2);
-    let pvec = d.cross(e2);
-    let det = e1.dot(pvec);
-    if det == 0.0 {
-        return (0.0, 0.0);
-    }
-    let inv = 1.0 / det;
-    let tvec = o - v0;
-    let qvec = tvec.cross(e1);
-    let b1 = (tvec.dot(pvec) * inv).clamp(0.0, 1.0);
-    let b2 = (d.dot(qvec) * inv).clamp(0.0, 1.0 - b1);
-    (b1, b2)
-}
+#[cfg(test)]
+mod proptests;
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::sampling::{uniform_sphere, Pcg32};
     use crate::scene::{Material, Texture};
+    use obvhs::ray::Ray as ORay;
 
     /// Random rays at a random triangle soup: the hit point rebuilt from the
     /// barycentrics equals o + t d, and a brute-force search finds the same

@@ -1,0 +1,292 @@
+//! The kernels against brute force: every triangle tested in f64 by a
+//! separate Möller–Trumbore. Coordinates are snapped to a coarse grid so that
+//! rays run along box faces and start in the planes of triangles, and soups
+//! include exactly degenerate triangles (repeated or collinear corners).
+//!
+//! f32 and f64 disagree on grazing hits, so the brute force classes each
+//! triangle as a clear hit, a clear miss (beyond a margin) or too close to
+//! call; the kernels must find every clear hit, never report a clear miss,
+//! and return the nearest hit up to the margin.
+
+use glam::{DVec3, Vec3};
+use proptest::prelude::*;
+
+use super::{Accel, Hit};
+use crate::geometry::Ray;
+use crate::scene::{Material, Scene, Texture};
+
+/// Margin on barycentric weights and (relative) on distances.
+const MARGIN: f64 = 1e-4;
+
+enum Class {
+    Hit(f64),
+    Miss,
+    Unsure,
+}
+
+/// Classes triangle `[a, b, c]` against `o + t d` in `[tmin, tmax)`.
+fn classify(tri: [Vec3; 3], o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Class {
+    let [a, b, c] = tri.map(DVec3::from);
+    let (o, d) = (DVec3::from(o), DVec3::from(d));
+    let (e1, e2) = (b - a, c - a);
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    // Relative to the sizes involved: near zero, the plane is edge-on
+    let scale = e1.length() * e2.length() * d.length();
+    if det.abs() <= 1e-9 * scale {
+        return if e1.cross(e2).length() == 0.0 {
+            Class::Miss
+        } else {
+            Class::Unsure
+        };
+    }
+    let s = o - a;
+    let u = s.dot(p) / det;
+    let q = s.cross(e1);
+    let v = d.dot(q) / det;
+    let t = e2.dot(q) / det;
+    let w = 1.0 - u - v;
+    let (tmin, tmax) = (f64::from(tmin), f64::from(tmax));
+    let tm = MARGIN * (1.0 + t.abs()) / d.length().min(1.0);
+    if u.min(v).min(w) < -MARGIN || t < tmin - tm || t > tmax + tm {
+        Class::Miss
+    } else if u.min(v).min(w) > MARGIN && t > tmin + tm && t < tmax - tm {
+        Class::Hit(t)
+    } else {
+        Class::Unsure
+    }
+}
+
+/// A coordinate on a grid of quarters in [−2, 2], or anywhere in it.
+fn coord() -> impl Strategy<Value = f32> {
+    prop_oneof![(-8i32..=8).prop_map(|k| k as f32 * 0.25), -2.0f32..2.0,]
+}
+
+fn point() -> impl Strategy<Value = Vec3> {
+    (coord(), coord(), coord()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+
+/// A point on the grid, where sums and products of coordinates are exact.
+fn grid_point() -> impl Strategy<Value = Vec3> {
+    (-4i32..=4, -4i32..=4, -4i32..=4)
+        .prop_map(|(x, y, z)| Vec3::new(x as f32, y as f32, z as f32) * 0.25)
+}
+
+/// A triangle: three points, or an exactly degenerate one (a repeated
+/// corner, or three corners on a line, on the grid so that its normal
+/// computes to zero in f32).
+fn triangle() -> impl Strategy<Value = [Vec3; 3]> {
+    prop_oneof![
+        8 => (point(), point(), point()).prop_map(|(a, b, c)| [a, b, c]),
+        1 => (point(), point()).prop_map(|(a, b)| [a, b, a]),
+        1 => (grid_point(), grid_point()).prop_map(|(a, b)| [a, b, b + (b - a)]),
+    ]
+}
+
+/// A direction: random (not unit: occlusion passes `b − a`), or along an
+/// axis with the other components +0 or −0.
+fn direction() -> impl Strategy<Value = Vec3> {
+    let axis = (0usize..3, any::<bool>(), any::<[bool; 3]>()).prop_map(|(k, neg, zs)| {
+        let mut d = zs.map(|n| if n { -0.0 } else { 0.0 });
+        d[k] = if neg { -1.0 } else { 1.0 };
+        Vec3::from(d)
+    });
+    prop_oneof![
+        (-1.0f32..1.0, -1.0f32..1.0, -1.0f32..1.0, 0.1f32..3.0)
+            .prop_filter_map("zero", |(x, y, z, s)| {
+                Vec3::new(x, y, z).try_normalize().map(|d| d * s)
+            }),
+        axis,
+    ]
+}
+
+/// A scene of `tris` as given, degenerate ones included (`add_mesh` would
+/// drop those).
+fn soup(tris: &[[Vec3; 3]]) -> Scene {
+    let mut scene = Scene::empty("soup");
+    let m = scene.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::ONE),
+    });
+    scene.add_mesh("soup", &[], None, None, &[], m, None);
+    for t in tris {
+        let base = scene.positions.len() as u32;
+        scene.positions.extend_from_slice(t);
+        scene.normals.extend([Vec3::Z; 3]);
+        scene.uvs.extend([glam::Vec2::ZERO; 3]);
+        scene.triangles.push([base, base + 1, base + 2]);
+        scene.tri_shape.push(0);
+    }
+    scene.shapes[0].tri_count = tris.len() as u32;
+    scene
+}
+
+/// A test ray: on which triangle it starts (index, two barycentric
+/// coordinates) if any, origin otherwise, direction, tmin, tmax.
+type TestRay = (Option<(usize, f32, f32)>, Vec3, Vec3, f32, f32);
+
+/// A ray: an origin anywhere, or on one of the triangles (then starting at
+/// 0 on its surface), a direction, and a range.
+fn rays(n_tris: usize) -> impl Strategy<Value = Vec<TestRay>> {
+    let range = prop_oneof![
+        Just((0.0f32, f32::INFINITY)),
+        (0.0f32..1.0, 0.0f32..4.0).prop_map(|(a, len)| (a, a + len)),
+    ];
+    let on = prop_oneof![
+        Just(None),
+        (0..n_tris, 0.0f32..1.0, 0.0f32..1.0).prop_map(Some),
+    ];
+    prop::collection::vec(
+        (on, point(), direction(), range).prop_map(|(on, o, d, (a, b))| (on, o, d, a, b)),
+        1..40,
+    )
+}
+
+/// Checks the kernels against the brute force on one ray.
+fn check(
+    accel: &Accel,
+    tris: &[[Vec3; 3]],
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Result<(), TestCaseError> {
+    let classes: Vec<Class> = tris
+        .iter()
+        .map(|&t| classify(t, o, d, tmin, tmax))
+        .collect();
+    let nearest = classes
+        .iter()
+        .filter_map(|c| match c {
+            Class::Hit(t) => Some(*t),
+            _ => None,
+        })
+        .min_by(f64::total_cmp);
+    let all_miss = classes.iter().all(|c| matches!(c, Class::Miss));
+    let ray = Ray { o, d, tmin, tmax };
+    let got: Option<Hit> = accel.intersect(&ray);
+    match got {
+        None => prop_assert!(nearest.is_none(), "missed a clear hit at {nearest:?}"),
+        Some(h) => {
+            prop_assert!(
+                !matches!(classes[h.tri as usize], Class::Miss),
+                "hit a clear miss"
+            );
+            prop_assert!(
+                h.t >= tmin && h.t < tmax,
+                "t {} outside [{tmin}, {tmax})",
+                h.t
+            );
+            if let Some(n) = nearest {
+                let tm = MARGIN * (1.0 + n.abs()) / f64::from(d.length()).min(1.0);
+                prop_assert!(f64::from(h.t) <= n + tm, "t {} beyond the nearest {n}", h.t);
+            }
+            // The barycentrics rebuild the hit point (on a triangle that
+            // is not too close to call: a sliver's are ill-conditioned)
+            let [a, b, c] = tris[h.tri as usize];
+            let p = a * (1.0 - h.b1 - h.b2) + b * h.b1 + c * h.b2;
+            let err = (p - ray.at(h.t)).length();
+            if matches!(classes[h.tri as usize], Class::Hit(_)) {
+                prop_assert!(
+                    err <= 1e-3 * (1.0 + ray.at(h.t).length()),
+                    "barycentrics off by {err}"
+                );
+            }
+        }
+    }
+    let occluded = accel.occluded_ray(&ray);
+    if nearest.is_some() {
+        prop_assert!(occluded, "occlusion missed a clear hit");
+    }
+    if all_miss {
+        prop_assert!(!occluded, "occluded by clear misses");
+    }
+    prop_assert_eq!(
+        occluded,
+        got.is_some(),
+        "occlusion disagrees with the closest hit"
+    );
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn kernels_match_brute_force(
+        (tris, rays) in prop::collection::vec(triangle(), 1..80)
+            .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), rays(n)) })
+    ) {
+        let accel = Accel::build(&soup(&tris));
+        for (on, o, d, tmin, tmax) in rays {
+            // A ray leaving a triangle's surface starts on it
+            let o = match on {
+                Some((k, s, r)) => {
+                    let [a, b, c] = tris[k];
+                    let (s, r) = if s + r > 1.0 { (1.0 - s, 1.0 - r) } else { (s, r) };
+                    a + (b - a) * s + (c - a) * r
+                }
+                None => o,
+            };
+            check(&accel, &tris, o, d, tmin, tmax)?;
+        }
+    }
+
+    /// A large soup, so that the tree has several levels of wide nodes.
+    #[test]
+    fn kernels_match_brute_force_deep(
+        seeds in prop::collection::vec(point(), 300..600),
+        rays in rays(1),
+    ) {
+        let tris: Vec<[Vec3; 3]> = seeds
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| {
+                let k = i as f32;
+                [c, c + Vec3::new(0.3, 0.05 * (k % 3.0), 0.0), c + Vec3::new(0.0, 0.2, 0.1 * (k % 5.0))]
+            })
+            .collect();
+        let accel = Accel::build(&soup(&tris));
+        for (_, o, d, tmin, tmax) in rays {
+            check(&accel, &tris, o, d, tmin, tmax)?;
+        }
+    }
+}
+
+/// A scene without triangles: nothing is hit, nothing occludes.
+#[test]
+fn empty_scene() {
+    let accel = Accel::build(&soup(&[]));
+    let ray = Ray::new(Vec3::ZERO, Vec3::Z);
+    assert!(accel.intersect(&ray).is_none());
+    assert!(!accel.occluded_ray(&ray));
+    assert!(!accel.occluded(Vec3::ZERO, Vec3::ONE));
+}
+
+/// Copies of one triangle send the build to the top-down fallback (see the
+/// parent module); its tree must answer like any other.
+#[test]
+fn top_down_fallback_answers() {
+    let tri = [
+        Vec3::new(-1.0, -1.0, 0.0),
+        Vec3::new(1.0, -1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+    ];
+    let mut tris = vec![tri; 5000];
+    tris.push([
+        Vec3::new(-1.0, -1.0, 2.0),
+        Vec3::new(1.0, -1.0, 2.0),
+        Vec3::new(0.0, 1.0, 2.0),
+    ]);
+    let mut phases = Vec::new();
+    let accel = Accel::build_reporting(&soup(&tris), &mut |p| phases.push(p));
+    assert!(phases.iter().any(|p| p.contains("top-down")), "{phases:?}");
+    let down = Ray::new(Vec3::new(0.0, 0.0, 3.0), Vec3::new(-0.0, -0.0, -1.0));
+    let h = accel.intersect(&down).expect("hits the top triangle");
+    assert_eq!(h.tri, 5000);
+    assert!((h.t - 1.0).abs() < 1e-6);
+    let below = Ray { tmin: 1.5, ..down };
+    let h = accel.intersect(&below).expect("hits the copies");
+    assert!(h.tri < 5000 && (h.t - 3.0).abs() < 1e-6);
+    assert!(!accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.9)));
+    assert!(accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0)));
+}

@@ -1,0 +1,281 @@
+//! The traversal kernels over the wide BVH of `wide.rs`: closest hit, with
+//! children visited nearest first and skipped once a closer hit is known, and
+//! occlusion, which stops at the first hit in range.
+
+use std::mem::MaybeUninit;
+
+use glam::Vec3;
+
+use super::simd::F4;
+use super::wide::{Node, Pack, Wide, LEAF_BIT, STACK};
+
+/// Rounding in the slab test can put an exact box's far distance just
+/// before a triangle on its face; the far distance is widened by 1 + 2γ₃
+/// (pbrt-v4, §6.8.2) so that the box test never rejects a hit the triangle
+/// test would accept.
+const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// A ray prepared for the kernels.
+struct Prepared {
+    o: [F4; 3],
+    d: [F4; 3],
+    inv: [F4; 3],
+    /// Row of `Node::b` holding the near plane along each axis (min for a
+    /// direction component with its sign bit clear, else max), and the far.
+    near: [usize; 3],
+    far: [usize; 3],
+}
+
+impl Prepared {
+    #[inline(always)]
+    fn new(o: Vec3, d: Vec3) -> Prepared {
+        // 1/±0 is ±∞, whose sign agrees with the choice of planes below; the
+        // NaN from 0·∞ (a ray in a slab's plane) is ignored by the box test.
+        let inv = d.recip();
+        let neg = |x: f32| usize::from(x.is_sign_negative());
+        let near = [neg(d.x), 2 + neg(d.y), 4 + neg(d.z)];
+        Prepared {
+            o: [F4::splat(o.x), F4::splat(o.y), F4::splat(o.z)],
+            d: [F4::splat(d.x), F4::splat(d.y), F4::splat(d.z)],
+            inv: [F4::splat(inv.x), F4::splat(inv.y), F4::splat(inv.z)],
+            near,
+            far: near.map(|r| r ^ 1),
+        }
+    }
+
+    /// The lanes of `node` whose box the ray enters within `[tmin, tmax]`,
+    /// and the distance at which it enters each.
+    #[inline(always)]
+    fn boxes(&self, node: &Node, tmin: F4, tmax: F4) -> (u32, F4) {
+        // maxps/minps return their second operand when either is NaN: the
+        // running bound goes second so that NaN lanes leave it unchanged
+        let mut t0 = tmin;
+        let mut t1 = tmax;
+        for axis in 0..3 {
+            let n = F4::load(&node.b[self.near[axis]]);
+            let f = F4::load(&node.b[self.far[axis]]);
+            t0 = n.sub(self.o[axis]).mul(self.inv[axis]).max(t0);
+            t1 = f.sub(self.o[axis]).mul(self.inv[axis]).min(t1);
+        }
+        let hit = t0.le(t1.mul(F4::splat(FAR_SCALE)));
+        (hit.bits(), t0)
+    }
+
+    /// Möller–Trumbore on the four triangles of `pack` in the form of
+    /// madmann91's `bvh`: the lanes hit within `[tmin, tmax)`, with their
+    /// distances and barycentric weights of the second and third vertex.
+    #[inline(always)]
+    fn triangles(&self, pack: &Pack, tmin: F4, tmax: F4) -> (u32, F4, F4, F4) {
+        let ld =
+            |rows: &[[f32; 4]; 3]| [F4::load(&rows[0]), F4::load(&rows[1]), F4::load(&rows[2])];
+        let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
+        let dot = |a: &[F4; 3], b: &[F4; 3]| a[0].mul(b[0]).add(a[1].mul(b[1])).add(a[2].mul(b[2]));
+        let c = [
+            v0[0].sub(self.o[0]),
+            v0[1].sub(self.o[1]),
+            v0[2].sub(self.o[2]),
+        ];
+        let d = &self.d;
+        let r = [
+            d[1].mul(c[2]).sub(d[2].mul(c[1])),
+            d[2].mul(c[0]).sub(d[0].mul(c[2])),
+            d[0].mul(c[1]).sub(d[1].mul(c[0])),
+        ];
+        let det = dot(&ng, d);
+        let inv_det = F4::splat(1.0).div(det);
+        let u = dot(&r, &e2).mul(inv_det);
+        let v = dot(&r, &e1).mul(inv_det);
+        let w = F4::splat(1.0).sub(u).sub(v);
+        let t = dot(&ng, &c).mul(inv_det);
+        let zero = F4::splat(0.0);
+        // A degenerate triangle (or an unused slot) has ng = 0, so det = 0
+        let hit = det
+            .ne(zero)
+            .and(u.ge(zero))
+            .and(v.ge(zero))
+            .and(w.ge(zero))
+            .and(t.ge(tmin))
+            .and(t.lt(tmax));
+        (hit.bits(), t, u, v)
+    }
+}
+
+/// A closest hit: distance, pack slot (`4 · pack + lane`), barycentric
+/// weights of the second and third vertex.
+pub(super) struct SlotHit {
+    pub t: f32,
+    pub slot: usize,
+    pub b1: f32,
+    pub b2: f32,
+}
+
+/// A fixed stack of child references, each with the distance at which the
+/// ray enters it (in the high half, as f32 bits), and its length. Left
+/// uninitialised, and built in place: a struct literal with the array
+/// uninitialised next to an initialised field was cleared whole by a
+/// memset on every query.
+struct Stack {
+    entries: MaybeUninit<[u64; STACK]>,
+    len: usize,
+}
+
+impl Stack {
+    #[inline(always)]
+    fn new() -> Stack {
+        let mut s = MaybeUninit::<Stack>::uninit();
+        // SAFETY: `len` is written through a raw pointer before the value
+        // is read, and `entries` may stay uninitialised
+        unsafe {
+            (&raw mut (*s.as_mut_ptr()).len).write(0);
+            s.assume_init()
+        }
+    }
+
+    #[inline(always)]
+    fn ptr(&mut self) -> *mut u64 {
+        self.entries.as_mut_ptr().cast()
+    }
+
+    /// Entry `i`, which must be below `len`.
+    #[inline(always)]
+    fn get(&mut self, i: usize) -> (u32, f32) {
+        debug_assert!(i < self.len);
+        // SAFETY: entries below `len` were written, and len <= STACK
+        let e = unsafe { self.ptr().add(i).read() };
+        (e as u32, f32::from_bits((e >> 32) as u32))
+    }
+
+    /// Writes entry `i`, which must be at most `len`.
+    #[inline(always)]
+    fn set(&mut self, i: usize, r: u32, dist: f32) {
+        // The tree's depth was checked against STACK when it was built
+        assert!(i < STACK);
+        // SAFETY: i < STACK
+        unsafe {
+            self.ptr()
+                .add(i)
+                .write(u64::from(r) | (u64::from(dist.to_bits()) << 32))
+        };
+    }
+}
+
+/// The closest hit along `o + t d` in `[tmin, tmax)`.
+#[inline(always)]
+pub(super) fn closest(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+    let ray = Prepared::new(o, d);
+    let vmin = F4::splat(tmin);
+    let mut best: Option<SlotHit> = None;
+    let mut t_best = tmax;
+    let mut stack = Stack::new();
+    let mut r = w.root;
+    loop {
+        if r & LEAF_BIT == 0 {
+            // Test the four children; descend into the nearest, push the others
+            let node = &w.nodes[r as usize];
+            let (mask, t0) = ray.boxes(node, vmin, F4::splat(t_best));
+            if mask != 0 {
+                if mask & (mask - 1) == 0 {
+                    r = node.child[mask.trailing_zeros() as usize];
+                    continue;
+                }
+                let t0 = t0.to_array();
+                let base = stack.len;
+                let mut bits = mask;
+                while bits != 0 {
+                    let i = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    // Insertion keeps stack[base..] sorted farthest first
+                    let mut j = stack.len;
+                    while j > base {
+                        let (rj, dj) = stack.get(j - 1);
+                        if dj >= t0[i] {
+                            break;
+                        }
+                        stack.set(j, rj, dj);
+                        j -= 1;
+                    }
+                    stack.set(j, node.child[i], t0[i]);
+                    stack.len += 1;
+                }
+                stack.len -= 1;
+                r = stack.get(stack.len).0;
+                continue;
+            }
+        } else {
+            // Test the leaf's triangles, four at a time
+            let first = ((r & !LEAF_BIT) >> 3) as usize;
+            let count = (r & 7) as usize + 1;
+            for p in first..first + count {
+                let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, F4::splat(t_best));
+                if mask != 0 {
+                    let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
+                    let mut bits = mask;
+                    while bits != 0 {
+                        let i = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        if t[i] < t_best {
+                            t_best = t[i];
+                            best = Some(SlotHit {
+                                t: t[i],
+                                slot: 4 * p + i,
+                                b1: u[i],
+                                b2: v[i],
+                            });
+                        }
+                    }
+                }
+            }
+        }
+        // Pop the nearest entry that may still hold a closer hit
+        loop {
+            if stack.len == 0 {
+                return best;
+            }
+            let (cr, cd) = stack.get(stack.len - 1);
+            stack.len -= 1;
+            if cd < t_best {
+                r = cr;
+                break;
+            }
+        }
+    }
+}
+
+/// True when anything meets `o + t d` within `[tmin, tmax)`.
+#[inline(always)]
+pub(super) fn any(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+    let ray = Prepared::new(o, d);
+    let (vmin, vmax) = (F4::splat(tmin), F4::splat(tmax));
+    let mut stack = Stack::new();
+    let mut r = w.root;
+    loop {
+        if r & LEAF_BIT == 0 {
+            // Any order will do: descend into the first child hit, push the rest
+            let node = &w.nodes[r as usize];
+            let (mut mask, _) = ray.boxes(node, vmin, vmax);
+            if mask != 0 {
+                r = node.child[mask.trailing_zeros() as usize];
+                mask &= mask - 1;
+                while mask != 0 {
+                    stack.set(stack.len, node.child[mask.trailing_zeros() as usize], 0.0);
+                    stack.len += 1;
+                    mask &= mask - 1;
+                }
+                continue;
+            }
+        } else {
+            let first = ((r & !LEAF_BIT) >> 3) as usize;
+            let count = (r & 7) as usize + 1;
+            for p in first..first + count {
+                if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
+                    return true;
+                }
+            }
+        }
+        if stack.len == 0 {
+            return false;
+        }
+        r = stack.get(stack.len - 1).0;
+        stack.len -= 1;
+    }
+}
