@@ -7,7 +7,8 @@ Usage: python3 bench/mitsuba_compare.py [--scene cbox|big-room-textured|FILE.xml
            [--variants scalar_rgb,llvm_ad_rgb] [--kalos [LABEL=]BIN ...]
            [--ref-spp 1024]
 
-Installs Mitsuba 3 into bench/.venv when it is missing (pip install mitsuba).
+Installs Mitsuba 3 into bench/.venv when it is missing (pip install mitsuba
+numpy).
 Pairs: kalos `path` against Mitsuba `path`, kalos `light` against Mitsuba
 `ptracer`, each Mitsuba variant in --variants (`llvm_ad_rgb` needs Debian's
 libllvm19; DRJIT_LIBLLVM_PATH is set to it when found).
@@ -44,10 +45,11 @@ MI_INTEGRATOR = {"path": "path", "light": "ptracer"}
 def ensure_mitsuba():
     py = os.path.join(VENV, "bin", "python")
     try:
-        subprocess.run([py, "-c", "import mitsuba"], check=True, capture_output=True)
+        subprocess.run([py, "-c", "import mitsuba, numpy"], check=True, capture_output=True)
     except Exception:
-        subprocess.run([sys.executable, "-m", "venv", VENV], check=True)
-        subprocess.run([py, "-m", "pip", "install", "-q", "mitsuba"], check=True)
+        if not os.path.exists(py):
+            subprocess.run([sys.executable, "-m", "venv", VENV], check=True)
+        subprocess.run([py, "-m", "pip", "install", "-q", "mitsuba", "numpy"], check=True)
     return py
 
 
@@ -116,6 +118,8 @@ def big_room(kalos, py, env, ref_spp):
         variant = "llvm_ad_rgb"
         halves = [os.path.join(d, f"ref-half{k}.exr") for k in (1, 2)]
         for k, h in enumerate(halves):
+            if os.path.exists(h):
+                continue  # left by a run that stopped before averaging
             print(f"rendering the reference: Mitsuba path, half {k + 1}, {ref_spp // 2} spp", flush=True)
             try:
                 run_mitsuba(py, variant, scene, "path", ref_spp // 2, 1000 + k, h, env)
