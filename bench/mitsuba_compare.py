@@ -27,7 +27,8 @@ compiles the llvm kernels), relMSE is measured against the reference with
 unbiased estimator relMSE falls as 1/time). The renderers run alternately,
 one repeat of each in turn with the repeat's seed, so that a change in the
 machine's load falls on all of them; the load average is printed before and
-after. The figures are medians over repeats.
+after. The figures are medians over repeats; a ratio is the median of
+the ratios within each repeat (the runs of one repeat are back to back).
 
 Several --kalos binaries (e.g. builds for different target CPUs) are timed
 alternately with each other; `--variants none` leaves Mitsuba out.
@@ -219,11 +220,17 @@ def main():
         print(f"{method}: median render time, relMSE at {args.spp} spp, time to relMSE {TARGET:g}")
         for label, (t, e, ttt) in rows.items():
             print(f"  {label:34s} {t:7.2f} s  {e:.3e}  {ttt:8.2f} s")
+        # Ratios of the same repeat, then their median: a repeat's renderers
+        # ran back to back, so a load that changes between repeats cancels
+        def paired(a, b):
+            (ta, ea), (tb, eb) = results[a], results[b]
+            return statistics.median(x * y / (u * v) for x, y, u, v in zip(ta, ea, tb, eb))
         for label, _ in kalos_bins:
-            base = rows.get(f"{label} {method}")
-            for other, r in rows.items():
-                if base and other != f"{label} {method}":
-                    print(f"ratio {label} {method} / {other}: {base[2] / r[2]:.3f}")
+            mine = f"{label} {method}"
+            for other in rows:
+                if mine in rows and other != mine and (label == kalos_bins[0][0] or not other.startswith("kalos")):
+                    print(f"ratio {mine} / {other}: {paired(mine, other):.3f} "
+                          f"(median of the repeats' ratios; ratio of the medians {rows[mine][2] / rows[other][2]:.3f})")
         print(loadavg(), flush=True)
 
 
