@@ -256,9 +256,19 @@ impl EmissionSample {
     }
 }
 
+/// One light of the power distribution. An emitting triangle keeps its
+/// corners and unit normal, so that sampling it (once per path vertex in
+/// `path`) reads one entry instead of the scene's index and vertex arrays
+/// and does not normalise the cross product again.
 #[derive(Clone, Copy, Debug)]
 enum Entry {
-    Tri { tri: u32, le: Rgb, area: f32 },
+    Tri {
+        tri: u32,
+        le: Rgb,
+        area: f32,
+        corners: [Vec3; 3],
+        n: Vec3,
+    },
     Env,
 }
 
@@ -299,10 +309,14 @@ impl Lights {
                         let w = (PI * area * luminance(*radiance)) as f64;
                         if w > 0.0 {
                             tri_entry[tri as usize] = entries.len() as u32;
+                            let corners = scene.tri_vertices(tri);
+                            let [a, b, c] = corners;
                             entries.push(Entry::Tri {
                                 tri,
                                 le: *radiance,
                                 area,
+                                corners,
+                                n: (b - a).cross(c - a).normalize_or(Vec3::Z),
                             });
                             weights.push(w);
                         }
@@ -377,18 +391,24 @@ impl Lights {
         self.env.as_ref().map_or(Rgb::ZERO, |e| e.le(dir))
     }
 
-    /// Samples a light as seen from `p` (next-event estimation).
-    pub fn sample_li(&self, scene: &Scene, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
+    /// Samples a light as seen from `p` (next-event estimation). The
+    /// entries carry what sampling needs: `_scene` (the scene the lights were
+    /// gathered from) stays in the signature for the callers.
+    pub fn sample_li(&self, _scene: &Scene, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
         if self.is_empty() {
             return None;
         }
         let (i, pmf, _) = self.dist.sample(u_sel as f64);
         match self.entries[i] {
-            Entry::Tri { tri, le, area } => {
+            Entry::Tri {
+                le,
+                area,
+                corners: [a, bb, c],
+                n,
+                ..
+            } => {
                 let b = uniform_triangle(u);
-                let [a, bb, c] = scene.tri_vertices(tri);
                 let q = a * (1.0 - b.x - b.y) + bb * b.x + c * b.y;
-                let n = (bb - a).cross(c - a).normalize_or(Vec3::Z);
                 let d = q - p;
                 let dist2 = d.length_squared();
                 if dist2 <= 0.0 {
@@ -429,7 +449,7 @@ impl Lights {
 
     /// Solid-angle pdf with which [`Lights::sample_li`] from `p` picks the
     /// point `q` (normal `nq`) on emitting triangle `tri`.
-    pub fn pdf_li_tri(&self, scene: &Scene, p: Vec3, q: Vec3, nq: Vec3, tri: u32) -> f32 {
+    pub fn pdf_li_tri(&self, _scene: &Scene, p: Vec3, q: Vec3, nq: Vec3, tri: u32) -> f32 {
         let e = match self.tri_entry.get(tri as usize) {
             Some(&e) if e != u32::MAX => e as usize,
             _ => return 0.0,
@@ -440,7 +460,9 @@ impl Lights {
         if cos_l <= 0.0 {
             return 0.0;
         }
-        let area = scene.tri_area(tri);
+        let Entry::Tri { area, .. } = self.entries[e] else {
+            return 0.0;
+        };
         self.dist.pmf(e) as f32 / area * dist2 / cos_l
     }
 
@@ -461,7 +483,7 @@ impl Lights {
     /// disk of the scene's bounding radius, perpendicular to the direction.
     pub fn sample_emission(
         &self,
-        scene: &Scene,
+        _scene: &Scene,
         u_sel: f32,
         u_pos: Vec2,
         u_dir: Vec2,
@@ -471,11 +493,15 @@ impl Lights {
         }
         let (i, pmf, _) = self.dist.sample(u_sel as f64);
         match self.entries[i] {
-            Entry::Tri { tri, le, area } => {
+            Entry::Tri {
+                tri,
+                le,
+                area,
+                corners: [a, bb, c],
+                n,
+            } => {
                 let b = uniform_triangle(u_pos);
-                let [a, bb, c] = scene.tri_vertices(tri);
                 let p = a * (1.0 - b.x - b.y) + bb * b.x + c * b.y;
-                let n = (bb - a).cross(c - a).normalize_or(Vec3::Z);
                 let d = Frame::from_normal(n).to_world(cosine_hemisphere(u_dir));
                 let pdf_pos = pmf as f32 / area;
                 // Le cos / (pdf_pos · cos/π)

@@ -1,28 +1,50 @@
 //! `big-room`: a furnished room of about 150k triangles (after Fig. 6 of the
 //! density-estimation paper: tables, chairs, shelves full of books, a
-//! lattice of ceiling lights), its furniture jittered by a seed.
+//! lattice of ceiling lights), its furniture jittered by a seed; textured,
+//! the same layout with bitmaps on the floor, the walls and the books.
 
 use std::fmt::Write as _;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::mesh::Mesh;
-use super::SceneFiles;
+use super::{textures, SceneFiles};
 use crate::sampling::Pcg32;
 
-/// The scene: `meshes/*.obj` and `scene.xml`, the furniture laid out by
-/// `seed`.
-pub(super) fn build(seed: u64) -> SceneFiles {
+/// Metres of floor covered by one copy of the wood texture (eight planks).
+const WOOD_TILE: f32 = 1.6;
+/// Metres of wall covered by one copy of the wallpaper (four stripes).
+const WALLPAPER_TILE: f32 = 0.8;
+
+/// A quad of `mesh`; with `tile` (metres per texture copy), uvs from the
+/// corners' coordinates along `axes` (two of x, y, z).
+fn quad(mesh: &mut Mesh, p: [Vec3; 4], tile: Option<f32>, axes: [usize; 2]) {
+    match tile {
+        Some(t) => mesh.quad_uv(p, p.map(|c| Vec2::new(c[axes[0]], c[axes[1]]) / t)),
+        None => mesh.quad(p),
+    }
+}
+
+/// The scene: `meshes/*.obj` and `scene.xml` (and `textures/*.png` when
+/// `textured`), the furniture laid out by `seed` alike either way.
+pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
     let mut rng = Pcg32::keyed(&[seed, 0xB16_0000]);
     let (w, h, d) = (16.0f32, 3.0f32, 12.0f32);
+    let floor_tile = textured.then_some(WOOD_TILE);
+    let wall_tile = textured.then_some(WALLPAPER_TILE);
     let mut room = Mesh::default();
-    // inward-facing floor, ceiling and walls
-    room.quad([
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::new(0.0, 0.0, d),
-        Vec3::new(w, 0.0, d),
-        Vec3::new(w, 0.0, 0.0),
-    ]);
+    // inward-facing floor, ceiling and walls; planks along x
+    quad(
+        &mut room,
+        [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.0, d),
+            Vec3::new(w, 0.0, d),
+            Vec3::new(w, 0.0, 0.0),
+        ],
+        floor_tile,
+        [0, 2],
+    );
     let mut ceiling = Mesh::default();
     ceiling.quad([
         Vec3::new(0.0, h, 0.0),
@@ -31,30 +53,47 @@ pub(super) fn build(seed: u64) -> SceneFiles {
         Vec3::new(0.0, h, d),
     ]);
     let mut walls = Mesh::default();
-    walls.quad([
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::new(w, 0.0, 0.0),
-        Vec3::new(w, h, 0.0),
-        Vec3::new(0.0, h, 0.0),
-    ]);
-    walls.quad([
-        Vec3::new(0.0, 0.0, d),
-        Vec3::new(0.0, h, d),
-        Vec3::new(w, h, d),
-        Vec3::new(w, 0.0, d),
-    ]);
-    walls.quad([
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::new(0.0, h, 0.0),
-        Vec3::new(0.0, h, d),
-        Vec3::new(0.0, 0.0, d),
-    ]);
-    walls.quad([
-        Vec3::new(w, 0.0, 0.0),
-        Vec3::new(w, 0.0, d),
-        Vec3::new(w, h, d),
-        Vec3::new(w, h, 0.0),
-    ]);
+    // u along the wall, v up
+    for (p, along) in [
+        (
+            [
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(w, 0.0, 0.0),
+                Vec3::new(w, h, 0.0),
+                Vec3::new(0.0, h, 0.0),
+            ],
+            0,
+        ),
+        (
+            [
+                Vec3::new(0.0, 0.0, d),
+                Vec3::new(0.0, h, d),
+                Vec3::new(w, h, d),
+                Vec3::new(w, 0.0, d),
+            ],
+            0,
+        ),
+        (
+            [
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(0.0, h, 0.0),
+                Vec3::new(0.0, h, d),
+                Vec3::new(0.0, 0.0, d),
+            ],
+            2,
+        ),
+        (
+            [
+                Vec3::new(w, 0.0, 0.0),
+                Vec3::new(w, 0.0, d),
+                Vec3::new(w, h, d),
+                Vec3::new(w, h, 0.0),
+            ],
+            2,
+        ),
+    ] {
+        quad(&mut walls, p, wall_tile, [along, 1]);
+    }
 
     let mut wood = Mesh::default();
     let mut chairs = Mesh::default();
@@ -145,11 +184,19 @@ pub(super) fn build(seed: u64) -> SceneFiles {
                 let bh = 0.2 + 0.12 * rng.next_f32();
                 let bd = 0.18 + 0.12 * rng.next_f32();
                 let k = (rng.next_u32() % 3) as usize;
-                put(
-                    &mut books[k],
+                let (lo, hi) = (
                     Vec3::new(x, y + 0.02, 0.01),
                     Vec3::new(x + t, y + 0.02 + bh, 0.01 + bd),
                 );
+                if textured {
+                    // one mesh, the spine drawn from the book's place (the
+                    // random draws stay those of the untextured room)
+                    let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
+                    let cell = spine_cell(lo);
+                    books[0].cuboid_uv(p.min(q), p.max(q), cell);
+                } else {
+                    put(&mut books[k], lo, hi);
+                }
                 x += t + 0.001;
             }
         }
@@ -190,17 +237,24 @@ pub(super) fn build(seed: u64) -> SceneFiles {
     }
 
     let [red, green, blue] = books;
-    let parts: [(&str, Mesh, &str); 9] = [
+    let walls_mat = if textured { "wallpaper" } else { "white" };
+    let mut parts: Vec<(&str, Mesh, &str)> = vec![
         ("floor", room, "floor"),
         ("ceiling", ceiling, "white"),
-        ("walls", walls, "white"),
+        ("walls", walls, walls_mat),
         ("wood", wood, "wood"),
         ("chairs", chairs, "dark"),
         ("shelves", shelves, "white"),
-        ("books-red", red, "red"),
-        ("books-green", green, "green"),
-        ("books-blue", blue, "blue"),
     ];
+    if textured {
+        parts.push(("books", red, "books"));
+    } else {
+        parts.extend([
+            ("books-red", red, "red"),
+            ("books-green", green, "green"),
+            ("books-blue", blue, "blue"),
+        ]);
+    }
     let mut tris = 0;
     let mut shapes = String::new();
     let mut meshes = Vec::new();
@@ -224,9 +278,36 @@ pub(super) fn build(seed: u64) -> SceneFiles {
             tris += 2;
         }
     }
+    let (name, floor, images) = if textured {
+        let bitmap = |f: &str| {
+            format!("<texture type=\"bitmap\" name=\"reflectance\"><string name=\"filename\" value=\"textures/{f}\"/></texture>")
+        };
+        let extra = format!(
+            "    <bsdf type=\"twosided\" id=\"wallpaper\"><bsdf type=\"diffuse\">{}</bsdf></bsdf>\n    <bsdf type=\"twosided\" id=\"books\"><bsdf type=\"diffuse\">{}</bsdf></bsdf>\n",
+            bitmap("wallpaper.png"),
+            bitmap("spines.png")
+        );
+        let images = vec![
+            ("textures/wood.png".to_string(), textures::wood()),
+            ("textures/wallpaper.png".to_string(), textures::wallpaper()),
+            ("textures/spines.png".to_string(), textures::spines()),
+        ];
+        (
+            "big-room-textured",
+            bitmap("wood.png") + "</bsdf></bsdf>\n" + &extra,
+            images,
+        )
+    } else {
+        let floor = r#"<rgb name="reflectance" value="0.45, 0.38, 0.3"/></bsdf></bsdf>
+    <bsdf type="twosided" id="red"><bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.1, 0.08"/></bsdf></bsdf>
+    <bsdf type="twosided" id="green"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.45, 0.12"/></bsdf></bsdf>
+    <bsdf type="twosided" id="blue"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.15, 0.55"/></bsdf></bsdf>
+"#;
+        ("big-room", floor.to_string(), Vec::new())
+    };
     let xml = format!(
         r#"<scene version="3.0.0">
-    <!-- big-room: generated by `kalos gen big-room` (seed {seed}), {tris} triangles -->
+    <!-- {name}: generated by `kalos gen {name}` (seed {seed}), {tris} triangles -->
     <integrator type="path"/>
     <sensor type="perspective">
         <float name="fov" value="70"/>
@@ -241,14 +322,23 @@ pub(super) fn build(seed: u64) -> SceneFiles {
         </film>
     </sensor>
     <bsdf type="twosided" id="white"><bsdf type="diffuse"><rgb name="reflectance" value="0.75, 0.74, 0.72"/></bsdf></bsdf>
-    <bsdf type="twosided" id="floor"><bsdf type="diffuse"><rgb name="reflectance" value="0.45, 0.38, 0.3"/></bsdf></bsdf>
     <bsdf type="twosided" id="wood"><bsdf type="diffuse"><rgb name="reflectance" value="0.55, 0.36, 0.2"/></bsdf></bsdf>
     <bsdf type="twosided" id="dark"><bsdf type="diffuse"><rgb name="reflectance" value="0.15, 0.15, 0.17"/></bsdf></bsdf>
-    <bsdf type="twosided" id="red"><bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.1, 0.08"/></bsdf></bsdf>
-    <bsdf type="twosided" id="green"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.45, 0.12"/></bsdf></bsdf>
-    <bsdf type="twosided" id="blue"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.15, 0.55"/></bsdf></bsdf>
-{shapes}</scene>
+    <bsdf type="twosided" id="floor"><bsdf type="diffuse">{floor}{shapes}</scene>
 "#
     );
-    SceneFiles { meshes, xml }
+    SceneFiles {
+        meshes,
+        images,
+        xml,
+    }
+}
+
+/// The spine of the book whose near lower corner (in wall coordinates) is
+/// `lo`: a hash of its place picks one of the [`textures::SPINES`] cells.
+fn spine_cell(lo: Vec3) -> (f32, f32) {
+    let key = ((lo.x * 1000.0) as i64 as u64) ^ (((lo.y * 100.0) as i64 as u64) << 20);
+    let k = (crate::sampling::mix64(key) % textures::SPINES as u64) as f32;
+    let n = textures::SPINES as f32;
+    (k / n, (k + 1.0) / n)
 }

@@ -3,18 +3,32 @@
 use std::f32::consts::PI;
 use std::fmt::Write as _;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use crate::scene::shapes::{Diagonal, LatLong, MeshData, Pole};
 
+/// The faces of a box over its corners (bit 0: x, bit 1: y, bit 2: z set
+/// to the high side), each quad counter-clockwise seen from outside.
+const CUBOID_FACES: [[u32; 4]; 6] = [
+    [0, 2, 3, 1], // z = lo
+    [4, 5, 7, 6], // z = hi
+    [0, 1, 5, 4], // y = lo
+    [2, 6, 7, 3], // y = hi
+    [0, 4, 6, 2], // x = lo
+    [1, 3, 7, 5], // x = hi
+];
+
 /// A triangle mesh under construction: each builder appends its vertices
-/// and triangles. Normals are either absent (empty) or one per vertex.
+/// and triangles. Normals and uvs are each either absent (empty) or one
+/// per vertex.
 #[derive(Default)]
 pub(crate) struct Mesh {
     /// Vertex positions.
     pub positions: Vec<Vec3>,
     /// Per-vertex normals, or empty.
     pub normals: Vec<Vec3>,
+    /// Per-vertex texture coordinates (OBJ convention, v up), or empty.
+    pub uvs: Vec<Vec2>,
     /// Vertex indices of each triangle.
     pub indices: Vec<[u32; 3]>,
 }
@@ -38,6 +52,42 @@ impl Mesh {
         self.quad_indices([b, b + 1, b + 2, b + 3]);
     }
 
+    /// A quad of four new vertices with their texture coordinates.
+    pub fn quad_uv(&mut self, p: [Vec3; 4], uv: [Vec2; 4]) {
+        debug_assert_eq!(self.uvs.len(), self.positions.len());
+        self.uvs.extend_from_slice(&uv);
+        self.quad(p);
+    }
+
+    /// An axis-aligned box, faces outward, each face its own four vertices
+    /// so that each can carry the whole `cell` of the texture: u runs from
+    /// `cell.0` to `cell.1` along the face's horizontal side (x, or z on the
+    /// faces normal to x), v from 0 to 1 upward (along z on the top and
+    /// bottom).
+    pub fn cuboid_uv(&mut self, lo: Vec3, hi: Vec3, cell: (f32, f32)) {
+        let corner = |i: u32| {
+            Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            )
+        };
+        let size = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
+        for (k, f) in CUBOID_FACES.iter().enumerate() {
+            let p = f.map(corner);
+            let uv = p.map(|c| {
+                let t = (c - lo) / size;
+                let (s, v) = match k / 2 {
+                    0 => (t.x, t.y), // normal z
+                    1 => (t.x, t.z), // normal y
+                    _ => (t.z, t.y), // normal x
+                };
+                Vec2::new(cell.0 + (cell.1 - cell.0) * s, v)
+            });
+            self.quad_uv(p, uv);
+        }
+    }
+
     /// An axis-aligned box, faces outward.
     pub fn cuboid(&mut self, lo: Vec3, hi: Vec3) {
         let b = self.base();
@@ -48,16 +98,7 @@ impl Mesh {
                 if i & 4 == 0 { lo.z } else { hi.z },
             ));
         }
-        // quads counter-clockwise seen from outside
-        let q = [
-            [0, 2, 3, 1], // z = lo
-            [4, 5, 7, 6], // z = hi
-            [0, 1, 5, 4], // y = lo
-            [2, 6, 7, 3], // y = hi
-            [0, 4, 6, 2], // x = lo
-            [1, 3, 7, 5], // x = hi
-        ];
-        for f in q {
+        for f in CUBOID_FACES {
             self.quad_indices(f.map(|i| b + i));
         }
     }
@@ -164,25 +205,31 @@ impl Mesh {
         }
     }
 
-    /// The mesh as Wavefront OBJ: `v` lines, `vn` lines when there is one
-    /// normal per vertex, then 1-based `f` lines.
+    /// The mesh as Wavefront OBJ: `v` lines, `vt` and `vn` lines when there
+    /// is one uv or normal per vertex, then 1-based `f` lines.
     pub fn obj_text(&self) -> String {
         debug_assert!(self.normals.is_empty() || self.normals.len() == self.positions.len());
+        debug_assert!(self.uvs.is_empty() || self.uvs.len() == self.positions.len());
         let mut s = String::with_capacity(self.positions.len() * 30 + self.indices.len() * 20);
         for v in &self.positions {
             let _ = writeln!(s, "v {} {} {}", v.x, v.y, v.z);
         }
+        for t in &self.uvs {
+            let _ = writeln!(s, "vt {} {}", t.x, t.y);
+        }
         for n in &self.normals {
             let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
         }
-        let with_n = self.normals.len() == self.positions.len();
+        let with_n = !self.normals.is_empty();
+        let with_t = !self.uvs.is_empty();
         for f in &self.indices {
             let [a, b, c] = f.map(|i| i + 1);
-            if with_n {
-                let _ = writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}");
-            } else {
-                let _ = writeln!(s, "f {a} {b} {c}");
-            }
+            let _ = match (with_t, with_n) {
+                (false, false) => writeln!(s, "f {a} {b} {c}"),
+                (false, true) => writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}"),
+                (true, false) => writeln!(s, "f {a}/{a} {b}/{b} {c}/{c}"),
+                (true, true) => writeln!(s, "f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}"),
+            };
         }
         s
     }

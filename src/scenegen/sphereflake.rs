@@ -58,6 +58,7 @@ pub(super) fn build() -> SceneFiles {
     xml += "</scene>\n";
     SceneFiles {
         meshes: vec![("flake.obj".into(), o), ("floor.obj".into(), floor)],
+        images: Vec::new(),
         xml,
     }
 }

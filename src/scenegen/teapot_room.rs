@@ -87,6 +87,7 @@ pub(super) fn build() -> SceneFiles {
     xml += "</scene>\n";
     SceneFiles {
         meshes: vec![("room.obj".into(), room), ("teapot.obj".into(), pot)],
+        images: Vec::new(),
         xml,
     }
 }

@@ -66,6 +66,7 @@ pub(super) fn build() -> SceneFiles {
     xml += "</scene>\n";
     SceneFiles {
         meshes: vec![("land.obj".into(), land), ("water.obj".into(), water)],
+        images: Vec::new(),
         xml,
     }
 }
