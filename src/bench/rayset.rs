@@ -395,7 +395,7 @@ fn parse_header(path: &Path, b: &[u8], len: u64) -> Result<Header, RaySetError> 
     })
 }
 
-/// Reads a `.krays` file written by [`write`]: a file of another kind, of
+/// Reads a `.krays` file written by [`write()`]: a file of another kind, of
 /// another version, truncated, damaged or holding an invalid ray is an
 /// error naming it.
 pub fn read(path: &Path) -> Result<RaySets, RaySetError> {

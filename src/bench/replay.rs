@@ -258,9 +258,9 @@ fn brute_force(scene: &Scene, r: &Ray, any: bool) -> Option<(f64, f64)> {
 }
 
 /// Judges the first [`JUDGED`] rays of `rays` on which `reference` and
-/// `other` disagree against [`brute_force`]. An answer is right when it
-/// misses where the search misses, or hits within 1e-4 (relative) of the
-/// search's distance (for occlusion: blocked where the search finds a hit).
+/// `other` disagree against a brute-force f64 search over every triangle
+/// (`brute_force`). An answer is right when it misses where the search
+/// misses, or hits within 1e-4 (relative) of the search's distance (for occlusion: blocked where the search finds a hit).
 pub fn judge(scene: &Scene, rays: &[Ray], reference: &Answers, other: &Answers) -> Verdict {
     let close = |a: &Answer, t: Option<f64>| match t {
         None => !a.is_hit(),
