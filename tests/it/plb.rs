@@ -76,10 +76,13 @@ fn average(imgs: &[Image]) -> Image {
 ///    slowest to converge), the 8-pass deficit is smaller than the 1-pass one
 ///    by more than 3 standard errors of the difference.
 /// 2. The long run is within noise plus the stated bias: on every channel,
-///    |mean − reference| ≤ 4 σ + 1.5 · |short-run deficit|/8, σ being the
-///    standard error of the 16-seed mean measured from the seed spread, the
-///    second term the 1/N law applied to the deficit measured at 1 pass,
-///    with 50 % slack for its own noise.
+///    |mean − reference| ≤ 4 σ + 1.5 · (|short-run deficit| + 2 σ₁)/8, σ
+///    being the standard error of the 16-seed mean measured from the seed
+///    spread, the second term the 1/N law applied to the deficit measured at
+///    1 pass. That deficit is itself a 32-seed estimate with standard error
+///    σ₁, so the law is applied to its upper bound at 2 σ₁ (a point
+///    estimate understated the blue deficit; BENCHMARKS.md, plb, "The
+///    start-up test's bias bound"), with 50 % slack for the law itself.
 /// 3. relMSE of one 8-pass render against the reference is at most 1.5 × its
 ///    expectation from noise, relMSE(k₁, k₂)/2 + the reference's own
 ///    half-versus-half figure / 4, as in tests/reference.rs.
@@ -119,7 +122,7 @@ fn plb_cbox_converges_with_shrinking_startup_defect() {
 
     // 2. the long run: noise plus the stated (measured, 1/N) bias
     for ch in 0..3 {
-        let bias = 1.5 * (ms[ch] - mr[ch]).abs() / 8.0;
+        let bias = 1.5 * ((ms[ch] - mr[ch]).abs() + 2.0 * ses[ch]) / 8.0;
         let tol = 4.0 * sel[ch] + bias;
         assert!(
             (ml[ch] - mr[ch]).abs() <= tol,
