@@ -139,6 +139,16 @@ fn form_factor_zbuffer() {
     form_factor(Visibility::ZBuffer);
 }
 
+/// cbox's lights and its patch mesh of about `count` patches (the
+/// uniform, area budget).
+fn cbox_patches(count: usize) -> (Lights, Patches) {
+    let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
+    let lights = Lights::new(&scene);
+    let edge = kalos::methods::bundle::patches::edge_for_count(&scene, count);
+    let patches = Patches::build(&scene, &lights, edge);
+    (lights, patches)
+}
+
 /// The painter's depth repair against the z-buffer (which has no sorting
 /// error) on cbox, whose ceiling mesh holds a reversed quad coplanar with
 /// the ceiling right above the luminaire (0.5 units lower). The luminaire
@@ -154,13 +164,7 @@ fn form_factor_zbuffer() {
 /// image was 6 % too dark).
 #[test]
 fn painter_pairs_equal_zbuffer_on_cbox() {
-    let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
-    let lights = Lights::new(&scene);
-    let patches = Patches::build(
-        &scene,
-        &lights,
-        kalos::methods::bundle::patches::edge_for_count(&scene, 5000),
-    );
+    let (lights, patches) = cbox_patches(5000);
     let n = patches.len();
     let le_max = patches
         .p
@@ -220,13 +224,7 @@ fn painter_pairs_equal_zbuffer_on_cbox() {
 /// shows in the sums. A second, different direction must change them.
 #[test]
 fn sweep_same_whatever_the_thread_count() {
-    let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
-    let lights = Lights::new(&scene);
-    let patches = Patches::build(
-        &scene,
-        &lights,
-        kalos::methods::bundle::patches::edge_for_count(&scene, 5000),
-    );
+    let (lights, patches) = cbox_patches(5000);
     let n = patches.len();
     let l_plus: Vec<Vec3> = (0..n).map(|i| Vec3::splat(1.0 + (i % 7) as f32)).collect();
     let l_minus: Vec<Vec3> = (0..n).map(|i| Vec3::splat(1.0 + (i % 11) as f32)).collect();
