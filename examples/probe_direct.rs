@@ -28,10 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (mut e_nee, mut e_bsdf, mut hits_tri) =
         (0f64, 0f64, std::collections::BTreeMap::<u32, u64>::new());
     for _ in 0..m {
-        if let Some(ls) = world
-            .lights
-            .sample_li(&world.scene, p, rng.next_f32(), rng.next_2d())
-        {
+        if let Some(ls) = world.lights.sample_li(p, rng.next_f32(), rng.next_2d()) {
             let c = ls.wi.dot(n);
             if c > 0.0
                 && !world
@@ -94,7 +91,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
         }
         let (u_sel, u_l) = (rng.next_f32(), rng.next_2d());
-        if let Some(ls) = world.lights.sample_li(&world.scene, sp.p, u_sel, u_l) {
+        if let Some(ls) = world.lights.sample_li(sp.p, u_sel, u_l) {
             let wi = frame.to_local(ls.wi);
             let f = bsdf.eval(wo, wi, kalos::bsdf::Mode::Radiance) * wi.z.abs();
             if f != Vec3::ZERO && ls.wi.dot(ng) * wi.z > 0.0 {
@@ -121,9 +118,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let le = world.lights.le_tri(h2.tri, sp2.frame.n, -wi_world);
                 let w = kalos::sampling::power_heuristic(
                     s.pdf,
-                    world
-                        .lights
-                        .pdf_li_tri(&world.scene, sp.p, sp2.p, sp2.ng, h2.tri),
+                    world.lights.pdf_li_tri(sp.p, sp2.p, sp2.ng, h2.tri),
                 );
                 let c = (beta * le * w).x as f64;
                 a_bsdf += c;

@@ -35,12 +35,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut rooms = [Room::default(), Room::default()]; // light's, camera's
     let mut rays = 0u64;
     for _ in 0..paths {
-        let Some(es) = world.lights.sample_emission(
-            &world.scene,
-            rng.next_f32(),
-            rng.next_2d(),
-            rng.next_2d(),
-        ) else {
+        let Some(es) = world
+            .lights
+            .sample_emission(rng.next_f32(), rng.next_2d(), rng.next_2d())
+        else {
             continue;
         };
         let mut connection_rays = 0;

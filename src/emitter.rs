@@ -391,10 +391,8 @@ impl Lights {
         self.env.as_ref().map_or(Rgb::ZERO, |e| e.le(dir))
     }
 
-    /// Samples a light as seen from `p` (next-event estimation). The
-    /// entries carry what sampling needs: `_scene` (the scene the lights were
-    /// gathered from) stays in the signature for the callers.
-    pub fn sample_li(&self, _scene: &Scene, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
+    /// Samples a light as seen from `p` (next-event estimation).
+    pub fn sample_li(&self, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
         if self.is_empty() {
             return None;
         }
@@ -449,7 +447,7 @@ impl Lights {
 
     /// Solid-angle pdf with which [`Lights::sample_li`] from `p` picks the
     /// point `q` (normal `nq`) on emitting triangle `tri`.
-    pub fn pdf_li_tri(&self, _scene: &Scene, p: Vec3, q: Vec3, nq: Vec3, tri: u32) -> f32 {
+    pub fn pdf_li_tri(&self, p: Vec3, q: Vec3, nq: Vec3, tri: u32) -> f32 {
         let e = match self.tri_entry.get(tri as usize) {
             Some(&e) if e != u32::MAX => e as usize,
             _ => return 0.0,
@@ -481,13 +479,7 @@ impl Lights {
     /// cosine-distributed direction (the emission pdf ∝ Le cos θ of the
     /// density-estimation paper). The environment shoots parallel rays from a
     /// disk of the scene's bounding radius, perpendicular to the direction.
-    pub fn sample_emission(
-        &self,
-        _scene: &Scene,
-        u_sel: f32,
-        u_pos: Vec2,
-        u_dir: Vec2,
-    ) -> Option<EmissionSample> {
+    pub fn sample_emission(&self, u_sel: f32, u_pos: Vec2, u_dir: Vec2) -> Option<EmissionSample> {
         if self.is_empty() {
             return None;
         }

@@ -229,7 +229,7 @@ fn record_pixel(world: &World, seed: u64, x: u32, y: u32, out: &mut [Vec<Ray>; 3
 
     // Shadow ray to a point on an emitter, as next-event estimation makes it
     let (u_sel, u) = (rng.next_f32(), rng.next_2d());
-    let Some(ls) = world.lights.sample_li(&world.scene, sp.p, u_sel, u) else {
+    let Some(ls) = world.lights.sample_li(sp.p, u_sel, u) else {
         return;
     };
     if ls.pdf.is_nan() || ls.pdf <= 0.0 || ls.wi.dot(ng) <= 0.0 {

@@ -374,10 +374,7 @@ pub fn merge_image(states: &[&State], width: u32, height: u32) -> Result<Image, 
 /// emission vertex and at every non-delta vertex; returns the rays traced.
 fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> u64 {
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    let Some(es) = world
-        .lights
-        .sample_emission(&world.scene, u_sel, u_pos, u_dir)
-    else {
+    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
         return 0;
     };
     let mut rays = 0;
@@ -431,7 +428,7 @@ fn iterate(
 
     // M(Le): the lights' own image, one emission sample per step
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    if let Some(es) = lights.sample_emission(&world.scene, u_sel, u_pos, u_dir) {
+    if let Some(es) = lights.sample_emission(u_sel, u_pos, u_dir) {
         if !es.is_env {
             rays += connect_emission(world, es.p, es.n, es.phi_pos, target);
         }
@@ -494,10 +491,7 @@ fn emit_and_transfer(
     prob: f32,
 ) -> u64 {
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    let Some(es) = world
-        .lights
-        .sample_emission(&world.scene, u_sel, u_pos, u_dir)
-    else {
+    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
         return 0;
     };
     let ray = es.ray();

@@ -39,7 +39,7 @@ pub fn direct_light(world: &World, v: &Vertex, rng: &mut Pcg32) -> (Rgb, u64) {
     if !v.bsdf.has_smooth() {
         return (Rgb::ZERO, 0);
     }
-    let Some(ls) = world.lights.sample_li(&world.scene, v.sp.p, u_sel, u) else {
+    let Some(ls) = world.lights.sample_li(v.sp.p, u_sel, u) else {
         return (Rgb::ZERO, 0);
     };
     if ls.pdf.is_nan() || ls.pdf <= 0.0 {

@@ -67,10 +67,7 @@ pub fn radiance_from(
                 let w = if specular {
                     1.0
                 } else {
-                    power_heuristic(
-                        prev_pdf,
-                        lights.pdf_li_tri(scene, prev_p, sp.p, sp.ng, hit.tri),
-                    )
+                    power_heuristic(prev_pdf, lights.pdf_li_tri(prev_p, sp.p, sp.ng, hit.tri))
                 };
                 l += beta * le * w;
             }
@@ -87,7 +84,7 @@ pub fn radiance_from(
         if bsdf.has_smooth() && depth < max_depth {
             let u_sel = rng.next_f32();
             let u_l = rng.next_2d();
-            if let Some(ls) = lights.sample_li(scene, sp.p, u_sel, u_l) {
+            if let Some(ls) = lights.sample_li(sp.p, u_sel, u_l) {
                 let wi = frame.to_local(ls.wi);
                 let f = bsdf.eval(wo, wi, Mode::Radiance) * wi.z.abs();
                 if f != Rgb::ZERO && ls.wi.dot(ng) * wi.z > 0.0 {

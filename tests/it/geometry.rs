@@ -167,10 +167,7 @@ fn sphere_emitter_irradiance() {
     let mut rng = Pcg32::new(9, 1);
     let mut sum = 0.0f64;
     for _ in 0..n {
-        if let Some(ls) = w
-            .lights
-            .sample_li(&w.scene, p, rng.next_f32(), rng.next_2d())
-        {
+        if let Some(ls) = w.lights.sample_li(p, rng.next_f32(), rng.next_2d()) {
             sum += (ls.le.x * ls.wi.z.max(0.0) / ls.pdf) as f64;
         }
     }

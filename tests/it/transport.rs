@@ -24,10 +24,7 @@ fn load(name: &str, res: u32) -> Scene {
 fn walk(world: &World, i: u64, max_depth: Option<u32>) -> (Vec<(u32, Rgb)>, u64) {
     let mut rng = Pcg32::keyed(&[3, i]);
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    let Some(es) = world
-        .lights
-        .sample_emission(&world.scene, u_sel, u_pos, u_dir)
-    else {
+    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
         return (Vec::new(), 0);
     };
     let mut seen = Vec::new();
@@ -91,7 +88,7 @@ fn a_hook_can_end_the_walk() {
         let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
         let es = world
             .lights
-            .sample_emission(&world.scene, u_sel, u_pos, u_dir)
+            .sample_emission(u_sel, u_pos, u_dir)
             .expect("cbox has a light");
         let mut calls = 0;
         let rays = light_walk(

@@ -212,7 +212,7 @@ pub fn direct(world: &World, p: &Patch, w: Vec3, rng: &mut Pcg32) -> (Rgb, Rgb, 
     let u_sel = rng.next_f32();
     let u = rng.next_2d();
     let q = p.v[0] * (1.0 - b.x - b.y) + p.v[1] * b.x + p.v[2] * b.y;
-    let Some(ls) = world.lights.sample_li(&world.scene, q, u_sel, u) else {
+    let Some(ls) = world.lights.sample_li(q, u_sel, u) else {
         return (Rgb::ZERO, Rgb::ZERO, 0);
     };
     if ls.pdf.is_nan() || ls.pdf <= 0.0 {

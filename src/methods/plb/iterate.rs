@@ -220,10 +220,7 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
     if u < p_light {
         // Sample the light source: Φ = Le cos θ / p_e / (1 − Σs_i)
         let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-        if let Some(es) = world
-            .lights
-            .sample_emission(&world.scene, u_sel, u_pos, u_dir)
-        {
+        if let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) {
             let inv_p = (1.0 / p_light) as f32;
             if !es.is_env {
                 rays += connect_emission(world, es.p, es.n, es.phi_pos * inv_p, &mut lane.le_film);
