@@ -17,7 +17,7 @@
 //!
 //! On a CPU with AVX2 the binary BVH is collapsed into an 8-wide BVH instead
 //! (`accel/wide8.rs`), walked by AVX2 kernels (`accel/traverse8.rs`); the
-//! choice is made once per build, at run time ([`Kernel`]), so that the
+//! choice is made once per build, at run time (`Kernel`), so that the
 //! default build runs on any x86-64 and the 4-wide SSE2 kernel stays the
 //! fallback. The environment variable `KALOS_ACCEL=bvh4` forces the
 //! fallback (to compare the two, or to test it on an AVX2 machine).
