@@ -14,11 +14,22 @@
 //! PLOC on a sample of the triangles first and, when the sample shows that
 //! behaviour, builds the tree top-down instead (`accel/sah.rs`), which takes
 //! O(n log n) time whatever the input.
+//!
+//! On a CPU with AVX2 the binary BVH is collapsed into an 8-wide BVH instead
+//! (`accel/wide8.rs`), walked by AVX2 kernels (`accel/traverse8.rs`); the
+//! choice is made once per build, at run time (`Kernel`), so that the
+//! default build runs on any x86-64 and the 4-wide SSE2 kernel stays the
+//! fallback. The environment variable `KALOS_ACCEL=bvh4` forces the
+//! fallback (to compare the two, or to test it on an AVX2 machine).
 
 mod sah;
 mod simd;
 mod traverse;
+#[cfg(target_arch = "x86_64")]
+mod traverse8;
 mod wide;
+#[cfg(target_arch = "x86_64")]
+mod wide8;
 
 use glam::Vec3;
 use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
@@ -47,7 +58,74 @@ pub struct Hit {
 /// The acceleration structure.
 pub struct Accel {
     /// `None` for a scene without triangles.
-    wide: Option<Wide>,
+    core: Option<Core>,
+}
+
+/// The wide BVH a build produced, with the kernels that walk it.
+enum Core {
+    /// 4 wide, SSE2 (scalar off x86_64): runs anywhere.
+    Bvh4(Wide),
+    /// 8 wide, AVX2: built only where AVX2 was detected.
+    #[cfg(target_arch = "x86_64")]
+    Bvh8(wide8::Wide8),
+}
+
+/// The traversal kernel a build asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Kernel {
+    /// The 4-wide BVH with SSE2 kernels.
+    Bvh4,
+    /// The 8-wide BVH with AVX2 kernels where the CPU has AVX2, else
+    /// [`Kernel::Bvh4`].
+    Bvh8,
+}
+
+/// The environment variable that chooses the kernel.
+const KERNEL_VAR: &str = "KALOS_ACCEL";
+
+impl Kernel {
+    /// The kernel `KALOS_ACCEL` asks for: `bvh4`, or `bvh8` (the default,
+    /// when unset or empty). Any other value is reported through
+    /// `on_phase` and the default is used: the build has no error path, and
+    /// the variable only chooses between two kernels that give the same
+    /// answers.
+    fn from_env(on_phase: &mut dyn FnMut(String)) -> Kernel {
+        match std::env::var(KERNEL_VAR) {
+            Ok(v) if v == "bvh4" => Kernel::Bvh4,
+            Ok(v) if v == "bvh8" || v.is_empty() => Kernel::Bvh8,
+            Err(std::env::VarError::NotPresent) => Kernel::Bvh8,
+            Ok(v) => {
+                on_phase(format!(
+                    "ignoring {KERNEL_VAR}={v:?}: expected bvh4 or bvh8; using bvh8"
+                ));
+                Kernel::Bvh8
+            }
+            Err(std::env::VarError::NotUnicode(v)) => {
+                on_phase(format!(
+                    "ignoring {KERNEL_VAR}={v:?}: expected bvh4 or bvh8; using bvh8"
+                ));
+                Kernel::Bvh8
+            }
+        }
+    }
+}
+
+/// Collapses `bvh2` into the wide BVH of `kernel`, or `None` when even the
+/// 4-wide form would be too deep or too large (see [`Wide::from_bvh2`]).
+/// The 8-wide form falls back to the 4-wide one on a CPU without AVX2, or
+/// when it does not fit its own limits.
+fn collapse(bvh2: &Bvh2, tris: &[Triangle], kernel: Kernel) -> Option<Core> {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Bvh8 {
+        if let Some(avx2) = wide8::Avx2::detect() {
+            if let Some(w) = wide8::Wide8::from_bvh2(bvh2, tris, avx2) {
+                return Some(Core::Bvh8(w));
+            }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = kernel;
+    Wide::from_bvh2(bvh2, tris).map(Core::Bvh4)
 }
 
 impl Accel {
@@ -60,6 +138,16 @@ impl Accel {
     /// for a progress display: building a BVH over millions of triangles
     /// takes seconds).
     pub fn build_reporting(scene: &Scene, on_phase: &mut dyn FnMut(String)) -> Self {
+        let kernel = Kernel::from_env(on_phase);
+        Self::build_kernel(scene, kernel, on_phase)
+    }
+
+    /// [`Accel::build_reporting`] with the kernel given.
+    pub(crate) fn build_kernel(
+        scene: &Scene,
+        kernel: Kernel,
+        on_phase: &mut dyn FnMut(String),
+    ) -> Self {
         let tris: Vec<Triangle> = (0..scene.triangles.len() as u32)
             .map(|i| {
                 let [a, b, c] = scene.tri_vertices(i);
@@ -71,7 +159,7 @@ impl Accel {
             })
             .collect();
         if tris.is_empty() {
-            return Accel { wide: None };
+            return Accel { core: None };
         }
         let params = BvhBuildParams::medium_build();
         let ploc = if ploc_is_safe(&tris, params) {
@@ -84,7 +172,7 @@ impl Accel {
                 params.search_depth_threshold,
             );
             ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-            Wide::from_bvh2(&bvh2, &tris)
+            collapse(&bvh2, &tris, kernel)
         } else {
             None
         };
@@ -97,20 +185,40 @@ impl Accel {
                 tris.len()
             ));
             let bvh2: Bvh2 = sah::build(&tris);
-            Wide::from_bvh2(&bvh2, &tris)
+            collapse(&bvh2, &tris, kernel)
                 .expect("a scene of over a billion triangles exceeds the BVH's index range")
         });
-        Accel { wide: Some(wide) }
+        Accel { core: Some(wide) }
+    }
+
+    /// The kernel this build runs (for the tests: [`Kernel::Bvh8`] falls
+    /// back without AVX2); `None` for a scene without triangles.
+    #[cfg(test)]
+    pub(crate) fn kernel(&self) -> Option<Kernel> {
+        match self.core.as_ref()? {
+            Core::Bvh4(_) => Some(Kernel::Bvh4),
+            #[cfg(target_arch = "x86_64")]
+            Core::Bvh8(_) => Some(Kernel::Bvh8),
+        }
     }
 
     /// The closest hit along `ray` in `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        let w = self.wide.as_ref()?;
-        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?;
+        let (h, ids) = match self.core.as_ref()? {
+            Core::Bvh4(w) => (
+                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?,
+                &w.ids,
+            ),
+            #[cfg(target_arch = "x86_64")]
+            Core::Bvh8(w) => (
+                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?,
+                &w.ids,
+            ),
+        };
         Some(Hit {
             t: h.t,
-            tri: w.ids[h.slot],
+            tri: ids[h.slot],
             b1: h.b1,
             b2: h.b2,
         })
@@ -121,17 +229,23 @@ impl Accel {
     /// ([`crate::geometry::offset_point`]); the segment stops just short of `b`.
     #[inline]
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
-        self.wide
-            .as_ref()
-            .is_some_and(|w| traverse::any(w, a, b - a, 0.0, 1.0 - 1e-4))
+        self.any(a, b - a, 0.0, 1.0 - 1e-4)
     }
 
     /// True when something blocks the ray within `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn occluded_ray(&self, ray: &Ray) -> bool {
-        self.wide
-            .as_ref()
-            .is_some_and(|w| traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax))
+        self.any(ray.o, ray.d, ray.tmin, ray.tmax)
+    }
+
+    #[inline(always)]
+    fn any(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        match &self.core {
+            None => false,
+            Some(Core::Bvh4(w)) => traverse::any(w, o, d, tmin, tmax),
+            #[cfg(target_arch = "x86_64")]
+            Some(Core::Bvh8(w)) => traverse8::any(w, o, d, tmin, tmax),
+        }
     }
 }
 
@@ -201,7 +315,12 @@ mod tests {
             idx.push([3 * i, 3 * i + 1, 3 * i + 2]);
         }
         scene.add_mesh("soup", &pos, None, None, &idx, m, None);
-        let accel = Accel::build(&scene);
+        for accel in proptests::builds(&scene) {
+            soup_rays_match_brute_force(&scene, &accel, &mut rng);
+        }
+    }
+
+    fn soup_rays_match_brute_force(scene: &Scene, accel: &Accel, rng: &mut Pcg32) {
         let mut hits = 0;
         for _ in 0..2000 {
             let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0;

@@ -7,11 +7,16 @@
 //! triangle as a clear hit, a clear miss (beyond a margin) or too close to
 //! call; the kernels must find every clear hit, never report a clear miss,
 //! and return the nearest hit up to the margin.
+//!
+//! Every test runs each kernel this CPU can run ([`kernels`]): the 4-wide
+//! one always, the 8-wide AVX2 one where AVX2 is present. As both do the
+//! same arithmetic on the same triangles, they must also agree with each
+//! other on the distance of every closest hit and on every occlusion.
 
 use glam::{DVec3, Vec3};
 use proptest::prelude::*;
 
-use super::{Accel, Hit};
+use super::{Accel, Hit, Kernel};
 use crate::geometry::Ray;
 use crate::scene::{Material, Scene, Texture};
 
@@ -141,7 +146,58 @@ fn rays(n_tris: usize) -> impl Strategy<Value = Vec<TestRay>> {
     )
 }
 
-/// Checks the kernels against the brute force on one ray.
+/// The kernels this CPU runs: [`Kernel::Bvh8`] only where it has AVX2 (on
+/// other CPUs its build would run the 4-wide kernel again).
+pub(super) fn kernels() -> Vec<Kernel> {
+    let mut k = vec![Kernel::Bvh4];
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        k.push(Kernel::Bvh8);
+    }
+    k
+}
+
+/// A build of `scene` with each of [`kernels`], checked to run the kernel
+/// asked for.
+pub(super) fn builds(scene: &Scene) -> Vec<Accel> {
+    kernels()
+        .into_iter()
+        .map(|k| {
+            let accel = Accel::build_kernel(scene, k, &mut |_| {});
+            if !scene.triangles.is_empty() {
+                assert_eq!(accel.kernel(), Some(k));
+            }
+            accel
+        })
+        .collect()
+}
+
+/// Checks each build of `accels` against the brute force on one ray, and
+/// the builds against each other.
+fn check_all(
+    accels: &[Accel],
+    tris: &[[Vec3; 3]],
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Result<(), TestCaseError> {
+    for accel in accels {
+        check(accel, tris, o, d, tmin, tmax)?;
+    }
+    let ray = Ray { o, d, tmin, tmax };
+    let first = accels[0].intersect(&ray).map(|h| h.t.to_bits());
+    for accel in &accels[1..] {
+        prop_assert_eq!(
+            accel.intersect(&ray).map(|h| h.t.to_bits()),
+            first,
+            "the kernels disagree on the closest distance"
+        );
+    }
+    Ok(())
+}
+
+/// Checks one kernel against the brute force on one ray.
 fn check(
     accel: &Accel,
     tris: &[[Vec3; 3]],
@@ -216,7 +272,7 @@ proptest! {
         (tris, rays) in prop::collection::vec(triangle(), 1..80)
             .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), rays(n)) })
     ) {
-        let accel = Accel::build(&soup(&tris));
+        let accels = builds(&soup(&tris));
         for (on, o, d, tmin, tmax) in rays {
             // A ray leaving a triangle's surface starts on it
             let o = match on {
@@ -227,7 +283,7 @@ proptest! {
                 }
                 None => o,
             };
-            check(&accel, &tris, o, d, tmin, tmax)?;
+            check_all(&accels, &tris, o, d, tmin, tmax)?;
         }
     }
 
@@ -245,9 +301,9 @@ proptest! {
                 [c, c + Vec3::new(0.3, 0.05 * (k % 3.0), 0.0), c + Vec3::new(0.0, 0.2, 0.1 * (k % 5.0))]
             })
             .collect();
-        let accel = Accel::build(&soup(&tris));
+        let accels = builds(&soup(&tris));
         for (_, o, d, tmin, tmax) in rays {
-            check(&accel, &tris, o, d, tmin, tmax)?;
+            check_all(&accels, &tris, o, d, tmin, tmax)?;
         }
     }
 }
@@ -255,11 +311,12 @@ proptest! {
 /// A scene without triangles: nothing is hit, nothing occludes.
 #[test]
 fn empty_scene() {
-    let accel = Accel::build(&soup(&[]));
-    let ray = Ray::new(Vec3::ZERO, Vec3::Z);
-    assert!(accel.intersect(&ray).is_none());
-    assert!(!accel.occluded_ray(&ray));
-    assert!(!accel.occluded(Vec3::ZERO, Vec3::ONE));
+    for accel in builds(&soup(&[])) {
+        let ray = Ray::new(Vec3::ZERO, Vec3::Z);
+        assert!(accel.intersect(&ray).is_none());
+        assert!(!accel.occluded_ray(&ray));
+        assert!(!accel.occluded(Vec3::ZERO, Vec3::ONE));
+    }
 }
 
 /// Copies of one triangle send the build to the top-down fallback (see the
@@ -277,16 +334,19 @@ fn top_down_fallback_answers() {
         Vec3::new(1.0, -1.0, 2.0),
         Vec3::new(0.0, 1.0, 2.0),
     ]);
-    let mut phases = Vec::new();
-    let accel = Accel::build_reporting(&soup(&tris), &mut |p| phases.push(p));
-    assert!(phases.iter().any(|p| p.contains("top-down")), "{phases:?}");
-    let down = Ray::new(Vec3::new(0.0, 0.0, 3.0), Vec3::new(-0.0, -0.0, -1.0));
-    let h = accel.intersect(&down).expect("hits the top triangle");
-    assert_eq!(h.tri, 5000);
-    assert!((h.t - 1.0).abs() < 1e-6);
-    let below = Ray { tmin: 1.5, ..down };
-    let h = accel.intersect(&below).expect("hits the copies");
-    assert!(h.tri < 5000 && (h.t - 3.0).abs() < 1e-6);
-    assert!(!accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.9)));
-    assert!(accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0)));
+    for kernel in kernels() {
+        let mut phases = Vec::new();
+        let accel = Accel::build_kernel(&soup(&tris), kernel, &mut |p| phases.push(p));
+        assert_eq!(accel.kernel(), Some(kernel));
+        assert!(phases.iter().any(|p| p.contains("top-down")), "{phases:?}");
+        let down = Ray::new(Vec3::new(0.0, 0.0, 3.0), Vec3::new(-0.0, -0.0, -1.0));
+        let h = accel.intersect(&down).expect("hits the top triangle");
+        assert_eq!(h.tri, 5000);
+        assert!((h.t - 1.0).abs() < 1e-6);
+        let below = Ray { tmin: 1.5, ..down };
+        let h = accel.intersect(&below).expect("hits the copies");
+        assert!(h.tri < 5000 && (h.t - 3.0).abs() < 1e-6);
+        assert!(!accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.9)));
+        assert!(accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0)));
+    }
 }

@@ -1,0 +1,361 @@
+//! The AVX2 traversal kernels over the 8-wide BVH of `wide8.rs`: closest
+//! hit, with children visited nearest first and skipped once a closer hit is
+//! known, and occlusion, which stops at the first hit in range.
+//!
+//! Every floating-point operation is the one `traverse.rs` does, in the same
+//! order, eight lanes instead of four: no fused multiply-add, which would
+//! round the slab and triangle tests differently from the 4-wide kernel, so
+//! that both kernels accept exactly the same boxes and triangles and a
+//! scene renders alike on CPUs with and without AVX2.
+
+use std::arch::x86_64::*;
+use std::mem::MaybeUninit;
+
+use glam::Vec3;
+
+use super::traverse::SlotHit;
+use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
+
+/// The far distance's widening of `traverse.rs` (pbrt-v4's 1 + 2γ₃, §6.8.2),
+/// so that the box test never rejects a hit the triangle test accepts.
+const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// A ray prepared for the kernels.
+struct Prepared {
+    o: [__m256; 3],
+    d: [__m256; 3],
+    inv: [__m256; 3],
+    /// Row of `Node8::b` holding the near plane along each axis (min for a
+    /// direction component with its sign bit clear, else max), and the far.
+    near: [usize; 3],
+    far: [usize; 3],
+}
+
+impl Prepared {
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn new(o: Vec3, d: Vec3) -> Prepared {
+        // 1/±0 is ±∞, whose sign agrees with the choice of planes below; the
+        // NaN from 0·∞ (a ray in a slab's plane) is ignored by the box test.
+        let inv = d.recip();
+        let neg = |x: f32| usize::from(x.is_sign_negative());
+        let near = [neg(d.x), 2 + neg(d.y), 4 + neg(d.z)];
+        Prepared {
+            o: [
+                _mm256_set1_ps(o.x),
+                _mm256_set1_ps(o.y),
+                _mm256_set1_ps(o.z),
+            ],
+            d: [
+                _mm256_set1_ps(d.x),
+                _mm256_set1_ps(d.y),
+                _mm256_set1_ps(d.z),
+            ],
+            inv: [
+                _mm256_set1_ps(inv.x),
+                _mm256_set1_ps(inv.y),
+                _mm256_set1_ps(inv.z),
+            ],
+            near,
+            far: near.map(|r| r ^ 1),
+        }
+    }
+
+    /// The lanes of `node` whose box the ray enters within `[tmin, tmax]`,
+    /// and the distance at which it enters each.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn boxes(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (u32, __m256) {
+        // maxps/minps return their second operand when either is NaN: the
+        // running bound goes second so that NaN lanes leave it unchanged
+        let mut t0 = tmin;
+        let mut t1 = tmax;
+        for axis in 0..3 {
+            // SAFETY: each row is eight f32s, 32-byte aligned (Node8's repr)
+            let (n, f) = unsafe {
+                (
+                    _mm256_load_ps(node.b[self.near[axis]].as_ptr()),
+                    _mm256_load_ps(node.b[self.far[axis]].as_ptr()),
+                )
+            };
+            t0 = _mm256_max_ps(
+                _mm256_mul_ps(_mm256_sub_ps(n, self.o[axis]), self.inv[axis]),
+                t0,
+            );
+            t1 = _mm256_min_ps(
+                _mm256_mul_ps(_mm256_sub_ps(f, self.o[axis]), self.inv[axis]),
+                t1,
+            );
+        }
+        let far = _mm256_mul_ps(t1, _mm256_set1_ps(FAR_SCALE));
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(t0, far);
+        (_mm256_movemask_ps(hit) as u32, t0)
+    }
+
+    /// `traverse.rs`'s Möller–Trumbore on the eight triangles of `pack`,
+    /// the same operations in the same order: the lanes hit within
+    /// `[tmin, tmax)`, with their distances and barycentric weights of the
+    /// second and third vertex.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn triangles(&self, pack: &Pack8, tmin: __m256, tmax: __m256) -> (u32, __m256, __m256, __m256) {
+        // SAFETY: each row is eight f32s, 32-byte aligned (Pack8's repr)
+        let ld = |rows: &[[f32; 8]; 3]| unsafe {
+            [
+                _mm256_load_ps(rows[0].as_ptr()),
+                _mm256_load_ps(rows[1].as_ptr()),
+                _mm256_load_ps(rows[2].as_ptr()),
+            ]
+        };
+        let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
+        let (add, sub, mul) = (
+            |a, b| _mm256_add_ps(a, b),
+            |a, b| _mm256_sub_ps(a, b),
+            |a, b| _mm256_mul_ps(a, b),
+        );
+        let dot = |a: &[__m256; 3], b: &[__m256; 3]| {
+            add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
+        };
+        let o = &self.o;
+        let c = [sub(v0[0], o[0]), sub(v0[1], o[1]), sub(v0[2], o[2])];
+        let d = &self.d;
+        let r = [
+            sub(mul(d[1], c[2]), mul(d[2], c[1])),
+            sub(mul(d[2], c[0]), mul(d[0], c[2])),
+            sub(mul(d[0], c[1]), mul(d[1], c[0])),
+        ];
+        let det = dot(&ng, d);
+        let one = _mm256_set1_ps(1.0);
+        let inv_det = _mm256_div_ps(one, det);
+        let u = mul(dot(&r, &e2), inv_det);
+        let v = mul(dot(&r, &e1), inv_det);
+        let w = sub(sub(one, u), v);
+        let t = mul(dot(&ng, &c), inv_det);
+        let zero = _mm256_setzero_ps();
+        // The comparisons of SSE's cmpneqps, cmpgeps and cmpltps
+        let and = |a, b| _mm256_and_ps(a, b);
+        let hit = and(
+            and(
+                and(
+                    _mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OS>(u, zero),
+                ),
+                and(
+                    _mm256_cmp_ps::<_CMP_GE_OS>(v, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OS>(w, zero),
+                ),
+            ),
+            and(
+                _mm256_cmp_ps::<_CMP_GE_OS>(t, tmin),
+                _mm256_cmp_ps::<_CMP_LT_OS>(t, tmax),
+            ),
+        );
+        (_mm256_movemask_ps(hit) as u32, t, u, v)
+    }
+}
+
+/// A fixed stack of child references, each with the distance at which the
+/// ray enters it (in the high half, as f32 bits), and its length. Left
+/// uninitialised, and built in place (see `traverse.rs`: a struct literal
+/// was cleared whole by a memset on every query).
+struct Stack {
+    entries: MaybeUninit<[u64; STACK]>,
+    len: usize,
+}
+
+impl Stack {
+    #[inline(always)]
+    fn new() -> Stack {
+        let mut s = MaybeUninit::<Stack>::uninit();
+        // SAFETY: `len` is written through a raw pointer before the value
+        // is read, and `entries` may stay uninitialised
+        unsafe {
+            (&raw mut (*s.as_mut_ptr()).len).write(0);
+            s.assume_init()
+        }
+    }
+
+    #[inline(always)]
+    fn ptr(&mut self) -> *mut u64 {
+        self.entries.as_mut_ptr().cast()
+    }
+
+    /// Entry `i`, which must be below `len`.
+    #[inline(always)]
+    fn get(&mut self, i: usize) -> (u32, f32) {
+        debug_assert!(i < self.len);
+        // SAFETY: entries below `len` were written, and len <= STACK
+        let e = unsafe { self.ptr().add(i).read() };
+        (e as u32, f32::from_bits((e >> 32) as u32))
+    }
+
+    /// Writes entry `i`, which must be at most `len`.
+    #[inline(always)]
+    fn set(&mut self, i: usize, r: u32, dist: f32) {
+        // The tree's depth was checked against STACK when it was built
+        assert!(i < STACK);
+        // SAFETY: i < STACK
+        unsafe {
+            self.ptr()
+                .add(i)
+                .write(u64::from(r) | (u64::from(dist.to_bits()) << 32))
+        };
+    }
+}
+
+/// The closest hit along `o + t d` in `[tmin, tmax)`.
+#[inline]
+pub(super) fn closest(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+    let _ = w.avx2;
+    // SAFETY: a Wide8 holds an Avx2 token, made only where AVX2 was detected
+    unsafe { closest_avx2(w, o, d, tmin, tmax) }
+}
+
+/// True when anything meets `o + t d` within `[tmin, tmax)`.
+#[inline]
+pub(super) fn any(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+    let _ = w.avx2;
+    // SAFETY: as in `closest`
+    unsafe { any_avx2(w, o, d, tmin, tmax) }
+}
+
+#[target_feature(enable = "avx2")]
+fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+    let ray = Prepared::new(o, d);
+    let vmin = _mm256_set1_ps(tmin);
+    let mut best: Option<SlotHit> = None;
+    let mut t_best = tmax;
+    let mut stack = Stack::new();
+    let mut r = w.root;
+    loop {
+        if r & LEAF_BIT == 0 {
+            // Test the eight children; descend into the nearest, push the others
+            let node = &w.nodes[r as usize];
+            let (mask, t0) = ray.boxes(node, vmin, _mm256_set1_ps(t_best));
+            if mask != 0 {
+                if mask & (mask - 1) == 0 {
+                    r = node.child[mask.trailing_zeros() as usize];
+                    continue;
+                }
+                let mut t0a = [0f32; 8];
+                // SAFETY: `t0a` is eight writable f32s; no alignment needed
+                unsafe { _mm256_storeu_ps(t0a.as_mut_ptr(), t0) };
+                let rest = mask & (mask - 1);
+                if rest & (rest - 1) == 0 {
+                    // Two children need no sort: descend into the nearer
+                    // (the second on a tie, as the insertion below would)
+                    let (a, b) = (
+                        mask.trailing_zeros() as usize,
+                        rest.trailing_zeros() as usize,
+                    );
+                    let (near, far) = if t0a[b] <= t0a[a] { (b, a) } else { (a, b) };
+                    stack.set(stack.len, node.child[far], t0a[far]);
+                    stack.len += 1;
+                    r = node.child[near];
+                    continue;
+                }
+                let base = stack.len;
+                let mut bits = mask;
+                while bits != 0 {
+                    let i = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    // Insertion keeps stack[base..] sorted farthest first
+                    let mut j = stack.len;
+                    while j > base {
+                        let (rj, dj) = stack.get(j - 1);
+                        if dj >= t0a[i] {
+                            break;
+                        }
+                        stack.set(j, rj, dj);
+                        j -= 1;
+                    }
+                    stack.set(j, node.child[i], t0a[i]);
+                    stack.len += 1;
+                }
+                stack.len -= 1;
+                r = stack.get(stack.len).0;
+                continue;
+            }
+        } else {
+            // Test the leaf's triangles, eight at a time
+            let first = ((r & !LEAF_BIT) >> 3) as usize;
+            let count = (r & 7) as usize + 1;
+            for p in first..first + count {
+                let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, _mm256_set1_ps(t_best));
+                if mask != 0 {
+                    let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
+                    // SAFETY: eight writable f32s each; no alignment needed
+                    unsafe {
+                        _mm256_storeu_ps(ta.as_mut_ptr(), t);
+                        _mm256_storeu_ps(ua.as_mut_ptr(), u);
+                        _mm256_storeu_ps(va.as_mut_ptr(), v);
+                    }
+                    let mut bits = mask;
+                    while bits != 0 {
+                        let i = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        if ta[i] < t_best {
+                            t_best = ta[i];
+                            best = Some(SlotHit {
+                                t: ta[i],
+                                slot: 8 * p + i,
+                                b1: ua[i],
+                                b2: va[i],
+                            });
+                        }
+                    }
+                }
+            }
+        }
+        // Pop the nearest entry that may still hold a closer hit
+        loop {
+            if stack.len == 0 {
+                return best;
+            }
+            let (cr, cd) = stack.get(stack.len - 1);
+            stack.len -= 1;
+            if cd < t_best {
+                r = cr;
+                break;
+            }
+        }
+    }
+}
+
+#[target_feature(enable = "avx2")]
+fn any_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+    let ray = Prepared::new(o, d);
+    let (vmin, vmax) = (_mm256_set1_ps(tmin), _mm256_set1_ps(tmax));
+    let mut stack = Stack::new();
+    let mut r = w.root;
+    loop {
+        if r & LEAF_BIT == 0 {
+            // Any order will do: descend into the first child hit, push the rest
+            let node = &w.nodes[r as usize];
+            let (mut mask, _) = ray.boxes(node, vmin, vmax);
+            if mask != 0 {
+                r = node.child[mask.trailing_zeros() as usize];
+                mask &= mask - 1;
+                while mask != 0 {
+                    stack.set(stack.len, node.child[mask.trailing_zeros() as usize], 0.0);
+                    stack.len += 1;
+                    mask &= mask - 1;
+                }
+                continue;
+            }
+        } else {
+            let first = ((r & !LEAF_BIT) >> 3) as usize;
+            let count = (r & 7) as usize + 1;
+            for p in first..first + count {
+                if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
+                    return true;
+                }
+            }
+        }
+        if stack.len == 0 {
+            return false;
+        }
+        r = stack.get(stack.len - 1).0;
+        stack.len -= 1;
+    }
+}
