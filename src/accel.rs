@@ -85,25 +85,25 @@ const KERNEL_VAR: &str = "KALOS_ACCEL";
 
 impl Kernel {
     /// The kernel `KALOS_ACCEL` asks for: `bvh4`, or `bvh8` (the default,
-    /// when unset or empty). Any other value is reported through
-    /// `on_phase` and the default is used: the build has no error path, and
-    /// the variable only chooses between two kernels that give the same
-    /// answers.
-    fn from_env(on_phase: &mut dyn FnMut(String)) -> Kernel {
+    /// when unset or empty). Any other value is reported on stderr and the
+    /// default is used: the build has no error path, and the variable only
+    /// chooses between two kernels that give the same answers. (A progress
+    /// line would be overwritten by the next phase before anyone read it.)
+    fn from_env() -> Kernel {
         match std::env::var(KERNEL_VAR) {
             Ok(v) if v == "bvh4" => Kernel::Bvh4,
             Ok(v) if v == "bvh8" || v.is_empty() => Kernel::Bvh8,
             Err(std::env::VarError::NotPresent) => Kernel::Bvh8,
             Ok(v) => {
-                on_phase(format!(
-                    "ignoring {KERNEL_VAR}={v:?}: expected bvh4 or bvh8; using bvh8"
-                ));
+                eprintln!(
+                    "warning: ignoring {KERNEL_VAR}={v:?}: expected bvh4 or bvh8; using bvh8"
+                );
                 Kernel::Bvh8
             }
             Err(std::env::VarError::NotUnicode(v)) => {
-                on_phase(format!(
-                    "ignoring {KERNEL_VAR}={v:?}: expected bvh4 or bvh8; using bvh8"
-                ));
+                eprintln!(
+                    "warning: ignoring {KERNEL_VAR}={v:?}: expected bvh4 or bvh8; using bvh8"
+                );
                 Kernel::Bvh8
             }
         }
@@ -138,7 +138,7 @@ impl Accel {
     /// for a progress display: building a BVH over millions of triangles
     /// takes seconds).
     pub fn build_reporting(scene: &Scene, on_phase: &mut dyn FnMut(String)) -> Self {
-        let kernel = Kernel::from_env(on_phase);
+        let kernel = Kernel::from_env();
         Self::build_kernel(scene, kernel, on_phase)
     }
 
