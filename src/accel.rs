@@ -5,6 +5,14 @@
 //! 4-wide BVH whose nodes and triangles the kernels of `accel/traverse.rs`
 //! test four at a time (SSE2 on x86_64, `accel/simd.rs`).
 //!
+//! PLOC clusters triangles by their centroids' Morton order, and where
+//! large triangles (walls, floors) sit among many small ones it makes
+//! trees that rays walk twice as deep as a top-down SAH tree. So the
+//! default build also builds the tree top-down (`accel/sah.rs`, then
+//! obvhs's reinsertion) and keeps that one when its surface area heuristic
+//! cost is clearly lower ([`Builder::Best`]; `accel/quality.rs` prices the
+//! trees).
+//!
 //! PLOC merges only pairs of clusters that are each other's nearest
 //! neighbour, and some inputs have almost no such pairs: many copies of one
 //! triangle (every candidate ties), or a fan of thin triangles around one
@@ -15,6 +23,7 @@
 //! behaviour, builds the tree top-down instead (`accel/sah.rs`), which takes
 //! O(n log n) time whatever the input.
 
+mod quality;
 mod sah;
 mod simd;
 mod traverse;
@@ -30,6 +39,8 @@ use obvhs::BvhBuildParams;
 use crate::geometry::Ray;
 use crate::scene::Scene;
 use wide::Wide;
+
+pub use quality::{TreeStats, Visits};
 
 /// A closest hit.
 #[derive(Clone, Copy, Debug)]
@@ -50,6 +61,97 @@ pub struct Accel {
     wide: Option<Wide>,
 }
 
+/// The builder of the binary BVH that is collapsed into the wide one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Builder {
+    /// PLOC with obvhs's `fast_build` search and reinsertion settings.
+    PlocFast,
+    /// PLOC with obvhs's `medium_build` settings.
+    PlocMedium,
+    /// PLOC with obvhs's `slow_build` settings, without its spatial
+    /// pre-splits (the wide BVH references whole triangles).
+    PlocSlow,
+    /// PLOC with obvhs's `very_slow_build` settings, without pre-splits.
+    PlocVerySlow,
+    /// The top-down binned SAH build of `accel/sah.rs`.
+    Sah,
+    /// [`Builder::Sah`], then obvhs's reinsertion with `medium_build`'s
+    /// batch ratio.
+    SahReinsert,
+    /// Both [`Builder::PlocMedium`] and [`Builder::SahReinsert`], keeping
+    /// the top-down tree where its SAH cost is clearly lower (the default).
+    Best,
+}
+
+/// [`Builder::Best`] keeps the top-down tree when its SAH cost is below
+/// this fraction of PLOC's. The SAH prices rays that cross the whole scene
+/// and never stop early, so a few per cent either way say nothing about
+/// the rays a render traces; a large scene where PLOC clusters its big
+/// triangles badly differs by far more (BENCHMARKS.md, "BVH quality on
+/// large scenes").
+const SWITCH_MARGIN: f64 = 0.95;
+
+impl Builder {
+    /// Every builder, in the order of their names.
+    pub const ALL: [Builder; 7] = [
+        Builder::PlocFast,
+        Builder::PlocMedium,
+        Builder::PlocSlow,
+        Builder::PlocVerySlow,
+        Builder::Sah,
+        Builder::SahReinsert,
+        Builder::Best,
+    ];
+
+    /// The name `kalos bench --bvh` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Builder::PlocFast => "ploc-fast",
+            Builder::PlocMedium => "ploc-medium",
+            Builder::PlocSlow => "ploc-slow",
+            Builder::PlocVerySlow => "ploc-very-slow",
+            Builder::Sah => "sah",
+            Builder::SahReinsert => "sah-reinsert",
+            Builder::Best => "best",
+        }
+    }
+
+    /// obvhs's parameters of a PLOC builder, None for the top-down one.
+    fn ploc_params(self) -> Option<BvhBuildParams> {
+        match self {
+            Builder::PlocFast => Some(BvhBuildParams::fast_build()),
+            Builder::PlocMedium | Builder::Best => Some(BvhBuildParams::medium_build()),
+            Builder::PlocSlow => Some(BvhBuildParams::slow_build()),
+            Builder::PlocVerySlow => Some(BvhBuildParams::very_slow_build()),
+            Builder::Sah | Builder::SahReinsert => None,
+        }
+    }
+}
+
+/// How [`Accel::build_with`] builds: the binary builder, then the leaf
+/// choice of the collapse to the wide BVH.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildOptions {
+    /// The binary BVH's builder.
+    pub builder: Builder,
+    /// The cost of a binary node's box tests per unit area relative to one
+    /// pack of four triangle tests, in the surface area heuristic that
+    /// chooses the leaves.
+    pub c_node: f32,
+    /// The most triangles a leaf may hold (1 to 32).
+    pub leaf_max: usize,
+}
+
+impl Default for BuildOptions {
+    fn default() -> Self {
+        BuildOptions {
+            builder: Builder::Best,
+            c_node: wide::C_NODE,
+            leaf_max: wide::LEAF_MAX,
+        }
+    }
+}
+
 impl Accel {
     /// Builds the BVH over all triangles of `scene` (in parallel).
     pub fn build(scene: &Scene) -> Self {
@@ -60,6 +162,16 @@ impl Accel {
     /// for a progress display: building a BVH over millions of triangles
     /// takes seconds).
     pub fn build_reporting(scene: &Scene, on_phase: &mut dyn FnMut(String)) -> Self {
+        Self::build_with(scene, &BuildOptions::default(), on_phase)
+    }
+
+    /// [`Accel::build_reporting`] with another builder or leaf choice than
+    /// the default, for `kalos bench` to compare trees on the same rays.
+    pub fn build_with(
+        scene: &Scene,
+        options: &BuildOptions,
+        on_phase: &mut dyn FnMut(String),
+    ) -> Self {
         let tris: Vec<Triangle> = (0..scene.triangles.len() as u32)
             .map(|i| {
                 let [a, b, c] = scene.tri_vertices(i);
@@ -73,33 +185,70 @@ impl Accel {
         if tris.is_empty() {
             return Accel { wide: None };
         }
-        let params = BvhBuildParams::medium_build();
-        let ploc = if ploc_is_safe(&tris, params) {
-            on_phase(format!("building the BVH over {} triangles", tris.len()));
-            let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
-                params.ploc_search_distance,
-                &tris,
-                (0..tris.len() as u32).collect(),
-                params.sort_precision,
-                params.search_depth_threshold,
-            );
-            ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-            Wide::from_bvh2(&bvh2, &tris)
-        } else {
-            None
+        let collapse = wide::Collapse {
+            c_node: options.c_node,
+            leaf_max: options.leaf_max,
         };
-        // The top-down tree's depth is bounded (see accel/sah.rs), so its
-        // wide form always fits the traversal stack; the pack indices run
-        // out only past a billion triangles, which would not fit in memory
-        let wide = ploc.unwrap_or_else(|| {
-            on_phase(format!(
-                "building the BVH over {} triangles top-down (PLOC would take quadratic time on this input)",
-                tris.len()
-            ));
-            let bvh2: Bvh2 = sah::build(&tris);
-            Wide::from_bvh2(&bvh2, &tris)
+        let n = tris.len();
+        let ploc = match options.builder.ploc_params() {
+            Some(params) if ploc_is_safe(&tris, params) => {
+                on_phase(format!("building the BVH over {n} triangles"));
+                let mut bvh2 = PlocBuilder::with_capacity(n).build(
+                    params.ploc_search_distance,
+                    &tris,
+                    (0..n as u32).collect(),
+                    params.sort_precision,
+                    params.search_depth_threshold,
+                );
+                ReinsertionOptimizer::default().run(
+                    &mut bvh2,
+                    params.reinsertion_batch_ratio,
+                    None,
+                );
+                Wide::from_bvh2(&bvh2, &tris, &collapse)
+            }
+            _ => None,
+        };
+        let top_down = |reinsert: bool| {
+            let mut bvh2: Bvh2 = sah::build(&tris);
+            if reinsert {
+                let ratio = BvhBuildParams::medium_build().reinsertion_batch_ratio;
+                ReinsertionOptimizer::default().run(&mut bvh2, ratio, None);
+            }
+            // The top-down tree's depth is bounded (see accel/sah.rs), so
+            // its wide form always fits the traversal stack; the pack
+            // indices run out only past a billion triangles, which would
+            // not fit in memory
+            Wide::from_bvh2(&bvh2, &tris, &collapse)
                 .expect("a scene of over a billion triangles exceeds the BVH's index range")
-        });
+        };
+        let wide = match (options.builder, ploc) {
+            (Builder::Best, Some(ploc)) => {
+                on_phase(format!(
+                    "building the BVH over {n} triangles top-down too, to keep the cheaper tree"
+                ));
+                let sah = top_down(true);
+                let cost = |w: &Wide| quality::tree_stats(w).sah();
+                if cost(&sah) < SWITCH_MARGIN * cost(&ploc) {
+                    sah
+                } else {
+                    ploc
+                }
+            }
+            (_, Some(ploc)) => ploc,
+            (Builder::Sah, None) | (Builder::SahReinsert, None) => {
+                on_phase(format!("building the BVH over {n} triangles top-down"));
+                top_down(options.builder == Builder::SahReinsert)
+            }
+            // Reinsertion is left out here: on these inputs its search,
+            // like PLOC's, finds no box to prune by
+            (_, None) => {
+                on_phase(format!(
+                    "building the BVH over {n} triangles top-down (PLOC would take quadratic time on this input)"
+                ));
+                top_down(false)
+            }
+        };
         Accel { wide: Some(wide) }
     }
 
@@ -107,7 +256,7 @@ impl Accel {
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         let w = self.wide.as_ref()?;
-        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?;
+        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)?;
         Some(Hit {
             t: h.t,
             tri: w.ids[h.slot],
@@ -123,15 +272,45 @@ impl Accel {
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
         self.wide
             .as_ref()
-            .is_some_and(|w| traverse::any(w, a, b - a, 0.0, 1.0 - 1e-4))
+            .is_some_and(|w| traverse::any(w, a, b - a, 0.0, 1.0 - 1e-4, &mut traverse::NoCount))
     }
 
     /// True when something blocks the ray within `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn occluded_ray(&self, ray: &Ray) -> bool {
+        self.wide.as_ref().is_some_and(|w| {
+            traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)
+        })
+    }
+
+    /// The shape of the tree and its surface area heuristic cost (for
+    /// `kalos bench`).
+    pub fn tree_stats(&self) -> TreeStats {
         self.wide
             .as_ref()
-            .is_some_and(|w| traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax))
+            .map(quality::tree_stats)
+            .unwrap_or_default()
+    }
+
+    /// [`Accel::intersect`], adding the nodes and packs it tests to
+    /// `visits` (for `kalos bench`; the uncounted query is the fast one).
+    pub fn intersect_counted(&self, ray: &Ray, visits: &mut Visits) -> Option<Hit> {
+        let w = self.wide.as_ref()?;
+        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?;
+        Some(Hit {
+            t: h.t,
+            tri: w.ids[h.slot],
+            b1: h.b1,
+            b2: h.b2,
+        })
+    }
+
+    /// [`Accel::occluded_ray`], adding the nodes and packs it tests to
+    /// `visits`.
+    pub fn occluded_ray_counted(&self, ray: &Ray, visits: &mut Visits) -> bool {
+        self.wide
+            .as_ref()
+            .is_some_and(|w| traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits))
     }
 }
 
