@@ -8,10 +8,10 @@
 //! PLOC clusters triangles by their centroids' Morton order, and where
 //! large triangles (walls, floors) sit among many small ones it makes
 //! trees that rays walk twice as deep as a top-down SAH tree. So the
-//! default build also builds the tree top-down (`accel/sah.rs`, then
-//! obvhs's reinsertion) and keeps that one when its surface area heuristic
-//! cost is clearly lower ([`Builder::Best`]; `accel/quality.rs` prices the
-//! trees).
+//! default build builds the tree top-down instead (`accel/sah.rs`, then
+//! obvhs's reinsertion) where that one's surface area heuristic cost is
+//! clearly lower, as judged on a sample of the triangles ([`Builder::Best`];
+//! `accel/quality.rs` prices the trees).
 //!
 //! PLOC merges only pairs of clusters that are each other's nearest
 //! neighbour, and some inputs have almost no such pairs: many copies of one
@@ -78,12 +78,22 @@ pub enum Builder {
     /// [`Builder::Sah`], then obvhs's reinsertion with `medium_build`'s
     /// batch ratio.
     SahReinsert,
-    /// Both [`Builder::PlocMedium`] and [`Builder::SahReinsert`], keeping
-    /// the top-down tree where its SAH cost is clearly lower (the default).
+    /// Both [`Builder::PlocMedium`] and [`Builder::SahReinsert`] over every
+    /// triangle, keeping the top-down tree where its SAH cost is clearly
+    /// lower.
+    Both,
+    /// [`Builder::Both`]'s choice made on an evenly strided sample of
+    /// [`CHOICE_SAMPLE`] triangles, then only the chosen tree built over
+    /// them all (the default). A strided sample keeps the mix of large and
+    /// small triangles that decides between the two.
     Best,
 }
 
-/// [`Builder::Best`] keeps the top-down tree when its SAH cost is below
+/// Triangles of the sample on which [`Builder::Best`] chooses; a scene
+/// with no more is built both ways in full.
+const CHOICE_SAMPLE: usize = 32768;
+
+/// [`Builder::Both`] keeps the top-down tree when its SAH cost is below
 /// this fraction of PLOC's. The SAH prices rays that cross the whole scene
 /// and never stop early, so a few per cent either way say nothing about
 /// the rays a render traces; a large scene where PLOC clusters its big
@@ -93,13 +103,14 @@ const SWITCH_MARGIN: f64 = 0.95;
 
 impl Builder {
     /// Every builder, in the order of their names.
-    pub const ALL: [Builder; 7] = [
+    pub const ALL: [Builder; 8] = [
         Builder::PlocFast,
         Builder::PlocMedium,
         Builder::PlocSlow,
         Builder::PlocVerySlow,
         Builder::Sah,
         Builder::SahReinsert,
+        Builder::Both,
         Builder::Best,
     ];
 
@@ -112,6 +123,7 @@ impl Builder {
             Builder::PlocVerySlow => "ploc-very-slow",
             Builder::Sah => "sah",
             Builder::SahReinsert => "sah-reinsert",
+            Builder::Both => "both",
             Builder::Best => "best",
         }
     }
@@ -120,7 +132,9 @@ impl Builder {
     fn ploc_params(self) -> Option<BvhBuildParams> {
         match self {
             Builder::PlocFast => Some(BvhBuildParams::fast_build()),
-            Builder::PlocMedium | Builder::Best => Some(BvhBuildParams::medium_build()),
+            Builder::PlocMedium | Builder::Both | Builder::Best => {
+                Some(BvhBuildParams::medium_build())
+            }
             Builder::PlocSlow => Some(BvhBuildParams::slow_build()),
             Builder::PlocVerySlow => Some(BvhBuildParams::very_slow_build()),
             Builder::Sah | Builder::SahReinsert => None,
@@ -190,27 +204,19 @@ impl Accel {
             leaf_max: options.leaf_max,
         };
         let n = tris.len();
-        let ploc = match options.builder.ploc_params() {
-            Some(params) if ploc_is_safe(&tris, params) => {
-                on_phase(format!("building the BVH over {n} triangles"));
-                let mut bvh2 = PlocBuilder::with_capacity(n).build(
-                    params.ploc_search_distance,
-                    &tris,
-                    (0..n as u32).collect(),
-                    params.sort_precision,
-                    params.search_depth_threshold,
-                );
-                ReinsertionOptimizer::default().run(
-                    &mut bvh2,
-                    params.reinsertion_batch_ratio,
-                    None,
-                );
-                Wide::from_bvh2(&bvh2, &tris, &collapse)
-            }
-            _ => None,
+        let ploc = |tris: &[Triangle], params: BvhBuildParams| {
+            let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
+                params.ploc_search_distance,
+                tris,
+                (0..tris.len() as u32).collect(),
+                params.sort_precision,
+                params.search_depth_threshold,
+            );
+            ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+            Wide::from_bvh2(&bvh2, tris, &collapse)
         };
-        let top_down = |reinsert: bool| {
-            let mut bvh2: Bvh2 = sah::build(&tris);
+        let top_down = |tris: &[Triangle], reinsert: bool| {
+            let mut bvh2: Bvh2 = sah::build(tris);
             if reinsert {
                 let ratio = BvhBuildParams::medium_build().reinsertion_batch_ratio;
                 ReinsertionOptimizer::default().run(&mut bvh2, ratio, None);
@@ -219,26 +225,57 @@ impl Accel {
             // its wide form always fits the traversal stack; the pack
             // indices run out only past a billion triangles, which would
             // not fit in memory
-            Wide::from_bvh2(&bvh2, &tris, &collapse)
+            Wide::from_bvh2(&bvh2, tris, &collapse)
                 .expect("a scene of over a billion triangles exceeds the BVH's index range")
         };
-        let wide = match (options.builder, ploc) {
-            (Builder::Best, Some(ploc)) => {
+        let cost = |w: &Wide| quality::tree_stats(w).sah();
+        // True when the top-down tree of `tris` is clearly cheaper
+        let top_down_wins = |tris: &[Triangle], params: BvhBuildParams| match ploc(tris, params) {
+            Some(p) => cost(&top_down(tris, true)) < SWITCH_MARGIN * cost(&p),
+            None => true,
+        };
+        // Both trees over every triangle, keeping the clearly cheaper
+        let both = |params: BvhBuildParams| {
+            let t = top_down(&tris, true);
+            match ploc(&tris, params) {
+                Some(p) if cost(&t) >= SWITCH_MARGIN * cost(&p) => p,
+                _ => t,
+            }
+        };
+        let safe = options
+            .builder
+            .ploc_params()
+            .filter(|&params| ploc_is_safe(&tris, params));
+        let wide = match (options.builder, safe) {
+            (Builder::Both, Some(params)) => {
                 on_phase(format!(
-                    "building the BVH over {n} triangles top-down too, to keep the cheaper tree"
+                    "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
                 ));
-                let sah = top_down(true);
-                let cost = |w: &Wide| quality::tree_stats(w).sah();
-                if cost(&sah) < SWITCH_MARGIN * cost(&ploc) {
-                    sah
+                both(params)
+            }
+            (Builder::Best, Some(params)) if n <= CHOICE_SAMPLE => {
+                on_phase(format!(
+                    "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
+                ));
+                both(params)
+            }
+            (Builder::Best, Some(params)) => {
+                on_phase(format!("building the BVH over {n} triangles"));
+                let stride = n.div_ceil(CHOICE_SAMPLE);
+                let sample: Vec<Triangle> = tris.iter().step_by(stride).copied().collect();
+                if top_down_wins(&sample, params) {
+                    top_down(&tris, true)
                 } else {
-                    ploc
+                    ploc(&tris, params).unwrap_or_else(|| top_down(&tris, false))
                 }
             }
-            (_, Some(ploc)) => ploc,
-            (Builder::Sah, None) | (Builder::SahReinsert, None) => {
+            (_, Some(params)) => {
+                on_phase(format!("building the BVH over {n} triangles"));
+                ploc(&tris, params).unwrap_or_else(|| top_down(&tris, false))
+            }
+            (Builder::Sah | Builder::SahReinsert, None) => {
                 on_phase(format!("building the BVH over {n} triangles top-down"));
-                top_down(options.builder == Builder::SahReinsert)
+                top_down(&tris, options.builder == Builder::SahReinsert)
             }
             // Reinsertion is left out here: on these inputs its search,
             // like PLOC's, finds no box to prune by
@@ -246,7 +283,7 @@ impl Accel {
                 on_phase(format!(
                     "building the BVH over {n} triangles top-down (PLOC would take quadratic time on this input)"
                 ));
-                top_down(false)
+                top_down(&tris, false)
             }
         };
         Accel { wide: Some(wide) }

@@ -313,22 +313,25 @@ proptest! {
 }
 
 /// The binned SAH builder on a soup large enough for its parallel subtrees
-/// (and their joined node lists) answers as the brute force.
+/// (and their joined node lists), and the default builder on one large
+/// enough to choose on a sample, answer as the brute force.
 #[test]
-fn parallel_sah_build_answers() {
-    let tris = spiral(20_000);
+fn large_builds_answer() {
+    let tris = spiral(40_000);
     let scene = soup(&tris);
-    let options = BuildOptions {
-        builder: Builder::Sah,
-        ..BuildOptions::default()
-    };
-    let sah = Accel::build_with(&scene, &options, &mut |_| {});
-    assert_eq!(sah.tree_stats().triangles, tris.len());
-    let mut rng = crate::sampling::Pcg32::new(5, 5);
-    for _ in 0..200 {
-        let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 6.0 - 3.0;
-        let d = crate::sampling::uniform_sphere(rng.next_2d());
-        check(&sah, &tris, o, d, 0.0, f32::INFINITY).unwrap();
+    for builder in [Builder::Sah, Builder::Best] {
+        let options = BuildOptions {
+            builder,
+            ..BuildOptions::default()
+        };
+        let accel = Accel::build_with(&scene, &options, &mut |_| {});
+        assert_eq!(accel.tree_stats().triangles, tris.len());
+        let mut rng = crate::sampling::Pcg32::new(5, 5);
+        for _ in 0..200 {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 6.0 - 3.0;
+            let d = crate::sampling::uniform_sphere(rng.next_2d());
+            check(&accel, &tris, o, d, 0.0, f32::INFINITY).unwrap();
+        }
     }
 }
 

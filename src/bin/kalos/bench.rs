@@ -56,7 +56,7 @@ pub struct BenchArgs {
     embree_stats: bool,
     /// Build kalos's BVH with this builder instead of the default, best
     /// (ploc-fast, ploc-medium, ploc-slow, ploc-very-slow, sah,
-    /// sah-reinsert, best).
+    /// sah-reinsert, both, best).
     #[arg(long, value_name = "BUILDER", value_parser = parse_builder)]
     bvh: Option<Builder>,
     /// The leaf choice's cost of a binary node relative to a pack of four
