@@ -5,6 +5,14 @@
 //! 4-wide BVH whose nodes and triangles the kernels of `accel/traverse.rs`
 //! test four at a time (SSE2 on x86_64, `accel/simd.rs`).
 //!
+//! PLOC clusters triangles by their centroids' Morton order, and where
+//! large triangles (walls, floors) sit among many small ones it makes
+//! trees that rays walk twice as deep as a top-down SAH tree. So the
+//! default build builds the tree top-down instead (`accel/sah.rs`, then
+//! obvhs's reinsertion) where that one's surface area heuristic cost is
+//! clearly lower, as judged on a sample of the triangles ([`Builder::Best`];
+//! `accel/quality.rs` prices the trees).
+//!
 //! PLOC merges only pairs of clusters that are each other's nearest
 //! neighbour, and some inputs have almost no such pairs: many copies of one
 //! triangle (every candidate ties), or a fan of thin triangles around one
@@ -22,6 +30,7 @@
 //! fallback. The environment variable `KALOS_ACCEL=bvh4` forces the
 //! fallback (to compare the two, or to test it on an AVX2 machine).
 
+mod quality;
 mod sah;
 mod simd;
 mod traverse;
@@ -41,6 +50,8 @@ use obvhs::BvhBuildParams;
 use crate::geometry::Ray;
 use crate::scene::Scene;
 use wide::Wide;
+
+pub use quality::{TreeStats, Visits};
 
 /// A closest hit.
 #[derive(Clone, Copy, Debug)]
@@ -72,7 +83,7 @@ enum Core {
 
 /// The traversal kernel a build asks for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Kernel {
+pub enum Kernel {
     /// The 4-wide BVH with SSE2 kernels.
     Bvh4,
     /// The 8-wide BVH with AVX2 kernels where the CPU has AVX2, else
@@ -110,22 +121,129 @@ impl Kernel {
     }
 }
 
-/// Collapses `bvh2` into the wide BVH of `kernel`, or `None` when even the
-/// 4-wide form would be too deep or too large (see [`Wide::from_bvh2`]).
-/// The 8-wide form falls back to the 4-wide one on a CPU without AVX2, or
-/// when it does not fit its own limits.
-fn collapse(bvh2: &Bvh2, tris: &[Triangle], kernel: Kernel) -> Option<Core> {
+/// The wide BVH of `kernel` for `bvh2`, whose 4-wide collapse `wide4` the
+/// build has already made (to price the tree). The 8-wide form is collapsed
+/// from the same binary tree, and falls back to `wide4` on a CPU without
+/// AVX2 or when it does not fit its own limits.
+fn finish(bvh2: &Bvh2, tris: &[Triangle], wide4: Wide, kernel: Kernel) -> Core {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Bvh8 {
         if let Some(avx2) = wide8::Avx2::detect() {
             if let Some(w) = wide8::Wide8::from_bvh2(bvh2, tris, avx2) {
-                return Some(Core::Bvh8(w));
+                return Core::Bvh8(w);
             }
         }
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = kernel;
-    Wide::from_bvh2(bvh2, tris).map(Core::Bvh4)
+    let _ = (bvh2, tris, kernel);
+    Core::Bvh4(wide4)
+}
+
+/// The builder of the binary BVH that is collapsed into the wide one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Builder {
+    /// PLOC with obvhs's `fast_build` search and reinsertion settings.
+    PlocFast,
+    /// PLOC with obvhs's `medium_build` settings.
+    PlocMedium,
+    /// PLOC with obvhs's `slow_build` settings, without its spatial
+    /// pre-splits (the wide BVH references whole triangles).
+    PlocSlow,
+    /// PLOC with obvhs's `very_slow_build` settings, without pre-splits.
+    PlocVerySlow,
+    /// The top-down binned SAH build of `accel/sah.rs`.
+    Sah,
+    /// [`Builder::Sah`], then obvhs's reinsertion with `medium_build`'s
+    /// batch ratio.
+    SahReinsert,
+    /// Both [`Builder::PlocMedium`] and [`Builder::SahReinsert`] over every
+    /// triangle, keeping the top-down tree where its SAH cost is clearly
+    /// lower.
+    Both,
+    /// [`Builder::Both`]'s choice made on an evenly strided sample of
+    /// [`CHOICE_SAMPLE`] triangles, then only the chosen tree built over
+    /// them all (the default). A strided sample keeps the mix of large and
+    /// small triangles that decides between the two.
+    Best,
+}
+
+/// Triangles of the sample on which [`Builder::Best`] chooses; a scene
+/// with no more is built both ways in full.
+const CHOICE_SAMPLE: usize = 32768;
+
+/// [`Builder::Both`] keeps the top-down tree when its SAH cost is below
+/// this fraction of PLOC's. The SAH prices rays that cross the whole scene
+/// and never stop early, so a few per cent either way say nothing about
+/// the rays a render traces; a large scene where PLOC clusters its big
+/// triangles badly differs by far more (BENCHMARKS.md, "BVH quality on
+/// large scenes").
+const SWITCH_MARGIN: f64 = 0.95;
+
+impl Builder {
+    /// Every builder, in the order of their names.
+    pub const ALL: [Builder; 8] = [
+        Builder::PlocFast,
+        Builder::PlocMedium,
+        Builder::PlocSlow,
+        Builder::PlocVerySlow,
+        Builder::Sah,
+        Builder::SahReinsert,
+        Builder::Both,
+        Builder::Best,
+    ];
+
+    /// The name `kalos bench --bvh` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Builder::PlocFast => "ploc-fast",
+            Builder::PlocMedium => "ploc-medium",
+            Builder::PlocSlow => "ploc-slow",
+            Builder::PlocVerySlow => "ploc-very-slow",
+            Builder::Sah => "sah",
+            Builder::SahReinsert => "sah-reinsert",
+            Builder::Both => "both",
+            Builder::Best => "best",
+        }
+    }
+
+    /// obvhs's parameters of a PLOC builder, None for the top-down one.
+    fn ploc_params(self) -> Option<BvhBuildParams> {
+        match self {
+            Builder::PlocFast => Some(BvhBuildParams::fast_build()),
+            Builder::PlocMedium | Builder::Both | Builder::Best => {
+                Some(BvhBuildParams::medium_build())
+            }
+            Builder::PlocSlow => Some(BvhBuildParams::slow_build()),
+            Builder::PlocVerySlow => Some(BvhBuildParams::very_slow_build()),
+            Builder::Sah | Builder::SahReinsert => None,
+        }
+    }
+}
+
+/// How [`Accel::build_with`] builds: the binary builder, then the leaf
+/// choice of the collapse to the wide BVH.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildOptions {
+    /// The binary BVH's builder.
+    pub builder: Builder,
+    /// The cost of a binary node's box tests per unit area relative to one
+    /// pack of four triangle tests, in the surface area heuristic that
+    /// chooses the leaves of the 4-wide tree (the 8-wide tree has its own).
+    pub c_node: f32,
+    /// The most triangles a leaf may hold (1 to 32) in the 4-wide tree.
+    pub leaf_max: usize,
+    /// The traversal kernel, and so the width of the tree.
+    pub kernel: Kernel,
+}
+
+impl Default for BuildOptions {
+    fn default() -> Self {
+        BuildOptions {
+            builder: Builder::Best,
+            c_node: wide::C_NODE,
+            leaf_max: wide::LEAF_MAX,
+            kernel: Kernel::from_env(),
+        }
+    }
 }
 
 impl Accel {
@@ -138,14 +256,15 @@ impl Accel {
     /// for a progress display: building a BVH over millions of triangles
     /// takes seconds).
     pub fn build_reporting(scene: &Scene, on_phase: &mut dyn FnMut(String)) -> Self {
-        let kernel = Kernel::from_env();
-        Self::build_kernel(scene, kernel, on_phase)
+        Self::build_with(scene, &BuildOptions::default(), on_phase)
     }
 
-    /// [`Accel::build_reporting`] with the kernel given.
-    pub(crate) fn build_kernel(
+    /// [`Accel::build_reporting`] with another builder, leaf choice or
+    /// kernel than the default, for `kalos bench` to compare trees on the
+    /// same rays and for the tests to run both kernels.
+    pub fn build_with(
         scene: &Scene,
-        kernel: Kernel,
+        options: &BuildOptions,
         on_phase: &mut dyn FnMut(String),
     ) -> Self {
         let tris: Vec<Triangle> = (0..scene.triangles.len() as u32)
@@ -161,34 +280,98 @@ impl Accel {
         if tris.is_empty() {
             return Accel { core: None };
         }
-        let params = BvhBuildParams::medium_build();
-        let ploc = if ploc_is_safe(&tris, params) {
-            on_phase(format!("building the BVH over {} triangles", tris.len()));
+        let collapse = wide::Collapse {
+            c_node: options.c_node,
+            leaf_max: options.leaf_max,
+        };
+        let n = tris.len();
+        let ploc = |tris: &[Triangle], params: BvhBuildParams| {
             let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
                 params.ploc_search_distance,
-                &tris,
+                tris,
                 (0..tris.len() as u32).collect(),
                 params.sort_precision,
                 params.search_depth_threshold,
             );
             ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-            collapse(&bvh2, &tris, kernel)
-        } else {
-            None
+            let w = Wide::from_bvh2(&bvh2, tris, &collapse)?;
+            Some((bvh2, w))
         };
-        // The top-down tree's depth is bounded (see accel/sah.rs), so its
-        // wide form always fits the traversal stack; the pack indices run
-        // out only past a billion triangles, which would not fit in memory
-        let wide = ploc.unwrap_or_else(|| {
-            on_phase(format!(
-                "building the BVH over {} triangles top-down (PLOC would take quadratic time on this input)",
-                tris.len()
-            ));
-            let bvh2: Bvh2 = sah::build(&tris);
-            collapse(&bvh2, &tris, kernel)
-                .expect("a scene of over a billion triangles exceeds the BVH's index range")
-        });
-        Accel { core: Some(wide) }
+        let top_down = |tris: &[Triangle], reinsert: bool| {
+            let mut bvh2: Bvh2 = sah::build(tris);
+            if reinsert {
+                let ratio = BvhBuildParams::medium_build().reinsertion_batch_ratio;
+                ReinsertionOptimizer::default().run(&mut bvh2, ratio, None);
+            }
+            // The top-down tree's depth is bounded (see accel/sah.rs), so
+            // its wide form always fits the traversal stack; the pack
+            // indices run out only past a billion triangles, which would
+            // not fit in memory
+            let w = Wide::from_bvh2(&bvh2, tris, &collapse)
+                .expect("a scene of over a billion triangles exceeds the BVH's index range");
+            (bvh2, w)
+        };
+        let cost = |t: &(Bvh2, Wide)| quality::tree_stats(&t.1).sah();
+        // True when the top-down tree of `tris` is clearly cheaper
+        let top_down_wins = |tris: &[Triangle], params: BvhBuildParams| match ploc(tris, params) {
+            Some(p) => cost(&top_down(tris, true)) < SWITCH_MARGIN * cost(&p),
+            None => true,
+        };
+        // Both trees over every triangle, keeping the clearly cheaper
+        let both = |params: BvhBuildParams| {
+            let t = top_down(&tris, true);
+            match ploc(&tris, params) {
+                Some(p) if cost(&t) >= SWITCH_MARGIN * cost(&p) => p,
+                _ => t,
+            }
+        };
+        let safe = options
+            .builder
+            .ploc_params()
+            .filter(|&params| ploc_is_safe(&tris, params));
+        let (bvh2, wide4) = match (options.builder, safe) {
+            (Builder::Both, Some(params)) => {
+                on_phase(format!(
+                    "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
+                ));
+                both(params)
+            }
+            (Builder::Best, Some(params)) if n <= CHOICE_SAMPLE => {
+                on_phase(format!(
+                    "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
+                ));
+                both(params)
+            }
+            (Builder::Best, Some(params)) => {
+                on_phase(format!("building the BVH over {n} triangles"));
+                let stride = n.div_ceil(CHOICE_SAMPLE);
+                let sample: Vec<Triangle> = tris.iter().step_by(stride).copied().collect();
+                if top_down_wins(&sample, params) {
+                    top_down(&tris, true)
+                } else {
+                    ploc(&tris, params).unwrap_or_else(|| top_down(&tris, false))
+                }
+            }
+            (_, Some(params)) => {
+                on_phase(format!("building the BVH over {n} triangles"));
+                ploc(&tris, params).unwrap_or_else(|| top_down(&tris, false))
+            }
+            (Builder::Sah | Builder::SahReinsert, None) => {
+                on_phase(format!("building the BVH over {n} triangles top-down"));
+                top_down(&tris, options.builder == Builder::SahReinsert)
+            }
+            // Reinsertion is left out here: on these inputs its search,
+            // like PLOC's, finds no box to prune by
+            (_, None) => {
+                on_phase(format!(
+                    "building the BVH over {n} triangles top-down (PLOC would take quadratic time on this input)"
+                ));
+                top_down(&tris, false)
+            }
+        };
+        Accel {
+            core: Some(finish(&bvh2, &tris, wide4, options.kernel)),
+        }
     }
 
     /// The kernel this build runs (for the tests: [`Kernel::Bvh8`] falls
@@ -207,7 +390,7 @@ impl Accel {
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         let (h, ids) = match self.core.as_ref()? {
             Core::Bvh4(w) => (
-                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?,
+                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)?,
                 &w.ids,
             ),
             #[cfg(target_arch = "x86_64")]
@@ -242,10 +425,54 @@ impl Accel {
     fn any(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         match &self.core {
             None => false,
-            Some(Core::Bvh4(w)) => traverse::any(w, o, d, tmin, tmax),
+            Some(Core::Bvh4(w)) => traverse::any(w, o, d, tmin, tmax, &mut traverse::NoCount),
             #[cfg(target_arch = "x86_64")]
             Some(Core::Bvh8(w)) => traverse8::any(w, o, d, tmin, tmax),
         }
+    }
+
+    /// The 4-wide BVH (see [`Accel::counted`]).
+    fn wide4(&self) -> Option<&Wide> {
+        match self.core.as_ref()? {
+            Core::Bvh4(w) => Some(w),
+            #[cfg(target_arch = "x86_64")]
+            Core::Bvh8(_) => None,
+        }
+    }
+
+    /// True when this build can report [`Accel::tree_stats`] and count
+    /// visits: the counters are in the 4-wide kernel only, so `kalos bench`
+    /// builds a 4-wide copy of the same binary tree for them (an empty
+    /// scene counts nothing either way).
+    pub fn counted(&self) -> bool {
+        self.core.is_none() || self.wide4().is_some()
+    }
+
+    /// The shape of the 4-wide tree and its surface area heuristic cost
+    /// (for `kalos bench`); all zero for an 8-wide build.
+    pub fn tree_stats(&self) -> TreeStats {
+        self.wide4().map(quality::tree_stats).unwrap_or_default()
+    }
+
+    /// [`Accel::intersect`] on the 4-wide tree, adding the nodes and packs
+    /// it tests to `visits` (for `kalos bench`; the uncounted query is the
+    /// fast one). `None` for an 8-wide build.
+    pub fn intersect_counted(&self, ray: &Ray, visits: &mut Visits) -> Option<Hit> {
+        let w = self.wide4()?;
+        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?;
+        Some(Hit {
+            t: h.t,
+            tri: w.ids[h.slot],
+            b1: h.b1,
+            b2: h.b2,
+        })
+    }
+
+    /// [`Accel::occluded_ray`], adding the nodes and packs it tests to
+    /// `visits`.
+    pub fn occluded_ray_counted(&self, ray: &Ray, visits: &mut Visits) -> bool {
+        self.wide4()
+            .is_some_and(|w| traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits))
     }
 }
 

@@ -16,7 +16,7 @@
 use glam::{DVec3, Vec3};
 use proptest::prelude::*;
 
-use super::{Accel, Hit, Kernel};
+use super::{Accel, BuildOptions, Builder, Hit, Kernel, Visits};
 use crate::geometry::Ray;
 use crate::scene::{Material, Scene, Texture};
 
@@ -157,13 +157,21 @@ pub(super) fn kernels() -> Vec<Kernel> {
     k
 }
 
+/// The default build options with `kernel`.
+pub(super) fn with_kernel(kernel: Kernel) -> BuildOptions {
+    BuildOptions {
+        kernel,
+        ..BuildOptions::default()
+    }
+}
+
 /// A build of `scene` with each of [`kernels`], checked to run the kernel
 /// asked for.
 pub(super) fn builds(scene: &Scene) -> Vec<Accel> {
     kernels()
         .into_iter()
         .map(|k| {
-            let accel = Accel::build_kernel(scene, k, &mut |_| {});
+            let accel = Accel::build_with(scene, &with_kernel(k), &mut |_| {});
             if !scene.triangles.is_empty() {
                 assert_eq!(accel.kernel(), Some(k));
             }
@@ -308,6 +316,106 @@ proptest! {
     }
 }
 
+/// Every builder and leaf choice that `kalos bench` can compare.
+fn options() -> impl Strategy<Value = BuildOptions> {
+    (
+        prop::sample::select(Builder::ALL.to_vec()),
+        prop::sample::select(vec![0.25f32, 0.5, 1.0, 2.0]),
+        1usize..=32,
+    )
+        .prop_map(|(builder, c_node, leaf_max)| BuildOptions {
+            builder,
+            c_node,
+            leaf_max,
+            kernel: Kernel::Bvh4,
+        })
+}
+
+/// A soup of `n` small triangles around the points of a spiral, clustered
+/// enough for PLOC and the binned SAH to make different trees.
+fn spiral(n: usize) -> Vec<[Vec3; 3]> {
+    (0..n)
+        .map(|i| {
+            let k = i as f32;
+            let c = Vec3::new(
+                (k * 0.37).sin() * (1.0 + k * 0.001),
+                (k * 0.23).cos() * 2.0,
+                (k * 0.011).fract() * 3.0 - 1.5,
+            );
+            [
+                c,
+                c + Vec3::new(0.05, 0.01 * (k % 3.0), 0.0),
+                c + Vec3::new(0.0, 0.04, 0.02 * (k % 5.0)),
+            ]
+        })
+        .collect()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The trees of every builder and leaf choice answer as the brute force,
+    /// and the counted queries as the uncounted ones (the counters are in
+    /// the 4-wide kernel); the 8-wide form of each builder's tree, where
+    /// this CPU has it, answers as the brute force too.
+    #[test]
+    fn every_build_matches_brute_force(
+        (tris, rays) in prop::collection::vec(triangle(), 1..300)
+            .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), rays(n)) }),
+        options in options(),
+    ) {
+        let accel = Accel::build_with(&soup(&tris), &options, &mut |_| {});
+        let wider: Vec<Accel> = kernels()[1..]
+            .iter()
+            .map(|&kernel| Accel::build_with(&soup(&tris), &BuildOptions { kernel, ..options }, &mut |_| {}))
+            .collect();
+        let stats = accel.tree_stats();
+        prop_assert_eq!(stats.triangles, tris.len());
+        prop_assert!(stats.sah().is_finite());
+        for (_, o, d, tmin, tmax) in rays {
+            check(&accel, &tris, o, d, tmin, tmax)?;
+            let ray = Ray { o, d, tmin, tmax };
+            let mut v = Visits::default();
+            let counted = accel.intersect_counted(&ray, &mut v).map(|h| (h.tri, h.t));
+            prop_assert_eq!(counted, accel.intersect(&ray).map(|h| (h.tri, h.t)));
+            prop_assert_eq!(accel.occluded_ray_counted(&ray, &mut v), accel.occluded_ray(&ray));
+            for wide in &wider {
+                check(wide, &tris, o, d, tmin, tmax)?;
+            }
+        }
+    }
+}
+
+/// The binned SAH builder on a soup large enough for its parallel subtrees
+/// (and their joined node lists), and the default builder on one large
+/// enough to choose on a sample, answer as the brute force.
+#[test]
+fn large_builds_answer() {
+    let tris = spiral(40_000);
+    let scene = soup(&tris);
+    for (builder, kernel) in [Builder::Sah, Builder::Best]
+        .into_iter()
+        .flat_map(|b| kernels().into_iter().map(move |k| (b, k)))
+    {
+        let options = BuildOptions {
+            builder,
+            kernel,
+            ..BuildOptions::default()
+        };
+        let accel = Accel::build_with(&scene, &options, &mut |_| {});
+        assert_eq!(accel.kernel(), Some(kernel));
+        if kernel == Kernel::Bvh4 {
+            assert_eq!(accel.tree_stats().triangles, tris.len());
+        }
+        let mut rng = crate::sampling::Pcg32::new(5, 5);
+        for _ in 0..200 {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 6.0 - 3.0;
+            let d = crate::sampling::uniform_sphere(rng.next_2d());
+            check(&accel, &tris, o, d, 0.0, f32::INFINITY).unwrap();
+        }
+    }
+}
+
 /// A scene without triangles: nothing is hit, nothing occludes.
 #[test]
 fn empty_scene() {
@@ -336,7 +444,7 @@ fn top_down_fallback_answers() {
     ]);
     for kernel in kernels() {
         let mut phases = Vec::new();
-        let accel = Accel::build_kernel(&soup(&tris), kernel, &mut |p| phases.push(p));
+        let accel = Accel::build_with(&soup(&tris), &with_kernel(kernel), &mut |p| phases.push(p));
         assert_eq!(accel.kernel(), Some(kernel));
         assert!(phases.iter().any(|p| p.contains("top-down")), "{phases:?}");
         let down = Ray::new(Vec3::new(0.0, 0.0, 3.0), Vec3::new(-0.0, -0.0, -1.0));

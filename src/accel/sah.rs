@@ -1,19 +1,23 @@
-//! A top-down BVH builder for the inputs that PLOC handles in quadratic time
-//! (see the parent module): binned SAH (Wald 2007, "On fast construction of
-//! SAH-based bounding volume hierarchies"), one primitive per leaf as PLOC
-//! leaves them, so that obvhs's conversion to the wide BVH collapses both
-//! alike. Each level partitions its primitives once, so the build takes
-//! O(n log n) time whatever the input: where the centroids cannot be told
-//! apart (copies of one triangle) or the tree grows too deep, a node is cut
-//! at its median instead.
+//! A top-down BVH builder: binned SAH (Wald 2007, "On fast construction of
+//! SAH-based bounding volume hierarchies"), binning the centroids along all
+//! three axes as Embree's builder does, one primitive per leaf as PLOC
+//! leaves them, so that the collapse to the wide BVH treats both alike. It
+//! serves the inputs that PLOC handles in quadratic time (see the parent
+//! module), and `kalos bench --bvh sah`. Each level partitions its
+//! primitives once, so the build takes O(n log n) time whatever the input:
+//! where the centroids cannot be told apart (copies of one triangle) or the
+//! tree grows too deep, a node is cut at its median instead. Subtrees of
+//! many primitives are built in parallel.
 
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::node::Bvh2Node;
 use obvhs::bvh2::{Bvh2, DEFAULT_MAX_STACK_DEPTH};
 use obvhs::triangle::Triangle;
 
-/// Bins along the split axis.
-const BINS: usize = 16;
+/// Bins along each axis.
+const BINS: usize = 32;
+/// Subtrees of fewer primitives than this are built on one thread.
+const PAR_MIN: usize = 4096;
 /// Past this depth every node is cut at its median, which bounds the depth
 /// by this plus log₂ n: obvhs's wide-BVH traversal keeps a fixed stack of
 /// 32 entries (one per wide level), which a chain-like tree would overflow.
@@ -24,29 +28,11 @@ pub(super) fn build(tris: &[Triangle]) -> Bvh2 {
     let boxes: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
     let centers: Vec<glam::Vec3A> = boxes.iter().map(Aabb::center).collect();
     let mut indices: Vec<u32> = (0..tris.len() as u32).collect();
-    let mut nodes = vec![Bvh2Node::default()];
-    nodes.reserve(2 * tris.len());
-    let mut deepest = 0;
-    // (node slot, first index, end index, depth)
-    let mut todo = vec![(0usize, 0usize, tris.len(), 0usize)];
-    while let Some((slot, start, end, depth)) = todo.pop() {
-        deepest = deepest.max(depth);
-        let items = &mut indices[start..end];
-        let bounds = items
-            .iter()
-            .fold(Aabb::empty(), |b, &i| b.union(&boxes[i as usize]));
-        if items.len() == 1 {
-            nodes[slot] = Bvh2Node::new(bounds, 1, start as u32);
-            continue;
-        }
-        let mid = start + split(items, &boxes, &centers, depth);
-        let first = nodes.len();
-        nodes.push(Bvh2Node::default());
-        nodes.push(Bvh2Node::default());
-        nodes[slot] = Bvh2Node::new(bounds, 0, first as u32);
-        todo.push((first, start, mid, depth + 1));
-        todo.push((first + 1, mid, end, depth + 1));
-    }
+    let ctx = Ctx {
+        boxes: &boxes,
+        centers: &centers,
+    };
+    let (nodes, deepest) = subtree(&ctx, &mut indices, 0, 0);
     Bvh2 {
         nodes,
         primitive_indices: indices,
@@ -54,6 +40,79 @@ pub(super) fn build(tris: &[Triangle]) -> Bvh2 {
         max_depth: DEFAULT_MAX_STACK_DEPTH.max(deepest + 1),
         ..Bvh2::default()
     }
+}
+
+/// The primitives' boxes and centroids.
+struct Ctx<'a> {
+    boxes: &'a [Aabb],
+    centers: &'a [glam::Vec3A],
+}
+
+/// The subtree over `items`, which sit at `offset` in the final primitive
+/// order, with its root at depth `depth`: its nodes (the root first, and
+/// siblings side by side, as obvhs expects) and its deepest level. Splits
+/// a large subtree's two halves in parallel and joins their node lists.
+fn subtree(ctx: &Ctx, items: &mut [u32], offset: usize, depth: usize) -> (Vec<Bvh2Node>, usize) {
+    if items.len() < PAR_MIN {
+        return sequential(ctx, items, offset, depth);
+    }
+    let bounds = bounds_of(ctx, items);
+    let mid = split(items, ctx.boxes, ctx.centers, depth);
+    let (l, r) = items.split_at_mut(mid);
+    let ((ln, ld), (rn, rd)) = rayon::join(
+        || subtree(ctx, l, offset, depth + 1),
+        || subtree(ctx, r, offset + mid, depth + 1),
+    );
+    // [root, left root, right root, the rest of left, the rest of right]:
+    // a left node i > 0 moves to i + 2, a right one to i + |left| + 1
+    let (lshift, rshift) = (2u32, ln.len() as u32 + 1);
+    let mut nodes = Vec::with_capacity(1 + ln.len() + rn.len());
+    nodes.push(Bvh2Node::new(bounds, 0, 1));
+    let moved = |n: &Bvh2Node, shift: u32| {
+        let mut n = *n;
+        if !n.is_leaf() {
+            n.first_index += shift;
+        }
+        n
+    };
+    nodes.push(moved(&ln[0], lshift));
+    nodes.push(moved(&rn[0], rshift));
+    nodes.extend(ln[1..].iter().map(|n| moved(n, lshift)));
+    nodes.extend(rn[1..].iter().map(|n| moved(n, rshift)));
+    (nodes, ld.max(rd))
+}
+
+/// The union of the boxes of `items`.
+fn bounds_of(ctx: &Ctx, items: &[u32]) -> Aabb {
+    items
+        .iter()
+        .fold(Aabb::empty(), |b, &i| b.union(&ctx.boxes[i as usize]))
+}
+
+/// [`subtree`] on one thread.
+fn sequential(ctx: &Ctx, items: &mut [u32], offset: usize, depth: usize) -> (Vec<Bvh2Node>, usize) {
+    let mut nodes = vec![Bvh2Node::default()];
+    nodes.reserve(2 * items.len());
+    let mut deepest = depth;
+    // (node slot, first index, end index, depth)
+    let mut todo = vec![(0usize, 0usize, items.len(), depth)];
+    while let Some((slot, start, end, depth)) = todo.pop() {
+        deepest = deepest.max(depth);
+        let items = &mut items[start..end];
+        let bounds = bounds_of(ctx, items);
+        if items.len() == 1 {
+            nodes[slot] = Bvh2Node::new(bounds, 1, (offset + start) as u32);
+            continue;
+        }
+        let mid = start + split(items, ctx.boxes, ctx.centers, depth);
+        let first = nodes.len();
+        nodes.push(Bvh2Node::default());
+        nodes.push(Bvh2Node::default());
+        nodes[slot] = Bvh2Node::new(bounds, 0, first as u32);
+        todo.push((first, start, mid, depth + 1));
+        todo.push((first + 1, mid, end, depth + 1));
+    }
+    (nodes, deepest)
 }
 
 /// Reorders `items` (two or more) and returns how many go to the first child
@@ -64,69 +123,120 @@ fn split(items: &mut [u32], boxes: &[Aabb], centers: &[glam::Vec3A], depth: usiz
         b.extend(centers[i as usize]);
         b
     });
-    let axis = cbounds.largest_axis();
-    let (lo, extent) = (cbounds.min[axis], cbounds.diagonal()[axis]);
+    let lo = cbounds.min;
+    let extent = cbounds.diagonal();
     let median = |items: &mut [u32]| {
+        let axis = cbounds.largest_axis();
         let half = n / 2;
         items.select_nth_unstable_by(half, |&a, &b| {
             centers[a as usize][axis].total_cmp(&centers[b as usize][axis])
         });
         half
     };
-    if !(extent > 0.0 && extent.is_finite()) || depth >= MAX_SAH_DEPTH {
+    let usable = |axis: usize| extent[axis] > 0.0 && extent[axis].is_finite();
+    if !(0..3).any(usable) || depth >= MAX_SAH_DEPTH {
         return median(items);
     }
-
-    // Bin the centroids along the axis
-    let bin_of = |i: u32| {
-        let t = (centers[i as usize][axis] - lo) / extent;
-        ((t * BINS as f32) as usize).min(BINS - 1)
-    };
-    let mut counts = [0usize; BINS];
-    let mut bin_boxes = [Aabb::empty(); BINS];
-    for &i in items.iter() {
-        let b = bin_of(i);
-        counts[b] += 1;
-        bin_boxes[b] = bin_boxes[b].union(&boxes[i as usize]);
+    if n <= BINS {
+        return exact(items, boxes, centers);
     }
 
-    // Sweep: cost of cutting after bin k is A(left)·N(left) + A(right)·N(right)
-    let mut right_cost = [0.0f32; BINS];
-    let (mut acc, mut count) = (Aabb::empty(), 0usize);
-    for k in (1..BINS).rev() {
-        acc = acc.union(&bin_boxes[k]);
-        count += counts[k];
-        right_cost[k] = if count > 0 {
-            acc.half_area() * count as f32
+    // Bin the centroids along each axis
+    let scale: [f32; 3] = std::array::from_fn(|axis| {
+        if usable(axis) {
+            BINS as f32 / extent[axis]
         } else {
             0.0
-        };
+        }
+    });
+    let bin_of = |i: u32, axis: usize| {
+        let t = (centers[i as usize][axis] - lo[axis]) * scale[axis];
+        (t as usize).min(BINS - 1)
+    };
+    let mut counts = [[0usize; BINS]; 3];
+    let mut bin_boxes = [[Aabb::empty(); BINS]; 3];
+    for &i in items.iter() {
+        let b = &boxes[i as usize];
+        for axis in 0..3 {
+            let k = bin_of(i, axis);
+            counts[axis][k] += 1;
+            bin_boxes[axis][k] = bin_boxes[axis][k].union(b);
+        }
     }
+
+    // Sweep each axis: cutting after bin k costs A(left)·N(left) + A(right)·N(right)
     let (mut best, mut best_cost) = (None, f32::INFINITY);
-    let (mut acc, mut count) = (Aabb::empty(), 0usize);
-    for k in 0..BINS - 1 {
-        acc = acc.union(&bin_boxes[k]);
-        count += counts[k];
-        if count == 0 || count == n {
-            continue;
+    for axis in (0..3).filter(|&a| usable(a)) {
+        let mut right_cost = [0.0f32; BINS];
+        let (mut acc, mut count) = (Aabb::empty(), 0usize);
+        for k in (1..BINS).rev() {
+            acc = acc.union(&bin_boxes[axis][k]);
+            count += counts[axis][k];
+            right_cost[k] = if count > 0 {
+                acc.half_area() * count as f32
+            } else {
+                0.0
+            };
         }
-        let cost = acc.half_area() * count as f32 + right_cost[k + 1];
-        if cost < best_cost {
-            best_cost = cost;
-            best = Some(k);
+        let (mut acc, mut count) = (Aabb::empty(), 0usize);
+        for k in 0..BINS - 1 {
+            acc = acc.union(&bin_boxes[axis][k]);
+            count += counts[axis][k];
+            if count == 0 || count == n {
+                continue;
+            }
+            let cost = acc.half_area() * count as f32 + right_cost[k + 1];
+            if cost < best_cost {
+                best_cost = cost;
+                best = Some((axis, k));
+            }
         }
     }
-    let Some(k) = best else {
+    let Some((axis, k)) = best else {
         return median(items);
     };
 
     // Partition in place: bins 0..=k first
     let mut left = 0;
     for j in 0..n {
-        if bin_of(items[j]) <= k {
+        if bin_of(items[j], axis) <= k {
             items.swap(left, j);
             left += 1;
         }
     }
     left
+}
+
+/// [`split`] for a node of at most [`BINS`] primitives: every cut between
+/// neighbours in centroid order along each axis, where binning would lump
+/// several primitives into one bin.
+fn exact(items: &mut [u32], boxes: &[Aabb], centers: &[glam::Vec3A]) -> usize {
+    let n = items.len();
+    let mut sorted = [0u32; BINS];
+    let mut right = [0.0f32; BINS];
+    let (mut best_axis, mut best_cut, mut best_cost) = (0, n / 2, f32::INFINITY);
+    for axis in [0, 1, 2] {
+        let sorted = &mut sorted[..n];
+        sorted.copy_from_slice(items);
+        sorted.sort_unstable_by(|&a, &b| {
+            centers[a as usize][axis].total_cmp(&centers[b as usize][axis])
+        });
+        let mut acc = Aabb::empty();
+        for k in (1..n).rev() {
+            acc = acc.union(&boxes[sorted[k] as usize]);
+            right[k] = acc.half_area() * (n - k) as f32;
+        }
+        let mut acc = Aabb::empty();
+        for k in 1..n {
+            acc = acc.union(&boxes[sorted[k - 1] as usize]);
+            let cost = acc.half_area() * k as f32 + right[k];
+            if cost < best_cost {
+                (best_axis, best_cut, best_cost) = (axis, k, cost);
+            }
+        }
+    }
+    items.sort_unstable_by(|&a, &b| {
+        centers[a as usize][best_axis].total_cmp(&centers[b as usize][best_axis])
+    });
+    best_cut
 }

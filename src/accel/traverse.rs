@@ -159,9 +159,47 @@ impl Stack {
     }
 }
 
+/// What a kernel tells as it walks: the wide nodes and triangle packs it
+/// tests. The queries pass [`NoCount`], whose empty methods vanish when the
+/// kernel is inlined; `kalos bench` passes [`super::Visits`].
+pub(super) trait Count {
+    /// One wide node's four boxes were tested.
+    fn node(&mut self);
+    /// One pack of four triangles was tested.
+    fn pack(&mut self);
+}
+
+/// Counts nothing.
+pub(super) struct NoCount;
+
+impl Count for NoCount {
+    #[inline(always)]
+    fn node(&mut self) {}
+    #[inline(always)]
+    fn pack(&mut self) {}
+}
+
+impl Count for super::Visits {
+    #[inline(always)]
+    fn node(&mut self) {
+        self.nodes += 1;
+    }
+    #[inline(always)]
+    fn pack(&mut self) {
+        self.packs += 1;
+    }
+}
+
 /// The closest hit along `o + t d` in `[tmin, tmax)`.
 #[inline(always)]
-pub(super) fn closest(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+pub(super) fn closest(
+    w: &Wide,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+    count: &mut impl Count,
+) -> Option<SlotHit> {
     let ray = Prepared::new(o, d);
     let vmin = F4::splat(tmin);
     let mut best: Option<SlotHit> = None;
@@ -172,6 +210,7 @@ pub(super) fn closest(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Optio
         if r & LEAF_BIT == 0 {
             // Test the four children; descend into the nearest, push the others
             let node = &w.nodes[r as usize];
+            count.node();
             let (mask, t0) = ray.boxes(node, vmin, F4::splat(t_best));
             if mask != 0 {
                 if mask & (mask - 1) == 0 {
@@ -204,8 +243,9 @@ pub(super) fn closest(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Optio
         } else {
             // Test the leaf's triangles, four at a time
             let first = ((r & !LEAF_BIT) >> 3) as usize;
-            let count = (r & 7) as usize + 1;
-            for p in first..first + count {
+            let n_packs = (r & 7) as usize + 1;
+            for p in first..first + n_packs {
+                count.pack();
                 let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, F4::splat(t_best));
                 if mask != 0 {
                     let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
@@ -243,7 +283,14 @@ pub(super) fn closest(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Optio
 
 /// True when anything meets `o + t d` within `[tmin, tmax)`.
 #[inline(always)]
-pub(super) fn any(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+pub(super) fn any(
+    w: &Wide,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+    count: &mut impl Count,
+) -> bool {
     let ray = Prepared::new(o, d);
     let (vmin, vmax) = (F4::splat(tmin), F4::splat(tmax));
     let mut stack = Stack::new();
@@ -252,6 +299,7 @@ pub(super) fn any(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         if r & LEAF_BIT == 0 {
             // Any order will do: descend into the first child hit, push the rest
             let node = &w.nodes[r as usize];
+            count.node();
             let (mut mask, _) = ray.boxes(node, vmin, vmax);
             if mask != 0 {
                 r = node.child[mask.trailing_zeros() as usize];
@@ -265,8 +313,9 @@ pub(super) fn any(w: &Wide, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
             }
         } else {
             let first = ((r & !LEAF_BIT) >> 3) as usize;
-            let count = (r & 7) as usize + 1;
-            for p in first..first + count {
+            let n_packs = (r & 7) as usize + 1;
+            for p in first..first + n_packs {
+                count.pack();
                 if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
                     return true;
                 }

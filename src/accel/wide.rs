@@ -14,12 +14,22 @@ use obvhs::aabb::Aabb;
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 
-/// A subtree with more triangles than this is never stored as one leaf.
+/// By default, a subtree with more triangles than this is never stored as
+/// one leaf.
 pub(super) const LEAF_MAX: usize = 4;
 
-/// The cost of a binary node's box tests per unit area, relative to one
-/// pack of four triangle tests (see [`leaf_choice`]).
-const C_NODE: f32 = 0.5;
+/// The default cost of a binary node's box tests per unit area, relative to
+/// one pack of four triangle tests (see [`leaf_choice`]).
+pub(super) const C_NODE: f32 = 0.5;
+
+/// The leaf choice of the collapse (see [`leaf_choice`]).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Collapse {
+    /// A binary node's cost per unit area, relative to one pack test.
+    pub c_node: f32,
+    /// The most triangles in a leaf, at most `4 * MAX_LEAF_PACKS`.
+    pub leaf_max: usize,
+}
 
 /// Entries of the traversal stack. A wide node pushes at most three (it
 /// descends into the fourth), so a tree of depth `d` needs at most `3d`;
@@ -31,7 +41,7 @@ pub(super) const STACK: usize = 256;
 pub(super) const LEAF_BIT: u32 = 1 << 31;
 
 /// Packs a leaf reference can count (bits 0..3).
-const MAX_LEAF_PACKS: usize = 8;
+pub(super) const MAX_LEAF_PACKS: usize = 8;
 const _: () = assert!(LEAF_MAX.div_ceil(4) <= MAX_LEAF_PACKS);
 
 /// Four child boxes. `b[2 * axis]` holds the four minima along `axis` and
@@ -71,8 +81,8 @@ impl Wide {
     /// Collapses `bvh2` (over `tris`, not empty) into a wide BVH, or `None`
     /// when the result would be too deep for the fixed traversal stack, or
     /// too large for a child reference's bits.
-    pub fn from_bvh2(bvh2: &Bvh2, tris: &[Triangle]) -> Option<Wide> {
-        let leaves = leaf_choice(bvh2);
+    pub fn from_bvh2(bvh2: &Bvh2, tris: &[Triangle], collapse: &Collapse) -> Option<Wide> {
+        let leaves = leaf_choice(bvh2, collapse);
         let mut out = Wide {
             nodes: Vec::with_capacity(bvh2.nodes.len() / 3 + 1),
             packs: Vec::with_capacity(tris.len() / 3 + 1),
@@ -180,14 +190,16 @@ impl Wide {
     }
 }
 
-/// Which nodes of `bvh2` become leaves: those with at most [`LEAF_MAX`]
-/// triangles where the surface area heuristic prices one leaf no higher
-/// than the best split below. A leaf costs its area times its packs (one
-/// four-wide test each); a binary node costs [`C_NODE`] times its area (its
-/// two child boxes take half of a four-wide node's test) plus its children.
+/// Which nodes of `bvh2` become leaves: those with at most
+/// `collapse.leaf_max` triangles where the surface area heuristic prices
+/// one leaf no higher than the best split below. A leaf costs its area
+/// times its packs (one four-wide test each); a binary node costs
+/// `collapse.c_node` times its area (its two child boxes take half of a
+/// four-wide node's test) plus its children.
 /// Where two triangles of a leaf face different ways (the walls of a room)
 /// their joint box is much larger than their own, and splitting pays.
-fn leaf_choice(bvh2: &Bvh2) -> Vec<bool> {
+fn leaf_choice(bvh2: &Bvh2, collapse: &Collapse) -> Vec<bool> {
+    let leaf_max = collapse.leaf_max.clamp(1, 4 * MAX_LEAF_PACKS);
     let mut counts = vec![0u32; bvh2.nodes.len()];
     let mut cost = vec![0f32; bvh2.nodes.len()];
     let mut leaf = vec![false; bvh2.nodes.len()];
@@ -212,9 +224,9 @@ fn leaf_choice(bvh2: &Bvh2) -> Vec<bool> {
         } else {
             let (l, r) = (node.first_index as usize, node.first_index as usize + 1);
             counts[n] = counts[l] + counts[r];
-            let split = C_NODE * area + cost[l] + cost[r];
+            let split = collapse.c_node * area + cost[l] + cost[r];
             let packs = (counts[n] as f32 / 4.0).ceil();
-            if counts[n] as usize <= LEAF_MAX && area * packs <= split {
+            if counts[n] as usize <= leaf_max && area * packs <= split {
                 cost[n] = area * packs;
                 leaf[n] = true;
             } else {

@@ -95,13 +95,20 @@ fn answer(h: &RayHit) -> Answer {
 
 /// Builds Embree's BVH over `scene`'s triangles (Embree's default build
 /// quality, on Embree's own threads) and calls `f` with the one-ray and the
-/// stream tracer, and the build time in seconds.
+/// stream tracer, and the build time in seconds. With `verbose`, Embree
+/// prints its own log, which includes its BVH's statistics (nodes, leaves,
+/// SAH cost) after the build; its build time then includes the printing.
 pub fn with_tracers<R>(
     scene: &Scene,
+    verbose: bool,
     f: impl FnOnce(&EmbreeTracer<'_>, &EmbreeTracer<'_>, f64) -> R,
 ) -> R {
     let start = std::time::Instant::now();
-    let device = Device::new();
+    let device = if verbose {
+        Device::debug()
+    } else {
+        Device::new()
+    };
     let mut mesh = TriangleMesh::unanimated(&device, scene.triangles.len(), scene.positions.len());
     {
         let mut v = mesh.vertex_buffer.map();

@@ -9,10 +9,12 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Args;
 
+use kalos::accel::{Accel, BuildOptions, Builder, Kernel, Visits};
 use kalos::bench::rayset::{self, RaySets, SetKind};
 use kalos::bench::replay::{self, KalosTracer, Timing, Tracer};
 use kalos::scene::Scene;
 use kalos::world::World;
+use rayon::prelude::*;
 
 use crate::{check_output, load_scene, parse_res, progress, say, Defines};
 
@@ -48,6 +50,42 @@ pub struct BenchArgs {
     /// Leave Embree out (in a build with the `embree` feature).
     #[arg(long)]
     no_embree: bool,
+    /// Let Embree print its log, with its BVH's statistics (in a build
+    /// with the `embree` feature).
+    #[arg(long)]
+    embree_stats: bool,
+    /// Build kalos's BVH with this builder instead of the default, best
+    /// (ploc-fast, ploc-medium, ploc-slow, ploc-very-slow, sah,
+    /// sah-reinsert, both, best).
+    #[arg(long, value_name = "BUILDER", value_parser = parse_builder)]
+    bvh: Option<Builder>,
+    /// The leaf choice's cost of a binary node relative to a pack of four
+    /// triangle tests (default 0.5).
+    #[arg(long, value_name = "C", value_parser = parse_c_node)]
+    c_node: Option<f32>,
+    /// The most triangles in a leaf of kalos's BVH (1 to 32; default 4).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=32))]
+    leaf_max: Option<u64>,
+}
+
+fn parse_builder(s: &str) -> Result<Builder, String> {
+    Builder::ALL
+        .into_iter()
+        .find(|b| b.name() == s)
+        .ok_or_else(|| {
+            let names: Vec<&str> = Builder::ALL.iter().map(|b| b.name()).collect();
+            format!(
+                "unknown BVH builder '{s}'; expected one of {}",
+                names.join(", ")
+            )
+        })
+}
+
+fn parse_c_node(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(c) if c.is_finite() && c > 0.0 => Ok(c),
+        _ => Err(format!("expected a positive number, got '{s}'")),
+    }
 }
 
 /// The one-minute, five-minute and fifteen-minute load averages, for the
@@ -85,8 +123,50 @@ pub fn run(a: BenchArgs) -> Result<()> {
         load_average()
     );
     let t = Instant::now();
-    let world = progress::build_world(scene);
+    let mut world = progress::build_world(scene);
     say!("kalos BVH build: {:.2} s", t.elapsed().as_secs_f64());
+    let defaults = BuildOptions::default();
+    let options = BuildOptions {
+        builder: a.bvh.unwrap_or(defaults.builder),
+        c_node: a.c_node.unwrap_or(defaults.c_node),
+        leaf_max: a.leaf_max.map_or(defaults.leaf_max, |n| n as usize),
+        kernel: defaults.kernel,
+    };
+    if options != defaults {
+        let t = Instant::now();
+        world.accel = Accel::build_with(&world.scene, &options, &mut |_| {});
+        say!(
+            "kalos BVH rebuilt with {}, C_node {}, at most {} triangles a leaf: {:.2} s",
+            options.builder.name(),
+            options.c_node,
+            options.leaf_max,
+            t.elapsed().as_secs_f64()
+        );
+    }
+    // The counters are in the 4-wide kernel: an 8-wide build is described
+    // by the 4-wide collapse of the same binary tree
+    let counted4 = (!world.accel.counted()).then(|| {
+        let options = BuildOptions {
+            kernel: Kernel::Bvh4,
+            ..options
+        };
+        Accel::build_with(&world.scene, &options, &mut |_| {})
+    });
+    let stats_accel = counted4.as_ref().unwrap_or(&world.accel);
+    if counted4.is_some() {
+        say!("kalos traverses an 8-wide BVH; the tree's figures below are of the 4-wide collapse of the same binary tree, which the counters walk");
+    }
+    let q = stats_accel.tree_stats();
+    say!(
+        "kalos BVH: {} wide nodes, {} leaves, {} packs ({:.2} triangles a pack); SAH cost {:.2} ({:.2} node tests + {:.2} pack tests a ray entering the root)",
+        q.nodes,
+        q.leaves,
+        q.packs,
+        q.triangles as f64 / q.packs.max(1) as f64,
+        q.sah(),
+        q.node_tests,
+        q.pack_tests
+    );
 
     let all_threads = rayon::current_num_threads();
     if a.rays > 0 {
@@ -133,12 +213,13 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let mut tracers: Vec<&dyn Tracer> = vec![&kalos_core];
         tracers.extend_from_slice(others);
         report_answers(&world.scene, &sets, &tracers);
+        report_visits(stats_accel, &sets);
         let timings =
             replay::measure(&sets, &tracers, &threads, repeat).context("making a thread pool")?;
         report_timings(&timings, repeat);
         Ok(())
     };
-    embree_or_not(&world, a.no_embree, &run_with)?;
+    embree_or_not(&world, a.no_embree, a.embree_stats, &run_with)?;
     say!("load average at the end: {}", load_average());
     Ok(())
 }
@@ -149,12 +230,13 @@ pub fn run(a: BenchArgs) -> Result<()> {
 fn embree_or_not(
     world: &World,
     no_embree: bool,
+    verbose: bool,
     run_with: &dyn Fn(&[&dyn Tracer]) -> Result<()>,
 ) -> Result<()> {
     if no_embree || world.scene.triangles.is_empty() {
         return run_with(&[]);
     }
-    kalos::bench::embree::with_tracers(&world.scene, |one, stream, secs| {
+    kalos::bench::embree::with_tracers(&world.scene, verbose, |one, stream, secs| {
         say!("Embree BVH build: {secs:.2} s");
         run_with(&[one, stream])
     })
@@ -164,6 +246,7 @@ fn embree_or_not(
 fn embree_or_not(
     _world: &World,
     no_embree: bool,
+    _verbose: bool,
     run_with: &dyn Fn(&[&dyn Tracer]) -> Result<()>,
 ) -> Result<()> {
     if !no_embree {
@@ -246,6 +329,43 @@ fn report_answers(scene: &Scene, sets: &RaySets, tracers: &[&dyn Tracer]) {
             }
         }
     }
+}
+
+/// The mean wide nodes and triangle packs kalos's kernels test per ray of
+/// each set (untimed: the counted queries are not the timed ones).
+fn report_visits(accel: &Accel, sets: &RaySets) {
+    let line: Vec<String> = SetKind::ALL
+        .into_iter()
+        .filter(|&k| !sets.rays(k).is_empty())
+        .map(|kind| {
+            let rays = sets.rays(kind);
+            let v = rays
+                .par_chunks(1024)
+                .map(|chunk| {
+                    let mut v = Visits::default();
+                    for r in chunk {
+                        if kind.closest_hit() {
+                            accel.intersect_counted(r, &mut v);
+                        } else {
+                            accel.occluded_ray_counted(r, &mut v);
+                        }
+                    }
+                    v
+                })
+                .reduce(Visits::default, |mut a, b| {
+                    a += b;
+                    a
+                });
+            let n = rays.len() as f64;
+            format!(
+                "{} {:.2} nodes + {:.2} packs",
+                kind.name(),
+                v.nodes as f64 / n,
+                v.packs as f64 / n
+            )
+        })
+        .collect();
+    say!("kalos tests per ray: {}", line.join(", "));
 }
 
 /// One line per set and thread count: each core's Mrays/s (median of the
