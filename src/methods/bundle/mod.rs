@@ -320,6 +320,8 @@ pub struct Bundle {
     timings: Timings,
     /// The sweep's buffers, reused from iteration to iteration.
     scratch: visibility::Scratch,
+    /// What the last sweep brought each patch (buffers reused).
+    incoming: visibility::Incoming,
 }
 
 impl Bundle {
@@ -338,6 +340,7 @@ impl Bundle {
             iter: 0,
             counted: 0,
             scratch: Default::default(),
+            incoming: Default::default(),
             timings: Timings::default(),
             settings,
         }
@@ -412,19 +415,18 @@ impl Bundle {
     /// corner ids) and of the transient per-iteration buffers per patch
     /// (incoming radiance, the projection, and the tile entries: a patch
     /// is in every map tile its projection crosses, with a copy of its
-    /// projection, its id, its two accumulators, and in the buffers of the
-    /// thread that scans the tile its sort key twice and its two radiance
-    /// values; the figure counts two tiles, an upper bound while
+    /// projection and its two accumulators, and in the buffers of the
+    /// thread that scans the tile its sort key twice, its two radiance
+    /// values and its two accumulators; the figure counts two tiles, an upper bound while
     /// projections are shorter than a tile, 25 rows at the default map).
     /// The map itself is not per patch: one tile of it per thread
     /// ([`visibility::map_bytes`]).
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
         let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
-        // projection, patch id, the two accumulators, sort key and radix
-        // buffer, and the two radiance values of a tile entry
-        let tile_entry =
-            visibility::PROJ_BYTES + size_of::<u32>() + 2 * size_of::<u64>() + 4 * size_of::<Rgb>();
+        // projection, the two accumulators, sort key and radix buffer, and
+        // the two radiance values and two accumulators of a tile entry
+        let tile_entry = visibility::PROJ_BYTES + 2 * size_of::<u64>() + 6 * size_of::<Rgb>();
         let transient = 2 * size_of::<Rgb>() + visibility::PROJ_BYTES + 2 * tile_entry;
         (state, transient)
     }
@@ -458,20 +460,22 @@ impl Method for Bundle {
             // ω_1 and L[i] = L_i^e(±ω_1), or the first shot's direct light
             self.d = self.dirs.next_dir();
             let d = self.d;
-            if nee {
-                let first: Vec<(Rgb, Rgb, u64)> = patches
-                    .p
-                    .par_iter()
-                    .enumerate()
-                    .map(|(i, p)| transfer::direct(world, p, d, &mut first_shot_rng(seed, i, 0)))
-                    .collect();
-                rays += first.iter().map(|x| x.2).sum::<u64>();
-                self.l_plus = first.iter().map(|x| x.0).collect();
-                self.l_minus = first.iter().map(|x| x.1).collect();
-            } else {
-                self.l_plus = patches.p.par_iter().map(|p| p.le(d)).collect();
-                self.l_minus = patches.p.par_iter().map(|p| p.le(-d)).collect();
-            }
+            rays += self
+                .l_plus
+                .par_iter_mut()
+                .zip(self.l_minus.par_iter_mut())
+                .zip(patches.p.par_iter())
+                .enumerate()
+                .map(|(i, ((lp, lm), p))| {
+                    let (sp, sm, r) = if nee {
+                        transfer::direct(world, p, d, &mut first_shot_rng(seed, i, 0))
+                    } else {
+                        (p.le(d), p.le(-d), 0)
+                    };
+                    (*lp, *lm) = (sp, sm);
+                    r
+                })
+                .sum::<u64>();
         }
         let d = self.d;
         // With the first shot the sky is direct light, taken by the light samples
@@ -484,7 +488,8 @@ impl Method for Bundle {
         };
 
         // Transfer along ±ω_m through the visibility map
-        let inc = visibility::sweep(
+        let inc = &mut self.incoming;
+        visibility::sweep_into(
             patches,
             &SweepInput {
                 d,
@@ -500,6 +505,7 @@ impl Method for Bundle {
                 centre_rr: self.settings.centre_rr,
             },
             &mut self.scratch,
+            inc,
         );
         self.timings.project += inc.t_project;
         self.timings.raster += inc.t_raster;
@@ -527,27 +533,24 @@ impl Method for Bundle {
         let t = Instant::now();
         let dn = self.dirs.next_dir();
         let next = self.iter + 1;
-        let new: Vec<(Rgb, Rgb, u64)> = patches
-            .p
-            .par_iter()
+        rays += self
+            .l_plus
+            .par_iter_mut()
+            .zip(self.l_minus.par_iter_mut())
+            .zip(patches.p.par_iter())
             .enumerate()
-            .map(|(i, p)| {
+            .map(|(i, ((lp, lm), p))| {
                 let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
                 let (sp, sm, r) = if nee {
                     transfer::direct(world, p, dn, &mut first_shot_rng(seed, i, next))
                 } else {
                     (p.le(dn), p.le(-dn), 0)
                 };
-                (
-                    transfer::reflect_onto(sp, p, d, ep, em, dn),
-                    transfer::reflect_onto(sm, p, d, ep, em, -dn),
-                    r,
-                )
+                *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
+                *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
+                r
             })
-            .collect();
-        rays += new.iter().map(|x| x.2).sum::<u64>();
-        self.l_plus = new.iter().map(|x| x.0).collect();
-        self.l_minus = new.iter().map(|x| x.1).collect();
+            .sum::<u64>();
         self.d = dn;
         self.iter += 1;
         self.timings.transfer += t.elapsed().as_secs_f64();

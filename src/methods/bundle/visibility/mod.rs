@@ -169,12 +169,13 @@ impl Src<'_> {
 pub struct Scratch {
     /// Per chunk of patches, its projections grouped by tile.
     chunks: Vec<Chunk>,
-    /// Per tile entry, tile after tile in sorted order: the patch id and
-    /// what it received along +d and −d.
-    gid: Vec<u32>,
+    /// Per tile entry, tile after tile, what it received along +d and −d.
+    /// Within a tile the entries are in bin order (chunk after chunk, each
+    /// chunk's bin in patch order), not in the sorted order of the scan, so
+    /// that the sum over the tiles can run chunk by chunk in parallel.
     ep: Vec<Rgb>,
     em: Vec<Rgb>,
-    /// Each tile's first entry in `gid`, `ep` and `em` (one more at the end).
+    /// Each tile's first entry in `ep` and `em` (one more at the end).
     start: Vec<usize>,
     /// Fragments scanned per tile.
     frags: Vec<u64>,
@@ -203,6 +204,9 @@ struct Work {
     /// L(+d) and L(−d) of the tile's patches in sorted order.
     lp: Vec<Rgb>,
     lm: Vec<Rgb>,
+    /// What they received along +d and −d, in sorted order.
+    ep: Vec<Rgb>,
+    em: Vec<Rgb>,
 }
 
 thread_local! {
@@ -256,6 +260,13 @@ fn radix_sort_hi(keys: &mut Vec<u64>, spare: &mut Vec<u64>) {
 /// returns what each patch receives. `scratch` holds the buffers of the
 /// previous call, reused.
 pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Incoming {
+    let mut out = Incoming::default();
+    sweep_into(patches, inp, scratch, &mut out);
+    out
+}
+
+/// [`sweep`] into `out`, whose buffers are reused.
+pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out: &mut Incoming) {
     let n = patches.len();
     let d = inp.d;
     let res = inp.res.max(1);
@@ -270,7 +281,6 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
     let ntiles = (h as usize).div_ceil(rows_per_tile as usize);
     let Scratch {
         chunks,
-        gid,
         ep,
         em,
         start,
@@ -354,27 +364,24 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
         start.push(start[t] + count);
     }
     let total = start[ntiles];
-    gid.clear();
-    gid.resize(total, 0);
     ep.clear();
     ep.resize(total, Rgb::ZERO);
     em.clear();
     em.resize(total, Rgb::ZERO);
     // each tile's share of the entries, as disjoint slices
     let mut parts = Vec::with_capacity(ntiles);
-    let (mut g, mut p, mut m) = (&mut gid[..], &mut ep[..], &mut em[..]);
+    let (mut p, mut m) = (&mut ep[..], &mut em[..]);
     for t in 0..ntiles {
         let k = start[t + 1] - start[t];
-        let (g0, g1) = std::mem::take(&mut g).split_at_mut(k);
         let (p0, p1) = std::mem::take(&mut p).split_at_mut(k);
         let (m0, m1) = std::mem::take(&mut m).split_at_mut(k);
-        parts.push((t, g0, p0, m0));
-        (g, p, m) = (g1, p1, m1);
+        parts.push((t, p0, m0));
+        (p, m) = (p1, m1);
     }
     let chunks = &*chunks;
     parts
         .into_par_iter()
-        .map(|(tile, gid, ep, em)| {
+        .map(|(tile, ep_out, em_out)| {
             let y0 = tile as i32 * rows_per_tile;
             let y1 = (y0 + rows_per_tile).min(h);
             let src = Src {
@@ -383,6 +390,11 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
                     &ck.by_tile[ck.start[tile]..ck.start[tile + 1]]
                 }),
             };
+            // where each chunk's bin starts among the tile's entries
+            let mut bin_at = [0usize; CHUNKS];
+            for c in 1..CHUNKS {
+                bin_at[c] = bin_at[c - 1] + src.bins[c - 1].len();
+            }
             WORK.with_borrow_mut(|wk| {
                 // keys in patch order: depth high, (chunk, slot) low
                 wk.keys.clear();
@@ -395,50 +407,81 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
                     );
                 }
                 radix_sort_hi(&mut wk.keys, &mut wk.spare);
-                for (g, &k) in gid.iter_mut().zip(&wk.keys) {
-                    *g = src.at(k).id;
-                }
                 wk.lp.clear();
-                wk.lp.extend(gid.iter().map(|&g| inp.l_plus[g as usize]));
+                wk.lp
+                    .extend(wk.keys.iter().map(|&k| inp.l_plus[src.at(k).id as usize]));
                 wk.lm.clear();
-                wk.lm.extend(gid.iter().map(|&g| inp.l_minus[g as usize]));
+                wk.lm
+                    .extend(wk.keys.iter().map(|&k| inp.l_minus[src.at(k).id as usize]));
+                let n = wk.keys.len();
+                wk.ep.clear();
+                wk.ep.resize(n, Rgb::ZERO);
+                wk.em.clear();
+                wk.em.resize(n, Rgb::ZERO);
                 let mut acc = Band {
                     lp: &wk.lp,
                     lm: &wk.lm,
-                    ep,
-                    em,
+                    ep: &mut wk.ep,
+                    em: &mut wk.em,
                 };
-                match inp.visibility {
+                let frags = match inp.visibility {
                     Visibility::Painter => painter_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
                     Visibility::ZBuffer => zbuffer_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
+                };
+                // back from sorted order to bin order
+                for ((&k, &p), &m) in wk.keys.iter().zip(&wk.ep).zip(&wk.em) {
+                    let at = bin_at[(k >> SLOT_BITS) as usize % CHUNKS] + (k & SLOT_MASK) as usize;
+                    ep_out[at] = p;
+                    em_out[at] = m;
                 }
+                frags
             })
         })
         .collect_into_vec(frags);
 
-    // Sum the tiles in a fixed order
+    // Sum the tiles in a fixed order: each patch's entries, tile after
+    // tile. A chunk's patches are a range of ids and its bins give their
+    // entries, so the chunks sum in parallel into disjoint ranges; every
+    // patch still adds its tiles' terms in tile order, to zero, as a
+    // serial pass over the tiles would
     let da = delta * delta;
-    let mut e_plus = vec![Rgb::ZERO; n];
-    let mut e_minus = vec![Rgb::ZERO; n];
-    for ((&g, &p), &m) in gid.iter().zip(ep.iter()).zip(em.iter()) {
-        e_plus[g as usize] += p;
-        e_minus[g as usize] += m;
-    }
-    e_plus
-        .par_iter_mut()
-        .zip(e_minus.par_iter_mut())
-        .for_each(|(p, m)| {
+    let (start, ep, em) = (&*start, &*ep, &*em);
+    let sum_chunk = |c: usize, e_plus: &mut [Rgb], e_minus: &mut [Rgb]| {
+        let first = c * chunk_len;
+        e_plus.fill(Rgb::ZERO);
+        e_minus.fill(Rgb::ZERO);
+        let ck = &chunks[c];
+        for (t, &tile_at) in start[..ntiles].iter().enumerate() {
+            // this chunk's bin for tile t, among the tile's entries
+            let before: usize = chunks[..c]
+                .iter()
+                .map(|o| o.start[t + 1] - o.start[t])
+                .sum();
+            let at = tile_at + before;
+            let bin = &ck.by_tile[ck.start[t]..ck.start[t + 1]];
+            for (k, pr) in bin.iter().enumerate() {
+                let i = pr.id as usize - first;
+                e_plus[i] += ep[at + k];
+                e_minus[i] += em[at + k];
+            }
+        }
+        for (p, m) in e_plus.iter_mut().zip(e_minus.iter_mut()) {
             *p *= da;
             *m *= da;
-        });
-    let fragments = frags.iter().sum();
-    Incoming {
-        e_plus,
-        e_minus,
-        fragments,
-        t_project,
-        t_raster: t1.elapsed().as_secs_f64(),
-    }
+        }
+    };
+    out.e_plus.resize(n, Rgb::ZERO);
+    out.e_minus.resize(n, Rgb::ZERO);
+    out.e_plus.truncate(n);
+    out.e_minus.truncate(n);
+    out.e_plus
+        .par_chunks_mut(chunk_len)
+        .zip(out.e_minus.par_chunks_mut(chunk_len))
+        .enumerate()
+        .for_each(|(c, (p, m))| sum_chunk(c, p, m));
+    out.fragments = frags.iter().sum();
+    out.t_project = t_project;
+    out.t_raster = t1.elapsed().as_secs_f64();
 }
 
 /// What one band of the map gathers. Its patches are numbered by their

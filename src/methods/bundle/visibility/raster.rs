@@ -8,6 +8,9 @@
 //! its time on the set-up and on one compare-and-branch chain per pixel.
 //! The lanes compute exactly the scalar expressions, in the same order, so
 //! the fragments and their depths are bit for bit those of a scalar scan.
+//! The rows of a wide box are first narrowed to a span that provably holds
+//! every pixel the edge tests pass ([`RowClip`]), so that the scan skips
+//! most of the box's empty groups without changing a fragment.
 
 use glam::{BVec4A, Vec2, Vec3, Vec4};
 
@@ -267,6 +270,33 @@ impl Proj {
         })
     }
 
+    /// The edges' column bounds, for triangles whose rows span more than
+    /// two groups of the scan. Narrower ones are scanned whole: an empty
+    /// group costs less than the bounds' set-up and per-row evaluation.
+    #[inline(always)]
+    fn clip(&self) -> Option<RowClip> {
+        (self.x1 - self.x0 >= CLIP_WIDTH).then(|| RowClip::new(self.t, self.x0, self.x1, self.y1))
+    }
+
+    /// Row `y`'s products (c.x − b.x)(py − b.y) and its turns, the first
+    /// term of each edge function, and the columns to scan: the box's, or
+    /// those `clip` leaves.
+    #[inline(always)]
+    fn row(&self, y: i32, clip: &Option<RowClip>) -> ([f32; 3], i32, i32) {
+        let [a, b, c] = self.t;
+        let py = y as f32 + 0.5;
+        let r = [
+            (c.x - b.x) * (py - b.y),
+            (a.x - c.x) * (py - c.y),
+            (b.x - a.x) * (py - a.y),
+        ];
+        let (xs, xe) = match clip {
+            Some(clip) => clip.span(py, self.x0, self.x1),
+            None => (self.x0, self.x1),
+        };
+        (r, xs, xe)
+    }
+
     /// Calls `v.visit(x, y, depth)` for every pixel centre the patch covers
     /// in rows `y0..y1`, row by row, left to right.
     #[inline(always)]
@@ -299,13 +329,12 @@ impl Proj {
             Vec4::splat(self.inv),
         );
         const HALF: Vec4 = Vec4::new(0.5, 1.5, 2.5, 3.5);
+        let clip = self.clip();
         for y in ys..=ye {
-            let py = y as f32 + 0.5;
-            let ra = Vec4::splat((c.x - b.x) * (py - b.y));
-            let rb = Vec4::splat((a.x - c.x) * (py - c.y));
-            let rc = Vec4::splat((b.x - a.x) * (py - a.y));
-            let mut x = self.x0;
-            while x <= self.x1 {
+            let (r, xs, xe) = self.row(y, &clip);
+            let (ra, rb, rc) = (Vec4::splat(r[0]), Vec4::splat(r[1]), Vec4::splat(r[2]));
+            let mut x = xs;
+            while x <= xe {
                 // x + k + 0.5 is exact in f32 on any map that fits in memory
                 let px = Vec4::splat(x as f32) + HALF;
                 let wa = ra - dya * (px - bx);
@@ -315,7 +344,7 @@ impl Proj {
                 let inside = (wa.cmpgt(zero) | (wa.cmpeq(zero) & oa))
                     & (wb.cmpgt(zero) | (wb.cmpeq(zero) & ob))
                     & (wc.cmpgt(zero) | (wc.cmpeq(zero) & oc));
-                let cols = (self.x1 - x + 1).min(4);
+                let cols = (xe - x + 1).min(4);
                 let mut mask = inside.bitmask() & ((1u32 << cols) - 1);
                 if mask != 0 {
                     let depth = (wa * vza + wb * vzb + wc * vzc) * vinv;
@@ -328,6 +357,113 @@ impl Proj {
                 x += 4;
             }
         }
+    }
+}
+
+/// Bounds on the pixel columns of each row of a triangle, so that the
+/// scan of a wide row starts and ends near its edges instead of at its box.
+///
+/// The scan's test for edge (u → v) at pixel centre px of row py is, in
+/// f32, W = fl(R − fl(D · fl(px − u.x))) ≥ 0 (or > 0), with D = v.y − u.y,
+/// A = v.x − u.x and R = fl(A · fl(py − u.y)), all as the scan computes
+/// them. Rounding is monotonic and fl(R − M) ≥ 0 exactly when R ≥ M, so a
+/// pixel passes only if fl(D · P) ≤ R with P = fl(px − u.x). With u = 2⁻²⁴
+/// the unit roundoff (|fl(z) − z| ≤ u|z|, plus 2⁻¹⁵⁰ below the normal
+/// range), s = A/D and T a bound on |px − u.x| over the box:
+///
+/// - D > 0: D·P ≤ R + u D|P|, so P ≤ R/D + u|P|; px − u.x ≤ P + u|px − u.x|;
+///   and R/D ≤ s (py − u.y) + 2.0001 u |s| (|py| + |u.y|). Hence
+///   px ≤ u.x + s (py − u.y) + E, E = 3uT + 2.0001 u |s| (|py| + |u.y|).
+/// - D < 0: the same with the inequalities turned, px ≥ u.x + s (py − u.y) − E.
+///
+/// The bound is evaluated per row in f32 as fl(fl(s' · py) + b'), with
+/// s' = fl(A/D) and b' = u.x − s' u.y ± m rounded once to f32. Its own
+/// roundings are below 5.01 u |s| (|py| + |u.y|) + 2.01 u (|u.x| + m), so
+/// the widening m = 3uT + 8u (|s| (Y + |u.y|) + |u.x|) + 10⁻³ pixel (Y the
+/// largest py of the box) covers E and them, with room to spare for the
+/// sub-normal terms (at most 2⁻¹³⁰ pixel once |D| ≥ 2⁻²⁰). The columns are
+/// then taken by truncation toward zero of the bound minus ½, which is at
+/// least the floor (last column) or at most the ceiling (first column), and
+/// f32 rounding of bound − ½ cannot cross an integer.
+///
+/// So every pixel of the box that passes the three tests lies in the
+/// clipped span: the per-pixel test is unchanged, and the fragments, their
+/// order and their depths are those of the scan over the whole box. An
+/// edge with |D| < 2⁻²⁰ or |s| > 2²⁴ (nearly horizontal, where s says
+/// nothing useful) does not clip.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct RowClip {
+    /// Per edge (lanes 0–2), the last column's bound b' + s' py, for the
+    /// edges with D > 0; +∞ with slope 0 for the others and lane 3.
+    hi_base: Vec4,
+    hi_slope: Vec4,
+    /// The first column's bound, for the edges with D < 0; −∞ otherwise.
+    lo_base: Vec4,
+    lo_slope: Vec4,
+}
+
+/// Boxes at least this many columns wider than one pixel have their rows
+/// clipped ([`Proj::clip`]).
+const CLIP_WIDTH: i32 = 8;
+
+/// Unit roundoff of f32.
+const U32: f64 = 1.0 / (1u64 << 24) as f64;
+/// Edges with |D| below this, or a slope |A/D| above [`MAX_SLOPE`], do not
+/// clip: nearly horizontal, their bound says little, and these limits keep
+/// every term of the bound finite and the sub-normal terms negligible.
+const MIN_DY: f32 = 1.0 / (1u32 << 20) as f32;
+/// See [`MIN_DY`].
+const MAX_SLOPE: f32 = (1u32 << 24) as f32;
+
+impl RowClip {
+    /// The bounds of the triangle `t` (counter-clockwise, as scanned) over
+    /// columns `x0..=x1` and rows up to `y1`.
+    #[inline]
+    fn new(t: [Vec2; 3], x0: i32, x1: i32, y1: i32) -> RowClip {
+        let [a, b, c] = t;
+        let mut clip = RowClip {
+            hi_base: Vec4::INFINITY,
+            hi_slope: Vec4::ZERO,
+            lo_base: Vec4::NEG_INFINITY,
+            lo_slope: Vec4::ZERO,
+        };
+        let ymax = y1 as f64 + 0.5;
+        // the edges as the scan takes them: (u, v) = (b, c), (c, a), (a, b)
+        for (k, (u, v)) in [(b, c), (c, a), (a, b)].into_iter().enumerate() {
+            let (dx, dy) = (v.x - u.x, v.y - u.y);
+            let s = dx / dy;
+            // nearly horizontal edges do not clip (nor could a non-finite one)
+            if dy.abs() < MIN_DY || s.is_nan() || s.abs() > MAX_SLOPE {
+                continue;
+            }
+            let (sd, ux, uy) = (s as f64, u.x as f64, u.y as f64);
+            let t = (x0 as f64 + 0.5 - ux)
+                .abs()
+                .max((x1 as f64 + 0.5 - ux).abs());
+            let m = 3.0 * U32 * t + 8.0 * U32 * (sd.abs() * (ymax + uy.abs()) + ux.abs()) + 1e-3;
+            let (hi, lo) = ((ux - sd * uy + m) as f32, (ux - sd * uy - m) as f32);
+            if !(hi.is_finite() && lo.is_finite()) {
+                continue;
+            }
+            if dy > 0.0 {
+                clip.hi_base[k] = hi;
+                clip.hi_slope[k] = s;
+            } else {
+                clip.lo_base[k] = lo;
+                clip.lo_slope[k] = s;
+            }
+        }
+        clip
+    }
+
+    /// The columns of the row at `py`, within `x0..=x1`, that can hold a
+    /// pixel passing all three edge tests (possibly none: start past end).
+    #[inline(always)]
+    fn span(&self, py: f32, x0: i32, x1: i32) -> (i32, i32) {
+        let py = Vec4::splat(py);
+        let hi = (self.hi_slope * py + self.hi_base).min_element();
+        let lo = (self.lo_slope * py + self.lo_base).max_element();
+        (x0.max((lo - 0.5) as i32), x1.min((hi - 0.5) as i32))
     }
 }
 
@@ -414,6 +550,95 @@ mod tests {
             assert_eq!(got, want, "triangle {t:?}");
         }
         assert!(covered > 10_000, "the triangles covered {covered} pixels");
+    }
+
+    /// Rows clipped to the edges give exactly the fragments of the scan
+    /// over the whole box (the scalar scan above), on random triangles
+    /// where the clip applies: thin slivers, nearly horizontal and nearly
+    /// vertical edges, sub-pixel and small ones, with corners around 1000
+    /// pixels as on a 1024² map (where f32 rounding is coarsest), some on
+    /// the half-pixel grid or one ulp off it (edges through or next to
+    /// pixel centres). The clip must also cut: the spans hold far fewer
+    /// columns than the boxes.
+    #[test]
+    fn clipped_rows_match_full_box() {
+        let (w, h) = (1025, 1025);
+        let pj = Projector {
+            w,
+            h,
+            centre_rr: true,
+            keys: [0, 0],
+        };
+        let mut rng = Pcg32::keyed(&[81]);
+        let (mut covered, mut span_cols, mut box_cols) = (0usize, 0i64, 0i64);
+        for k in 0..40_000u32 {
+            let o = Vec2::new(rng.next_f32() * 60.0 + 960.0, rng.next_f32() * 1040.0 - 8.0);
+            let mut r = || rng.next_f32();
+            let long = 4.0 + 60.0 * r();
+            let (p, q) = (o, o + Vec2::new(long * (r() - 0.5), long * (r() - 0.5)));
+            let mut t = match k % 6 {
+                // a sliver: the third corner a fraction of a pixel off p → q
+                0 => [p, q, (p + q) * 0.5 + Vec2::new(r() - 0.5, r() - 0.5) * 0.3],
+                // a nearly horizontal edge, then a nearly vertical one
+                1 => [
+                    p,
+                    p + Vec2::new(long, (r() - 0.5) * 1e-3),
+                    p + Vec2::new(r(), 3.0 * r()),
+                ],
+                2 => [
+                    p,
+                    p + Vec2::new((r() - 0.5) * 1e-3, long),
+                    p + Vec2::new(8.0 * r(), r()),
+                ],
+                // sub-pixel, and small
+                3 => [p, p + Vec2::new(r(), r()), p + Vec2::new(r(), r())],
+                4 => [
+                    p,
+                    p + Vec2::new(9.0 * r(), 9.0 * r()),
+                    p + Vec2::new(9.0 * r(), 9.0 * r()),
+                ],
+                _ => [p, q, p + Vec2::new(long * (r() - 0.5), long * (r() - 0.5))],
+            };
+            match k % 5 {
+                // on the half-pixel grid: edges through pixel centres
+                0 => t = t.map(|v| (v * 2.0).round() * 0.5),
+                // one ulp off it
+                1 => {
+                    t = t.map(|v| {
+                        let g = (v * 2.0).round() * 0.5;
+                        let nudge = |x: f32, up: bool| match (x == 0.0, up) {
+                            (true, _) => x,
+                            (_, true) => f32::from_bits(x.to_bits() + 1),
+                            _ => f32::from_bits(x.to_bits() - 1),
+                        };
+                        Vec2::new(nudge(g.x, r() < 0.5), nudge(g.y, r() < 0.5))
+                    })
+                }
+                _ => {}
+            }
+            let z = [r(), r(), r()];
+            let want = scalar_scan(&t, &z, w, h);
+            let mut got = Vec::new();
+            if let Some(pr) = Proj::new(&pj, k, t, z, 0) {
+                for (y0, y1) in [(0, 500), (500, h)] {
+                    pr.scan(y0, y1, &mut |x, y, d: f32| got.push((x, y, d.to_bits())));
+                }
+                if let Some(clip) = pr.clip() {
+                    for y in pr.y0..=pr.y1 {
+                        let (_, xs, xe) = pr.row(y, &Some(clip));
+                        span_cols += (xe - xs + 1).max(0) as i64;
+                        box_cols += (pr.x1 - pr.x0 + 1) as i64;
+                    }
+                }
+            }
+            covered += want.len();
+            assert_eq!(got, want, "triangle {t:?}");
+        }
+        assert!(covered > 100_000, "the triangles covered {covered} pixels");
+        assert!(
+            2 * span_cols < box_cols,
+            "the clip scanned {span_cols} columns of the boxes' {box_cols}"
+        );
     }
 
     /// The 4-lane projection gives the bits of the scalar one, and the
