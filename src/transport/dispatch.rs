@@ -3,7 +3,7 @@
 //! those features, and to the baseline x86-64 copy otherwise.
 //!
 //! The default build targets baseline x86-64 so that it runs on any x86-64
-//! machine. [`dispatched!`] compiles one loop body twice: once plain and once
+//! machine. `dispatched!` compiles one loop body twice: once plain and once
 //! inside a `#[target_feature]` function, which gives VEX encodings and
 //! SSE4.1 rounding to everything inlined into it. Code that the body calls
 //! without inlining it stays baseline, which is why the shading functions
@@ -12,6 +12,8 @@
 //! Images do not depend on the copy that runs: Rust never contracts
 //! `a * b + c` into a fused multiply-add unless the code asks for
 //! `mul_add`, so both copies round every operation alike.
+//! `KALOS_DISPATCH=baseline` in the environment forces the baseline copies,
+//! so that one binary can compare the two.
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
