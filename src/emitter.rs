@@ -392,6 +392,7 @@ impl Lights {
     }
 
     /// Samples a light as seen from `p` (next-event estimation).
+    #[inline(always)]
     pub fn sample_li(&self, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
         if self.is_empty() {
             return None;
@@ -479,6 +480,7 @@ impl Lights {
     /// cosine-distributed direction (the emission pdf ∝ Le cos θ of the
     /// density-estimation paper). The environment shoots parallel rays from a
     /// disk of the scene's bounding radius, perpendicular to the direction.
+    #[inline(always)]
     pub fn sample_emission(&self, u_sel: f32, u_pos: Vec2, u_dir: Vec2) -> Option<EmissionSample> {
         if self.is_empty() {
             return None;

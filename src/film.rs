@@ -67,10 +67,14 @@ impl Film {
     /// Adds `v` at continuous film position `(px, py)` in pixels (a splat).
     #[inline]
     pub fn splat(&mut self, px: f32, py: f32, v: Rgb) {
-        let x = px.floor();
-        let y = py.floor();
-        if x >= 0.0 && y >= 0.0 && (x as u32) < self.width && (y as u32) < self.height {
-            self.add_index(y as usize * self.width as usize + x as usize, v);
+        // For px ≥ 0 the cast truncates to floor(px) (and saturates past
+        // u32::MAX), so no `floor` is needed: on baseline x86-64 that is a
+        // libm call. NaN fails the comparison.
+        if px >= 0.0 && py >= 0.0 {
+            let (x, y) = (px as u32, py as u32);
+            if x < self.width && y < self.height {
+                self.add_index(y as usize * self.width as usize + x as usize, v);
+            }
         }
     }
 

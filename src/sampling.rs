@@ -170,6 +170,7 @@ impl Distribution1D {
 
     /// Picks an entry for `u` in [0,1); returns it, its probability, and `u`
     /// rescaled to [0,1) within the entry (for reuse).
+    #[inline(always)]
     pub fn sample(&self, u: f64) -> (usize, f64, f64) {
         let target = u * self.total;
         // first index with cdf[i+1] > target

@@ -57,6 +57,7 @@ impl Material {
     /// <bsdf type="thindielectric"><float name="int_ior" value="1.5"/></bsdf>
     /// <bsdf type="twosided"><bsdf type="diffuse"/></bsdf>
     /// ```
+    #[inline(always)]
     pub fn bsdf(&self, uv: Vec2) -> Bsdf {
         match self {
             Material::Diffuse { reflectance } => Bsdf::Diffuse {

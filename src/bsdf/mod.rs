@@ -213,6 +213,7 @@ pub fn shading_normal_correction_over(
 
 impl Bsdf {
     /// f(wo, wi), without the cosine. Zero for delta lobes.
+    #[inline(always)]
     pub fn eval(&self, wo: Vec3, wi: Vec3, _mode: Mode) -> Rgb {
         match *self {
             Bsdf::Diffuse { r } => {
@@ -297,6 +298,7 @@ impl Bsdf {
     /// nothing is sampled (wo below a one-sided surface, or a direction that
     /// would leave the hemisphere: that probability mass is lost, and `pdf`
     /// integrates to less than one by the same amount).
+    #[inline(always)]
     pub fn sample(&self, wo: Vec3, uc: f32, u: Vec2, mode: Mode) -> Option<BsdfSample> {
         match *self {
             Bsdf::Diffuse { r } => {
@@ -456,6 +458,7 @@ impl Bsdf {
     /// Solid-angle pdf of sampling wi given wo (zero for delta lobes; for
     /// plastic, the diffuse part only, which already includes the probability
     /// of not choosing the coat).
+    #[inline(always)]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
         match *self {
             Bsdf::Diffuse { .. } => {
@@ -508,6 +511,7 @@ impl Bsdf {
     /// `thindielectric` (and `plastic` up to the F_dr fits); for the rough
     /// models the Fresnel factor at the macro-normal without the shadowing
     /// loss (an upper estimate); for `phong` kd + ks (exact at normal incidence).
+    #[inline(always)]
     pub fn albedo(&self, wo: Vec3) -> Rgb {
         let a = match *self {
             Bsdf::Diffuse { r } => r,

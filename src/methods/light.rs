@@ -47,8 +47,10 @@ use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb};
 use crate::transport::camera_pass::CameraPass;
+use crate::transport::dispatch::dispatched;
 use crate::transport::{
-    connect_emission, connect_to_camera, follow_delta_chain, light_walk, scatter, Landing, Spectrum,
+    connect_emission, connect_to_camera, follow_delta_chain, light_walk, scatter, splat_to_camera,
+    Landing, Spectrum,
 };
 
 /// Which form of the method.
@@ -213,15 +215,8 @@ impl Method for LightTracer {
                 }
                 let count = n / lanes + u64::from((lane as u64) < n % lanes);
                 *lane_walks += count;
-                let mut rng = Pcg32::keyed(&[s.seed, pass, lane as u64, 0x11]);
-                match s.variant {
-                    Variant::Walk => (0..count)
-                        .map(|_| trace_walk(world, s, &mut rng, film))
-                        .sum::<u64>(),
-                    Variant::Iteration => (0..count)
-                        .map(|_| iterate(world, s, &mut rng, film, chain))
-                        .sum::<u64>(),
-                }
+                let rng = Pcg32::keyed(&[s.seed, pass, lane as u64, 0x11]);
+                run_lane(world, s, rng, count, film, chain)
             })
             .sum();
         self.walks += n;
@@ -370,8 +365,41 @@ pub fn merge_image(states: &[&State], width: u32, height: u32) -> Result<Image, 
     Ok(img)
 }
 
+dispatched! {
+    /// Traces `count` walks (or iteration steps) of one lane into its film;
+    /// returns the rays traced. The per-pass loop that runtime dispatch
+    /// compiles for x86-64-v3 ([`crate::transport::dispatch`]).
+    fn run_lane(
+        world: &World,
+        s: &Settings,
+        rng: Pcg32,
+        count: u64,
+        film: &mut Film,
+        chain: &mut Chain,
+    ) -> u64 {
+        // Plain loops: an iterator adaptor would be a function of its own,
+        // compiled for the baseline only
+        let mut rng = rng;
+        let mut rays = 0;
+        match s.variant {
+            Variant::Walk => {
+                for _ in 0..count {
+                    rays += trace_walk(world, s, &mut rng, film);
+                }
+            }
+            Variant::Iteration => {
+                for _ in 0..count {
+                    rays += iterate(world, s, &mut rng, film, chain);
+                }
+            }
+        }
+        rays
+    }
+}
+
 /// One light-tracing walk ([`light_walk`]), connected to the camera at its
 /// emission vertex and at every non-delta vertex; returns the rays traced.
+#[inline(always)]
 fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> u64 {
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
     let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
@@ -392,10 +420,7 @@ fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> 
         |e| {
             // Connect to the camera at every non-delta vertex
             if e.vertex.bsdf.has_smooth() {
-                if let Some((pix, c)) = connect_to_camera(world, e.vertex, e.beta, false, &mut rays)
-                {
-                    film.splat(pix.x, pix.y, c);
-                }
+                rays += splat_to_camera(world, e.vertex, e.beta, film);
             }
             ControlFlow::Continue(())
         },

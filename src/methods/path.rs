@@ -16,7 +16,9 @@ use crate::geometry::Ray;
 use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::transport::dispatch::dispatched;
 use crate::transport::{radiance_from, DepthLimits};
+use glam::DVec3;
 
 /// Settings of the path tracer.
 #[derive(Clone, Debug, PartialEq)]
@@ -97,22 +99,10 @@ impl Method for PathTracer {
             .par_chunks_mut(w)
             .enumerate()
             .map(|(y, row)| {
-                let mut rays = 0u64;
                 if !shard.owns(y as u64) {
                     return 0;
                 }
-                for (x, acc) in row.iter_mut().enumerate() {
-                    let pixel = (y * w + x) as u64;
-                    let mut rng = Pcg32::keyed(&[seed, pass, pixel]);
-                    let jitter = rng.next_2d();
-                    let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
-                    let (l, r) = radiance(world, settings, ray, &mut rng);
-                    rays += r;
-                    if l.is_finite() {
-                        *acc += l.as_dvec3();
-                    }
-                }
-                rays
+                render_row(world, settings, seed, pass, y, row)
             })
             .sum();
         self.passes += 1;
@@ -150,6 +140,35 @@ impl Method for PathTracer {
     }
 }
 
+dispatched! {
+    /// Adds one sample to each pixel of row `y` (`row` holds its sums);
+    /// returns the rays traced. The per-pass loop that runtime dispatch
+    /// compiles for x86-64-v3 ([`crate::transport::dispatch`]).
+    fn render_row(
+        world: &World,
+        settings: &Settings,
+        seed: u64,
+        pass: u64,
+        y: usize,
+        row: &mut [DVec3],
+    ) -> u64 {
+        let w = row.len();
+        let mut rays = 0u64;
+        for (x, acc) in row.iter_mut().enumerate() {
+            let pixel = (y * w + x) as u64;
+            let mut rng = Pcg32::keyed(&[seed, pass, pixel]);
+            let jitter = rng.next_2d();
+            let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
+            let (l, r) = radiance(world, settings, ray, &mut rng);
+            rays += r;
+            if l.is_finite() {
+                *acc += l.as_dvec3();
+            }
+        }
+        rays
+    }
+}
+
 /// The image of a render split into shards, from the states of shards 0 to
 /// N − 1 in order: each row from the shard that owns it, divided by that
 /// shard's passes, exactly as [`PathTracer::image`] divides in one run.
@@ -175,6 +194,7 @@ pub fn merge_image(states: &[&State], width: u32, height: u32) -> Result<Image, 
 
 /// Radiance arriving along a primary `ray` and the number of rays traced for
 /// it: the transport layer's camera-side estimator from the eye.
+#[inline(always)]
 pub fn radiance(world: &World, settings: &Settings, ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
     let limits = DepthLimits {
         max_depth: settings.max_depth,

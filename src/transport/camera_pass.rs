@@ -60,6 +60,7 @@ use rayon::prelude::*;
 
 use glam::Vec3;
 
+use super::dispatch::dispatched;
 use super::{radiance_from, DepthLimits};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::Image;
@@ -243,28 +244,10 @@ impl CameraPass {
             .par_chunks_mut(w)
             .enumerate()
             .map(|(y, row)| {
-                let mut rays = 0;
                 if !shard.owns(y as u64) {
                     return 0;
                 }
-                for (x, acc) in row.iter_mut().enumerate() {
-                    let i = y * w + x;
-                    let mut rng = Pcg32::keyed(&[seed, pass, i as u64, 0xCA]);
-                    let weight = if marked[i] {
-                        1.0
-                    } else if rng.next_f32() < UNMARKED_PROB {
-                        1.0 / UNMARKED_PROB
-                    } else {
-                        continue;
-                    };
-                    let (l, r) = sample_pixel(world, limits, glossy, x, y, &mut rng);
-                    rays += r;
-                    let v = l * weight;
-                    if v.is_finite() {
-                        *acc += v.as_dvec3();
-                    }
-                }
-                rays
+                sample_row(world, limits, glossy, marked, seed, pass, y, row)
             })
             .sum();
         pre + rays
@@ -282,10 +265,49 @@ impl CameraPass {
     }
 }
 
+dispatched! {
+    /// One camera-pass sample for each pixel of row `y` (`row` holds its
+    /// sums); returns the rays traced. The per-pass loop that runtime
+    /// dispatch compiles for x86-64-v3 ([`super::dispatch`]).
+    #[allow(clippy::too_many_arguments)]
+    fn sample_row(
+        world: &World,
+        limits: &DepthLimits,
+        glossy: bool,
+        marked: &[bool],
+        seed: u64,
+        pass: u64,
+        y: usize,
+        row: &mut [DVec3],
+    ) -> u64 {
+        let w = row.len();
+        let mut rays = 0;
+        for (x, acc) in row.iter_mut().enumerate() {
+            let i = y * w + x;
+            let mut rng = Pcg32::keyed(&[seed, pass, i as u64, 0xCA]);
+            let weight = if marked[i] {
+                1.0
+            } else if rng.next_f32() < UNMARKED_PROB {
+                1.0 / UNMARKED_PROB
+            } else {
+                continue;
+            };
+            let (l, r) = sample_pixel(world, limits, glossy, x, y, &mut rng);
+            rays += r;
+            let v = l * weight;
+            if v.is_finite() {
+                *acc += v.as_dvec3();
+            }
+        }
+        rays
+    }
+}
+
 /// The camera-pass estimate for one sample of pixel (x, y): the environment
 /// seen directly, or what arrives through a delta lobe at the first hit
 /// (and, with `glossy`, through a glossy BSDF's other lobes, weighted by
 /// [`camera_share`]).
+#[inline(always)]
 fn sample_pixel(
     world: &World,
     limits: &DepthLimits,

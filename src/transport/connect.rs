@@ -6,6 +6,7 @@
 use glam::{Vec2, Vec3};
 
 use super::camera_pass::camera_share;
+use super::dispatch::dispatched;
 use super::Vertex;
 use crate::bsdf::{shading_normal_correction_over, Mode};
 use crate::film::Film;
@@ -21,7 +22,7 @@ use crate::world::World;
 /// BSDF gives nothing, as for a purely delta BSDF). With `glossy_split`
 /// (the glossy camera pass is on) the splat carries the light side's MIS
 /// weight 1 − [`camera_share`].
-#[inline]
+#[inline(always)]
 pub fn connect_to_camera(
     world: &World,
     v: &Vertex,
@@ -61,11 +62,25 @@ pub fn connect_to_camera(
     Some((pix, c))
 }
 
+dispatched! {
+    /// [`connect_to_camera`] (without the glossy split) and the splat of its
+    /// contribution into `film`; returns the rays traced. Dispatched on its
+    /// own, so that the light walk's per-vertex hook that calls it stays
+    /// small enough to be inlined into the dispatched walk.
+    pub fn splat_to_camera(world: &World, v: &Vertex, phi: Rgb, film: &mut Film) -> u64 {
+        let mut rays = 0;
+        if let Some((pix, c)) = connect_to_camera(world, v, phi, false, &mut rays) {
+            film.splat(pix.x, pix.y, c);
+        }
+        rays
+    }
+}
+
 /// Connects an emission vertex (point `p`, normal `n`) to the camera for
 /// diffuse emitters, whose directional profile is 1 on the front side:
 /// splats `phi_pos` · cos θ · g(x) when the segment is clear. Returns the
 /// rays traced (0 or 1).
-#[inline]
+#[inline(always)]
 pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
     let Some((pix, g)) = world.camera.project(p) else {
         return 0;

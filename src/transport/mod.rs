@@ -34,11 +34,12 @@
 pub mod camera_pass;
 mod connect;
 mod direct;
+pub mod dispatch;
 mod radiance;
 mod vertex;
 mod walk;
 
-pub use connect::{connect_emission, connect_to_camera};
+pub use connect::{connect_emission, connect_to_camera, splat_to_camera};
 pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, DepthLimits};
 pub use vertex::{orient, scatter, Vertex};

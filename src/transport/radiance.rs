@@ -24,6 +24,7 @@ pub struct DepthLimits {
 /// path whose previous scattering (if any) was a delta lobe, so that emission
 /// found by `ray` takes full weight; and the number of rays traced. Used for
 /// primary rays (`depth` 1) and by the camera pass after a delta chain.
+#[inline(always)]
 pub fn radiance_from(
     world: &World,
     limits: &DepthLimits,

@@ -83,7 +83,7 @@ impl World {
 /// the shading-normal correction (Veach 1997, eq. 5.17), or None when the
 /// BSDF gives no sample or the sample leaves on the wrong side of the
 /// geometric surface. Draws one 1D and one 2D number.
-#[inline]
+#[inline(always)]
 pub fn scatter(v: &Vertex, rng: &mut Pcg32) -> Option<(Vec3, Rgb)> {
     let wo = v.wo_local;
     let uc = rng.next_f32();

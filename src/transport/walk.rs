@@ -37,7 +37,7 @@ pub struct Landing {
 /// stochastic-iteration paper; `light --variant iteration` and `plb`).
 /// Returns None when a ray escapes or a delta sample fails; adds the rays
 /// traced to `rays`.
-#[inline]
+#[inline(always)]
 pub fn follow_delta_chain(
     world: &World,
     mut ray: Ray,
@@ -100,7 +100,7 @@ pub struct LightVertex<'a> {
 ///
 /// Random numbers, per vertex: one for the roulette, then those of
 /// [`scatter`]; the hook draws none.
-#[inline]
+#[inline(always)]
 pub fn light_walk(
     world: &World,
     mut ray: Ray,
