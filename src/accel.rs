@@ -30,6 +30,7 @@
 //! fallback. The environment variable `KALOS_ACCEL=bvh4` forces the
 //! fallback (to compare the two, or to test it on an AVX2 machine).
 
+mod collapse;
 mod quality;
 mod sah;
 mod simd;
