@@ -113,16 +113,17 @@ pub(super) struct SlotHit {
 /// ray enters it (in the high half, as f32 bits), and its length. Left
 /// uninitialised, and built in place: a struct literal with the array
 /// uninitialised next to an initialised field was cleared whole by a
-/// memset on every query.
-struct Stack {
-    entries: MaybeUninit<[u64; STACK]>,
-    len: usize,
+/// memset on every query. `N` is the width's [`STACK`] (`wide8.rs` has its
+/// own).
+pub(super) struct Stack<const N: usize> {
+    entries: MaybeUninit<[u64; N]>,
+    pub len: usize,
 }
 
-impl Stack {
+impl<const N: usize> Stack<N> {
     #[inline(always)]
-    fn new() -> Stack {
-        let mut s = MaybeUninit::<Stack>::uninit();
+    pub fn new() -> Stack<N> {
+        let mut s = MaybeUninit::<Stack<N>>::uninit();
         // SAFETY: `len` is written through a raw pointer before the value
         // is read, and `entries` may stay uninitialised
         unsafe {
@@ -138,19 +139,19 @@ impl Stack {
 
     /// Entry `i`, which must be below `len`.
     #[inline(always)]
-    fn get(&mut self, i: usize) -> (u32, f32) {
+    pub fn get(&mut self, i: usize) -> (u32, f32) {
         debug_assert!(i < self.len);
-        // SAFETY: entries below `len` were written, and len <= STACK
+        // SAFETY: entries below `len` were written, and len <= N
         let e = unsafe { self.ptr().add(i).read() };
         (e as u32, f32::from_bits((e >> 32) as u32))
     }
 
     /// Writes entry `i`, which must be at most `len`.
     #[inline(always)]
-    fn set(&mut self, i: usize, r: u32, dist: f32) {
-        // The tree's depth was checked against STACK when it was built
-        assert!(i < STACK);
-        // SAFETY: i < STACK
+    pub fn set(&mut self, i: usize, r: u32, dist: f32) {
+        // The tree's depth was checked against the stack when it was built
+        assert!(i < N);
+        // SAFETY: i < N
         unsafe {
             self.ptr()
                 .add(i)
@@ -204,7 +205,7 @@ pub(super) fn closest(
     let vmin = F4::splat(tmin);
     let mut best: Option<SlotHit> = None;
     let mut t_best = tmax;
-    let mut stack = Stack::new();
+    let mut stack = Stack::<STACK>::new();
     let mut r = w.root;
     loop {
         if r & LEAF_BIT == 0 {
@@ -293,7 +294,7 @@ pub(super) fn any(
 ) -> bool {
     let ray = Prepared::new(o, d);
     let (vmin, vmax) = (F4::splat(tmin), F4::splat(tmax));
-    let mut stack = Stack::new();
+    let mut stack = Stack::<STACK>::new();
     let mut r = w.root;
     loop {
         if r & LEAF_BIT == 0 {

@@ -9,11 +9,10 @@
 //! scene renders alike on CPUs with and without AVX2.
 
 use std::arch::x86_64::*;
-use std::mem::MaybeUninit;
 
 use glam::Vec3;
 
-use super::traverse::SlotHit;
+use super::traverse::{SlotHit, Stack};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 
 /// The far distance's widening of `traverse.rs` (pbrt-v4's 1 + 2γ₃, §6.8.2),
@@ -154,55 +153,6 @@ impl Prepared {
     }
 }
 
-/// A fixed stack of child references, each with the distance at which the
-/// ray enters it (in the high half, as f32 bits), and its length. Left
-/// uninitialised, and built in place (see `traverse.rs`: a struct literal
-/// was cleared whole by a memset on every query).
-struct Stack {
-    entries: MaybeUninit<[u64; STACK]>,
-    len: usize,
-}
-
-impl Stack {
-    #[inline(always)]
-    fn new() -> Stack {
-        let mut s = MaybeUninit::<Stack>::uninit();
-        // SAFETY: `len` is written through a raw pointer before the value
-        // is read, and `entries` may stay uninitialised
-        unsafe {
-            (&raw mut (*s.as_mut_ptr()).len).write(0);
-            s.assume_init()
-        }
-    }
-
-    #[inline(always)]
-    fn ptr(&mut self) -> *mut u64 {
-        self.entries.as_mut_ptr().cast()
-    }
-
-    /// Entry `i`, which must be below `len`.
-    #[inline(always)]
-    fn get(&mut self, i: usize) -> (u32, f32) {
-        debug_assert!(i < self.len);
-        // SAFETY: entries below `len` were written, and len <= STACK
-        let e = unsafe { self.ptr().add(i).read() };
-        (e as u32, f32::from_bits((e >> 32) as u32))
-    }
-
-    /// Writes entry `i`, which must be at most `len`.
-    #[inline(always)]
-    fn set(&mut self, i: usize, r: u32, dist: f32) {
-        // The tree's depth was checked against STACK when it was built
-        assert!(i < STACK);
-        // SAFETY: i < STACK
-        unsafe {
-            self.ptr()
-                .add(i)
-                .write(u64::from(r) | (u64::from(dist.to_bits()) << 32))
-        };
-    }
-}
-
 /// The closest hit along `o + t d` in `[tmin, tmax)`.
 #[inline]
 pub(super) fn closest(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
@@ -225,7 +175,7 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
     let vmin = _mm256_set1_ps(tmin);
     let mut best: Option<SlotHit> = None;
     let mut t_best = tmax;
-    let mut stack = Stack::new();
+    let mut stack = Stack::<STACK>::new();
     let mut r = w.root;
     loop {
         if r & LEAF_BIT == 0 {
@@ -326,7 +276,7 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
 fn any_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
     let ray = Prepared::new(o, d);
     let (vmin, vmax) = (_mm256_set1_ps(tmin), _mm256_set1_ps(tmax));
-    let mut stack = Stack::new();
+    let mut stack = Stack::<STACK>::new();
     let mut r = w.root;
     loop {
         if r & LEAF_BIT == 0 {
