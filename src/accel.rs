@@ -161,7 +161,7 @@ pub enum Builder {
     /// lower.
     Both,
     /// [`Builder::Both`]'s choice made on an evenly strided sample of
-    /// [`CHOICE_SAMPLE`] triangles, then only the chosen tree built over
+    /// 32 768 triangles (`CHOICE_SAMPLE`), then only the chosen tree built over
     /// them all (the default). A strided sample keeps the mix of large and
     /// small triangles that decides between the two.
     Best,
