@@ -15,6 +15,14 @@ use obvhs::triangle::Triangle;
 /// first pack is in bits 3..31 and whose pack count minus one is in bits 0..3.
 pub(super) const LEAF_BIT: u32 = 1 << 31;
 
+/// The packs of the leaf reference `r` (see [`LEAF_BIT`]), as
+/// `Collapsed::leaf` encodes them.
+#[inline(always)]
+pub(super) fn leaf_packs(r: u32) -> std::ops::Range<usize> {
+    let first = ((r & !LEAF_BIT) >> 3) as usize;
+    first..first + (r & 7) as usize + 1
+}
+
 /// Packs a leaf reference can count (bits 0..3).
 pub(super) const MAX_LEAF_PACKS: usize = 8;
 

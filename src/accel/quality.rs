@@ -3,6 +3,7 @@
 //! tests a ray actually made ([`Visits`]). Together they tell a tree that
 //! makes rays do more work from a kernel that does the same work slowly.
 
+use super::collapse::leaf_packs;
 use super::wide::{Node, Wide, LEAF_BIT};
 
 /// The shape of a wide BVH and its surface area heuristic (SAH) cost.
@@ -87,7 +88,7 @@ pub(super) fn tree_stats(w: &Wide) -> TreeStats {
     };
     if w.root & LEAF_BIT != 0 {
         s.leaves = 1;
-        s.pack_tests = ((w.root & 7) + 1) as f64;
+        s.pack_tests = leaf_packs(w.root).len() as f64;
         return s;
     }
     let root_area = node_area(&w.nodes[w.root as usize]);
@@ -106,7 +107,7 @@ pub(super) fn tree_stats(w: &Wide) -> TreeStats {
             let pc = child_area(node, i) / root_area;
             if c & LEAF_BIT != 0 {
                 s.leaves += 1;
-                s.pack_tests += pc * ((c & 7) + 1) as f64;
+                s.pack_tests += pc * leaf_packs(c).len() as f64;
             } else {
                 todo.push((c, pc));
             }

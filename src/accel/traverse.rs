@@ -6,6 +6,7 @@ use std::mem::MaybeUninit;
 
 use glam::Vec3;
 
+use super::collapse::leaf_packs;
 use super::simd::F4;
 use super::wide::{Node, Pack, Wide, LEAF_BIT, STACK};
 
@@ -243,9 +244,7 @@ pub(super) fn closest(
             }
         } else {
             // Test the leaf's triangles, four at a time
-            let first = ((r & !LEAF_BIT) >> 3) as usize;
-            let n_packs = (r & 7) as usize + 1;
-            for p in first..first + n_packs {
+            for p in leaf_packs(r) {
                 count.pack();
                 let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, F4::splat(t_best));
                 if mask != 0 {
@@ -313,9 +312,7 @@ pub(super) fn any(
                 continue;
             }
         } else {
-            let first = ((r & !LEAF_BIT) >> 3) as usize;
-            let n_packs = (r & 7) as usize + 1;
-            for p in first..first + n_packs {
+            for p in leaf_packs(r) {
                 count.pack();
                 if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
                     return true;

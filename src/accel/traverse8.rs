@@ -12,6 +12,7 @@ use std::arch::x86_64::*;
 
 use glam::Vec3;
 
+use super::collapse::leaf_packs;
 use super::traverse::{SlotHit, Stack};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 
@@ -228,9 +229,7 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
             }
         } else {
             // Test the leaf's triangles, eight at a time
-            let first = ((r & !LEAF_BIT) >> 3) as usize;
-            let count = (r & 7) as usize + 1;
-            for p in first..first + count {
+            for p in leaf_packs(r) {
                 let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, _mm256_set1_ps(t_best));
                 if mask != 0 {
                     let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
@@ -294,9 +293,7 @@ fn any_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
                 continue;
             }
         } else {
-            let first = ((r & !LEAF_BIT) >> 3) as usize;
-            let count = (r & 7) as usize + 1;
-            for p in first..first + count {
+            for p in leaf_packs(r) {
                 if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
                     return true;
                 }
