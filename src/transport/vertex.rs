@@ -53,7 +53,7 @@ pub struct Vertex {
 impl Vertex {
     /// The vertex at `sp` seen from direction `wo` (world, pointing away from
     /// the surface).
-    #[inline]
+    #[inline(always)]
     pub fn new(world: &World, sp: SurfacePoint, wo: Vec3) -> Self {
         let material = world.scene.material_of(&sp);
         let bsdf = material.bsdf(sp.uv);
