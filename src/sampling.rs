@@ -173,21 +173,14 @@ impl Distribution1D {
     #[inline(always)]
     pub fn sample(&self, u: f64) -> (usize, f64, f64) {
         let target = u * self.total;
-        // first index with cdf[i+1] > target
-        let mut lo = 0usize;
-        let mut hi = self.len();
-        while lo + 1 < hi {
-            let mid = (lo + hi) / 2;
-            if self.cdf[mid] <= target {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        // skip zero-width entries
-        while lo + 1 < self.len() && self.cdf[lo + 1] <= target {
-            lo += 1;
-        }
+        // The last entry whose start is at most target: the first with
+        // cdf[i+1] > target, which skips zero-width entries (the one kept
+        // when target reaches the total is the last entry, as before).
+        // partition_point searches without data-dependent branches.
+        let lo = self
+            .cdf
+            .get(1..self.len())
+            .map_or(0, |starts| starts.partition_point(|&c| c <= target));
         let w = self.cdf[lo + 1] - self.cdf[lo];
         let rem = if w > 0.0 {
             ((target - self.cdf[lo]) / w).clamp(0.0, 1.0 - 1e-12)
