@@ -173,21 +173,14 @@ impl Distribution1D {
     #[inline(always)]
     pub fn sample(&self, u: f64) -> (usize, f64, f64) {
         let target = u * self.total;
-        // first index with cdf[i+1] > target
-        let mut lo = 0usize;
-        let mut hi = self.len();
-        while lo + 1 < hi {
-            let mid = (lo + hi) / 2;
-            if self.cdf[mid] <= target {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        // skip zero-width entries
-        while lo + 1 < self.len() && self.cdf[lo + 1] <= target {
-            lo += 1;
-        }
+        // The last entry whose start is at most target: the first with
+        // cdf[i+1] > target, which skips zero-width entries (the one kept
+        // when target reaches the total is the last entry, as before).
+        // partition_point searches without data-dependent branches.
+        let lo = self
+            .cdf
+            .get(1..self.len())
+            .map_or(0, |starts| starts.partition_point(|&c| c <= target));
         let w = self.cdf[lo + 1] - self.cdf[lo];
         let rem = if w > 0.0 {
             ((target - self.cdf[lo]) / w).clamp(0.0, 1.0 - 1e-12)
@@ -261,5 +254,46 @@ mod tests {
         assert_eq!(d.sample(0.3).0, 2);
         assert!((d.pmf(2) - 0.75).abs() < 1e-12);
         assert_eq!(d.pmf(1), 0.0);
+    }
+
+    /// `sample` picks the entry the earlier search did (bisection, then a
+    /// walk past zero-width entries), on tables with runs of zero weights,
+    /// at every u including the ends and the cdf's own breakpoints, so that
+    /// a seed gives the same image as before.
+    #[test]
+    fn sample_picks_the_same_entry_as_bisection() {
+        fn bisect(cdf: &[f64], target: f64) -> usize {
+            let len = cdf.len() - 1;
+            let (mut lo, mut hi) = (0, len);
+            while lo + 1 < hi {
+                let mid = (lo + hi) / 2;
+                if cdf[mid] <= target {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            while lo + 1 < len && cdf[lo + 1] <= target {
+                lo += 1;
+            }
+            lo
+        }
+        let tables: [&[f64]; 5] = [
+            &[1.0],
+            &[0.0, 1.0, 0.0, 0.0, 2.0, 0.0],
+            &[3.0, 0.0, 0.0, 1.0],
+            &[0.5, 0.25, 0.125, 0.0, 0.125, 7.0, 0.0, 0.0, 1e-9],
+            &[0.0, 0.0, 5.0],
+        ];
+        let mut rng = Pcg32::keyed(&[11]);
+        for w in tables {
+            let d = Distribution1D::new(w);
+            let mut us: Vec<f64> = d.cdf.iter().map(|c| c / d.total()).collect();
+            us.extend([0.0, 1.0, 1.0 - 1e-16, f64::NAN, -0.5]);
+            us.extend((0..10_000).map(|_| rng.next_f32() as f64));
+            for u in us {
+                assert_eq!(d.sample(u).0, bisect(&d.cdf, u * d.total()), "{w:?} u {u}");
+            }
+        }
     }
 }

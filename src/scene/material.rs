@@ -7,6 +7,7 @@ use std::sync::Arc;
 use glam::{Affine2, Vec2};
 
 use super::Rgb;
+use crate::geometry::floor;
 
 /// An RGB image in linear values, row 0 at the top.
 #[derive(Clone, Debug)]
@@ -32,13 +33,22 @@ impl TexImage {
     /// as in Mitsuba's `bitmap` (v points up).
     pub fn lookup(&self, uv: Vec2) -> Rgb {
         let (w, h) = (self.width as f32, self.height as f32);
-        let u = uv.x - uv.x.floor();
-        let v = uv.y - uv.y.floor();
+        let u = uv.x - floor(uv.x);
+        let v = uv.y - floor(uv.y);
         let x = u * w - 0.5;
         let y = (1.0 - v) * h - 0.5;
-        let (x0, y0) = (x.floor(), y.floor());
+        let (x0, y0) = (floor(x), floor(y));
         let (fx, fy) = (x - x0, y - y0);
-        let wrap = |i: f32, n: u32| -> i64 { (i as i64).rem_euclid(n as i64) };
+        // u and v are in [0, 1], so the index is nearly always inside the
+        // image already: skip the division then
+        let wrap = |i: f32, n: u32| -> i64 {
+            let (i, n) = (i as i64, n as i64);
+            if (0..n).contains(&i) {
+                i
+            } else {
+                i.rem_euclid(n)
+            }
+        };
         let (xi0, yi0) = (wrap(x0, self.width), wrap(y0, self.height));
         let (xi1, yi1) = (wrap(x0 + 1.0, self.width), wrap(y0 + 1.0, self.height));
         let a = self.texel(xi0, yi0) * (1.0 - fx) + self.texel(xi1, yi0) * fx;
@@ -92,8 +102,8 @@ impl Texture {
                 to_uv,
             } => {
                 let p = to_uv.transform_point2(uv);
-                let u = p.x - p.x.floor();
-                let v = p.y - p.y.floor();
+                let u = p.x - floor(p.x);
+                let v = p.y - floor(p.y);
                 if (u > 0.5) == (v > 0.5) {
                     *color0
                 } else {

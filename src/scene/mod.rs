@@ -429,6 +429,7 @@ impl Scene {
     }
 
     /// The surface point at barycentrics (`b1`, `b2`) of triangle `tri`.
+    #[inline(always)]
     pub fn surface_point(&self, tri: u32, b1: f32, b2: f32) -> SurfacePoint {
         let t = self.triangles[tri as usize];
         let (i0, i1, i2) = (t[0] as usize, t[1] as usize, t[2] as usize);

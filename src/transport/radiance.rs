@@ -78,7 +78,7 @@ pub fn radiance_from(
         }
 
         // The BSDF in the shading frame; two-sided materials face the viewer
-        let v = super::Vertex::new(world, sp, wo_world);
+        let v = super::Shading::at(world, &sp, wo_world);
         let (bsdf, frame, ng, wo) = (&v.bsdf, &v.frame, v.ng, v.wo_local);
 
         // Next-event estimation with MIS

@@ -53,17 +53,52 @@ pub struct Vertex {
 impl Vertex {
     /// The vertex at `sp` seen from direction `wo` (world, pointing away from
     /// the surface).
-    #[inline]
+    #[inline(always)]
     pub fn new(world: &World, sp: SurfacePoint, wo: Vec3) -> Self {
-        let material = world.scene.material_of(&sp);
-        let bsdf = material.bsdf(sp.uv);
-        let (frame, ng) = orient(sp.frame, sp.ng, wo, material.is_two_sided());
+        let Shading {
+            bsdf,
+            frame,
+            ng,
+            wo_local,
+        } = Shading::at(world, &sp, wo);
         Vertex {
             sp,
             bsdf,
             frame,
             ng,
             wo,
+            wo_local,
+        }
+    }
+}
+
+/// What scattering at a surface point needs: a [`Vertex`] without the
+/// point itself, for loops that keep the [`SurfacePoint`] beside it and
+/// would otherwise copy it into every vertex.
+#[derive(Clone, Copy, Debug)]
+pub struct Shading {
+    /// The BSDF at the point.
+    pub bsdf: Bsdf,
+    /// The shading frame, oriented as [`Vertex::frame`].
+    pub frame: Frame,
+    /// The geometric normal, oriented like `frame`.
+    pub ng: Vec3,
+    /// `wo` in the oriented shading frame.
+    pub wo_local: Vec3,
+}
+
+impl Shading {
+    /// The BSDF and oriented frame at `sp` seen from `wo` (world, pointing
+    /// away from the surface), as [`Vertex::new`] builds them.
+    #[inline(always)]
+    pub fn at(world: &World, sp: &SurfacePoint, wo: Vec3) -> Self {
+        let material = world.scene.material_of(sp);
+        let bsdf = material.bsdf(sp.uv);
+        let (frame, ng) = orient(sp.frame, sp.ng, wo, material.is_two_sided());
+        Shading {
+            bsdf,
+            frame,
+            ng,
             wo_local: frame.to_local(wo),
         }
     }
@@ -71,7 +106,7 @@ impl Vertex {
 
 impl World {
     /// The vertex where `ray` meets the scene at `hit`.
-    #[inline]
+    #[inline(always)]
     pub fn vertex(&self, ray: &Ray, hit: &Hit) -> Vertex {
         let sp = self.scene.surface_point(hit.tri, hit.b1, hit.b2);
         Vertex::new(self, sp, -ray.d)
