@@ -312,6 +312,27 @@ impl Proj {
         }
         let [a, b, c] = self.t;
         let [za, zb, zc] = self.z;
+        if self.x0 == self.x1 {
+            // One column (half the patches of a fine mesh, mostly one
+            // pixel): lane 0 of the loop below, without its 4-lane set-up.
+            // The same operations in the same order give the same bits.
+            let own = |bit: u32| self.owns >> bit & 1 == 1;
+            let (oa, ob, oc) = (own(0), own(1), own(2));
+            let px = self.x0 as f32 + 0.5;
+            for y in ys..=ye {
+                let py = y as f32 + 0.5;
+                let wa = (c.x - b.x) * (py - b.y) - (c.y - b.y) * (px - b.x);
+                let wb = (a.x - c.x) * (py - c.y) - (a.y - c.y) * (px - c.x);
+                let wc = (b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x);
+                if (wa > 0.0 || (wa == 0.0 && oa))
+                    && (wb > 0.0 || (wb == 0.0 && ob))
+                    && (wc > 0.0 || (wc == 0.0 && oc))
+                {
+                    v.visit(self.x0, y, (wa * za + wb * zb + wc * zc) * self.inv);
+                }
+            }
+            return;
+        }
         let lane = |bit: u32| BVec4A::splat(self.owns >> bit & 1 == 1);
         let (oa, ob, oc) = (lane(0), lane(1), lane(2));
         // edge(u, v, p) = (v.x − u.x)(p.y − u.y) − (v.y − u.y)(p.x − u.x),
