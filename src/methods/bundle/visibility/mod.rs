@@ -245,6 +245,8 @@ pub struct Scratch {
     em: Vec<Rgb>,
     /// Each tile's first entry in `ep` and `em` (one more at the end).
     start: Vec<usize>,
+    /// The tile of each row of the map.
+    tile_of: Vec<u32>,
     /// The plane (and patch count) whose projections `chunks` hold.
     projected: Option<(Plane, usize)>,
 }
@@ -370,9 +372,16 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
         centre_rr: plane.centre_rr,
         keys: plane.keys,
     };
+    // each row's tile, looked up: a division by a number known only at run
+    // time, four per patch, was a long-latency instruction in this loop
+    let tile_of = &mut scratch.tile_of;
+    tile_of.clear();
+    tile_of.extend((0..h).map(|y| (y / rows_per_tile) as u32));
+    let tile_of = &*tile_of;
     let chunks = &mut scratch.chunks;
     chunks.resize_with(CHUNKS, Default::default);
-    let tiles_of = |pr: &Proj| (pr.y0 / rows_per_tile) as usize..=(pr.y1 / rows_per_tile) as usize;
+    // a projection's rows are inside the map (Proj::new clips them)
+    let tiles_of = |pr: &Proj| tile_of[pr.y0 as usize] as usize..=tile_of[pr.y1 as usize] as usize;
     patches
         .p
         .par_chunks(chunk_len)
