@@ -468,10 +468,12 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
         start.push(start[t] + count);
     }
     let total = start[ntiles];
-    ep.clear();
+    // every entry is written by its tile below, so the old values need no
+    // clearing (a serial pass over all entries, while the other core waits)
     ep.resize(total, Rgb::ZERO);
-    em.clear();
+    ep.truncate(total);
     em.resize(total, Rgb::ZERO);
+    em.truncate(total);
     // each tile's share of the entries, as disjoint slices
     let mut parts = Vec::with_capacity(ntiles);
     let (mut p, mut m) = (&mut ep[..], &mut em[..]);
