@@ -44,6 +44,17 @@ use crate::transport::{direct_light, orient, Vertex};
 /// Sub-pixel positions per pixel.
 pub const SAMPLES: usize = 4;
 const NO_PATCH: u32 = u32::MAX;
+/// A sample that sees nothing yet, with unit throughput.
+const NO_SAMPLE: PixelSample = PixelSample {
+    patch: NO_PATCH,
+    w: Vec3::ZERO,
+    thr: Rgb::ONE,
+    le: Rgb::ZERO,
+    wo: Vec3::Z,
+    ns: Vec3::Z,
+    tri: 0,
+    b: Vec2::ZERO,
+};
 /// Longest chain of delta bounces followed from the camera.
 const MAX_DELTA: u32 = 8;
 
@@ -177,18 +188,20 @@ impl View {
     }
 
     /// The sample of pixel `pix` in iteration `iter`, and the rays traced
-    /// for it: the stored one (fixed positions), or a fresh position in
-    /// stratum `iter` mod 4, traced now.
-    fn sample(
-        &self,
+    /// for it: the stored one (fixed positions, by reference: it is read
+    /// every iteration), or a fresh position in stratum `iter` mod 4, traced
+    /// now into `fresh`.
+    fn sample<'a>(
+        &'a self,
         world: &World,
         patches: &Patches,
         pix: usize,
         iter: u64,
-    ) -> (PixelSample, u64) {
+        fresh: &'a mut Option<PixelSample>,
+    ) -> (&'a PixelSample, u64) {
         let n = world.camera.width as usize * world.camera.height as usize;
         match self.positions {
-            Positions::Fixed => (self.samples[(iter as usize % SAMPLES) * n + pix], 0),
+            Positions::Fixed => (&self.samples[(iter as usize % SAMPLES) * n + pix], 0),
             Positions::Jittered => {
                 let w = world.camera.width as usize;
                 let (x, y) = (pix % w, pix / w);
@@ -197,12 +210,13 @@ impl View {
                 let j = rng.next_2d();
                 let fx = ((s % 2) as f32 + j.x) * 0.5;
                 let fy = ((s / 2) as f32 + j.y) * 0.5;
-                trace(
+                let (sample, rays) = trace(
                     world,
                     patches,
                     world.camera.ray(x as f32 + fx, y as f32 + fy),
                     &mut rng,
-                )
+                );
+                (fresh.insert(sample), rays)
             }
         }
     }
@@ -321,11 +335,12 @@ impl View {
         sum.par_iter_mut()
             .enumerate()
             .map(|(pix, acc)| {
-                let (s, rays) = self.sample(world, patches, pix, iter);
-                let (ld, shadow) = self.direct(world, &s, pix, iter);
+                let mut fresh = None;
+                let (s, rays) = self.sample(world, patches, pix, iter, &mut fresh);
+                let (ld, shadow) = self.direct(world, s, pix, iter);
                 let mut l = s.le + ld;
                 let mut traced = rays + shadow;
-                let gather = self.gather(world, patches, &s, pix, iter, d, e_plus, e_minus);
+                let gather = self.gather(world, patches, s, pix, iter, d, e_plus, e_minus);
                 if let Some((lg, g_rays)) = gather {
                     l += lg;
                     traced += g_rays;
@@ -413,16 +428,7 @@ fn finite(l: Rgb) -> Rgb {
 
 /// Follows a camera ray through delta surfaces to the first non-delta one.
 fn trace(world: &World, patches: &Patches, mut ray: Ray, rng: &mut Pcg32) -> (PixelSample, u64) {
-    let mut out = PixelSample {
-        patch: NO_PATCH,
-        w: Vec3::ZERO,
-        thr: Rgb::ONE,
-        le: Rgb::ZERO,
-        wo: Vec3::Z,
-        ns: Vec3::Z,
-        tri: 0,
-        b: Vec2::ZERO,
-    };
+    let mut out = NO_SAMPLE;
     let mut rays = 0;
     for _ in 0..=MAX_DELTA {
         rays += 1;

@@ -280,7 +280,9 @@ impl Default for Settings {
 /// given (the memory check counts a map this large).
 pub const MAX_AUTO_MAP_RES: u32 = 4096;
 
-/// Seconds spent in each phase, summed over the iterations.
+/// Seconds spent in each phase, summed over the iterations. The image
+/// estimate, the transfer and the next direction's projection run at once,
+/// so their times overlap.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Timings {
     /// Building the patches and the view (once).
@@ -487,73 +489,120 @@ impl Method for Bundle {
             }
         };
 
-        // Transfer along ±ω_m through the visibility map
+        // Transfer along ±ω_m through the visibility map (its projection
+        // was made during the last iteration, unless this is the first)
+        let plane = |d: Vec3, iter: u64| visibility::Plane {
+            d,
+            res: setup.res,
+            center: world.lights.center,
+            radius: world.lights.radius,
+            keys: [seed, iter],
+            visibility: self.settings.visibility,
+            centre_rr: self.settings.centre_rr,
+        };
+        let inp = SweepInput {
+            d,
+            l_plus: &self.l_plus,
+            l_minus: &self.l_minus,
+            sky_plus: sky(-d),
+            sky_minus: sky(d),
+            res: setup.res,
+            center: world.lights.center,
+            radius: world.lights.radius,
+            keys: [seed, self.iter],
+            visibility: self.settings.visibility,
+            centre_rr: self.settings.centre_rr,
+        };
+        debug_assert_eq!(inp.plane(), plane(d, self.iter));
         let inc = &mut self.incoming;
-        visibility::sweep_into(
-            patches,
-            &SweepInput {
-                d,
-                l_plus: &self.l_plus,
-                l_minus: &self.l_minus,
-                sky_plus: sky(-d),
-                sky_minus: sky(d),
-                res: setup.res,
-                center: world.lights.center,
-                radius: world.lights.radius,
-                keys: [seed, self.iter],
-                visibility: self.settings.visibility,
-                centre_rr: self.settings.centre_rr,
-            },
-            &mut self.scratch,
-            inc,
-        );
+        visibility::sweep_into(patches, &inp, &mut self.scratch, inc);
         self.timings.project += inc.t_project;
         self.timings.raster += inc.t_raster;
         rays += inc.fragments;
+        let inc = &*inc;
 
-        // Image estimate, averaged over the kept iterations
-        let t = Instant::now();
-        if self.iter >= self.settings.discard {
-            rays += setup.view.accumulate(
-                world,
-                patches,
-                self.settings.image,
-                d,
-                &inc.e_plus,
-                &inc.e_minus,
-                self.iter,
-                &mut self.sum,
-            );
-            self.counted += 1;
-        }
-        self.timings.image += t.elapsed().as_secs_f64();
-
-        // New direction ω_{m+1}; reflect what arrived into ±ω_{m+1}, on
-        // top of the emission (the paper) or of the first shot
-        let t = Instant::now();
+        // Three tasks that need only what this sweep brought, run at once so
+        // that each fills the other's idle core: the image estimate, the
+        // transfer into the new direction ω_{m+1}, and the projection of the
+        // patches for ω_{m+1}, which depends on the direction, not on the
+        // radiance. Their timings overlap.
         let dn = self.dirs.next_dir();
         let next = self.iter + 1;
-        rays += self
-            .l_plus
-            .par_iter_mut()
-            .zip(self.l_minus.par_iter_mut())
-            .zip(patches.p.par_iter())
-            .enumerate()
-            .map(|(i, ((lp, lm), p))| {
-                let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
-                let (sp, sm, r) = if nee {
-                    transfer::direct(world, p, dn, &mut first_shot_rng(seed, i, next))
+        let (iter, discard, mode) = (self.iter, self.settings.discard, self.settings.image);
+        let (sum, l_plus, l_minus, scratch) = (
+            &mut self.sum,
+            &mut self.l_plus,
+            &mut self.l_minus,
+            &mut self.scratch,
+        );
+        let next_plane = plane(dn, next);
+        let ((t_image, image_rays), ((t_transfer, transfer_rays), t_project)) = rayon::join(
+            // Image estimate, averaged over the kept iterations
+            || {
+                let t = Instant::now();
+                let r = if iter >= discard {
+                    setup.view.accumulate(
+                        world,
+                        patches,
+                        mode,
+                        d,
+                        &inc.e_plus,
+                        &inc.e_minus,
+                        iter,
+                        sum,
+                    )
                 } else {
-                    (p.le(dn), p.le(-dn), 0)
+                    0
                 };
-                *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
-                *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
-                r
-            })
-            .sum::<u64>();
+                (t.elapsed().as_secs_f64(), r)
+            },
+            || {
+                rayon::join(
+                    // Reflect what arrived into ±ω_{m+1}, on top of the
+                    // emission (the paper) or of the first shot
+                    || {
+                        let t = Instant::now();
+                        let r = l_plus
+                            .par_iter_mut()
+                            .zip(l_minus.par_iter_mut())
+                            .zip(patches.p.par_iter())
+                            .enumerate()
+                            .map(|(i, ((lp, lm), p))| {
+                                let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
+                                let (sp, sm, r) = if nee {
+                                    transfer::direct(
+                                        world,
+                                        p,
+                                        dn,
+                                        &mut first_shot_rng(seed, i, next),
+                                    )
+                                } else {
+                                    (p.le(dn), p.le(-dn), 0)
+                                };
+                                *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
+                                *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
+                                r
+                            })
+                            .sum::<u64>();
+                        (t.elapsed().as_secs_f64(), r)
+                    },
+                    || {
+                        let t = Instant::now();
+                        visibility::project(patches, &next_plane, scratch);
+                        t.elapsed().as_secs_f64()
+                    },
+                )
+            },
+        );
+        if iter >= discard {
+            self.counted += 1;
+        }
+        rays += image_rays + transfer_rays;
+        self.timings.image += t_image;
+        self.timings.transfer += t_transfer;
+        self.timings.project += t_project;
         self.d = dn;
         self.iter += 1;
-        self.timings.transfer += t.elapsed().as_secs_f64();
         StepStats { rays }
     }
 

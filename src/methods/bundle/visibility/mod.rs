@@ -58,11 +58,15 @@
 //! depth order and both phases keep every core busy. The tiles are summed
 //! in a fixed order, and a tile's order is a sort by unique keys, so the
 //! result does not depend on the thread count. Each thread keeps one
-//! tile's buffer from iteration to iteration.
+//! tile's buffer from iteration to iteration. The threads take the tiles
+//! from a queue, largest first. The projection depends on the direction
+//! only, so [`project`] can run apart from the sweep, ahead of it.
 
 mod painter;
 mod raster;
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use glam::Vec3;
@@ -134,6 +138,70 @@ pub struct SweepInput<'a> {
     pub centre_rr: bool,
 }
 
+impl SweepInput<'_> {
+    /// The fields that place the map and its patches' projections.
+    pub fn plane(&self) -> Plane {
+        Plane {
+            d: self.d,
+            res: self.res,
+            center: self.center,
+            radius: self.radius,
+            keys: self.keys,
+            visibility: self.visibility,
+            centre_rr: self.centre_rr,
+        }
+    }
+}
+
+/// What the projection of the patches depends on: the direction, the map
+/// and its random streams, not the radiance. So the next direction's
+/// projection can be made while this one's radiance is still being
+/// reflected ([`project`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plane {
+    /// Flow direction d (unit).
+    pub d: Vec3,
+    /// Map resolution.
+    pub res: u32,
+    /// Centre of the scene's bounding sphere.
+    pub center: Vec3,
+    /// Its radius.
+    pub radius: f32,
+    /// Random stream keys (seed, iteration).
+    pub keys: [u64; 2],
+    /// Painter or z-buffer (the painter sorts by depth).
+    pub visibility: Visibility,
+    /// Sub-pixel rule, as in [`SweepInput`].
+    pub centre_rr: bool,
+}
+
+/// The sizes of a plane's map and of its partition into tiles and chunks.
+struct Layout {
+    w: i32,
+    h: i32,
+    delta: f32,
+    rows_per_tile: i32,
+    ntiles: usize,
+    chunk_len: usize,
+}
+
+impl Plane {
+    fn layout(&self, n: usize) -> Layout {
+        let res = self.res.max(1);
+        let w = res as i32 + 1;
+        let h = res as i32 + 1;
+        let rows_per_tile = tile_rows(w as usize) as i32;
+        Layout {
+            w,
+            h,
+            delta: 2.0 * self.radius / res as f32,
+            rows_per_tile,
+            ntiles: (h as usize).div_ceil(rows_per_tile as usize),
+            chunk_len: n.div_ceil(CHUNKS).max(1),
+        }
+    }
+}
+
 /// Bytes of one patch's projection in a tile's bin (for the memory report).
 pub const PROJ_BYTES: usize = std::mem::size_of::<Proj>();
 
@@ -177,8 +245,10 @@ pub struct Scratch {
     em: Vec<Rgb>,
     /// Each tile's first entry in `ep` and `em` (one more at the end).
     start: Vec<usize>,
-    /// Fragments scanned per tile.
-    frags: Vec<u64>,
+    /// The tile of each row of the map.
+    tile_of: Vec<u32>,
+    /// The plane (and patch count) whose projections `chunks` hold.
+    projected: Option<(Plane, usize)>,
 }
 
 /// One chunk's projections.
@@ -193,6 +263,9 @@ struct Chunk {
     /// Where the next projection of each tile goes.
     next: Vec<usize>,
 }
+
+/// A tile's index and its shares of the entries' accumulators (+d, −d).
+type TilePart<'a> = (usize, &'a mut [Rgb], &'a mut [Rgb]);
 
 /// A thread's buffers for the tile it scans.
 #[derive(Default)]
@@ -265,48 +338,50 @@ pub fn sweep(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch) -> Inco
     out
 }
 
-/// [`sweep`] into `out`, whose buffers are reused.
-pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out: &mut Incoming) {
+/// Projects every patch onto the map of `plane`, in patch order, and
+/// groups the projections by the tiles they touch (Russian roulette for
+/// sub-pixel ones), into `scratch`, for a later [`sweep_into`] with the
+/// same plane. Nothing here reads the radiance, so the caller may project
+/// the next direction while the radiance of this one is still in use.
+pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
     let n = patches.len();
-    let d = inp.d;
-    let res = inp.res.max(1);
-    let w = res as i32 + 1;
-    let h = res as i32 + 1;
+    let d = plane.d;
+    let Layout {
+        w,
+        h,
+        delta,
+        rows_per_tile,
+        ntiles,
+        chunk_len,
+    } = plane.layout(n);
     let frame = Frame::from_normal(d);
-    let delta = 2.0 * inp.radius / res as f32;
-    let mut jr = crate::sampling::Pcg32::keyed(&[inp.keys[0], inp.keys[1], 0x0FF5]);
+    let mut jr = crate::sampling::Pcg32::keyed(&[plane.keys[0], plane.keys[1], 0x0FF5]);
     let jitter = jr.next_2d();
-    let painter = inp.visibility == Visibility::Painter;
-    let rows_per_tile = tile_rows(w as usize) as i32;
-    let ntiles = (h as usize).div_ceil(rows_per_tile as usize);
-    let Scratch {
-        chunks,
-        ep,
-        em,
-        start,
-        frags,
-    } = scratch;
-
-    // Project every patch onto the plane, in patch order, and group the
-    // projections by the tiles they touch; Russian roulette for sub-pixel ones
-    let t0 = Instant::now();
+    let painter = plane.visibility == Visibility::Painter;
     let to_map = ToMap {
-        center: inp.center,
+        center: plane.center,
         frame,
         d,
-        radius: inp.radius,
+        radius: plane.radius,
         delta,
         jitter,
     };
     let pj = Projector {
         w,
         h,
-        centre_rr: inp.centre_rr,
-        keys: inp.keys,
+        centre_rr: plane.centre_rr,
+        keys: plane.keys,
     };
+    // each row's tile, looked up: a division by a number known only at run
+    // time, four per patch, was a long-latency instruction in this loop
+    let tile_of = &mut scratch.tile_of;
+    tile_of.clear();
+    tile_of.extend((0..h).map(|y| (y / rows_per_tile) as u32));
+    let tile_of = &*tile_of;
+    let chunks = &mut scratch.chunks;
     chunks.resize_with(CHUNKS, Default::default);
-    let chunk_len = n.div_ceil(CHUNKS).max(1);
-    let tiles_of = |pr: &Proj| (pr.y0 / rows_per_tile) as usize..=(pr.y1 / rows_per_tile) as usize;
+    // a projection's rows are inside the map (Proj::new clips them)
+    let tiles_of = |pr: &Proj| tile_of[pr.y0 as usize] as usize..=tile_of[pr.y1 as usize] as usize;
     patches
         .p
         .par_chunks(chunk_len)
@@ -353,7 +428,36 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
         ck.start.clear();
         ck.start.resize(ntiles + 1, 0);
     }
+    scratch.projected = Some((*plane, n));
+}
+
+/// [`sweep`] into `out`, whose buffers are reused. The projection is the
+/// one [`project`] left in `scratch` for this plane, or made now.
+pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out: &mut Incoming) {
+    let n = patches.len();
+    let plane = inp.plane();
+    let Layout {
+        w,
+        h,
+        delta,
+        rows_per_tile,
+        ntiles,
+        chunk_len,
+    } = plane.layout(n);
+
+    // Project every patch onto the plane, unless done ahead
+    let t0 = Instant::now();
+    if scratch.projected != Some((plane, n)) {
+        project(patches, &plane, scratch);
+    }
     let t_project = t0.elapsed().as_secs_f64();
+    let Scratch {
+        chunks,
+        ep,
+        em,
+        start,
+        ..
+    } = scratch;
 
     // Per tile: sort its projections by depth, then scan-convert them
     let t1 = Instant::now();
@@ -364,10 +468,12 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
         start.push(start[t] + count);
     }
     let total = start[ntiles];
-    ep.clear();
+    // every entry is written by its tile below, so the old values need no
+    // clearing (a serial pass over all entries, while the other core waits)
     ep.resize(total, Rgb::ZERO);
-    em.clear();
+    ep.truncate(total);
     em.resize(total, Rgb::ZERO);
+    em.truncate(total);
     // each tile's share of the entries, as disjoint slices
     let mut parts = Vec::with_capacity(ntiles);
     let (mut p, mut m) = (&mut ep[..], &mut em[..]);
@@ -379,65 +485,81 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
         (p, m) = (p1, m1);
     }
     let chunks = &*chunks;
-    parts
-        .into_par_iter()
-        .map(|(tile, ep_out, em_out)| {
-            let y0 = tile as i32 * rows_per_tile;
-            let y1 = (y0 + rows_per_tile).min(h);
-            let src = Src {
-                bins: std::array::from_fn(|c| {
-                    let ck = &chunks[c];
-                    &ck.by_tile[ck.start[tile]..ck.start[tile + 1]]
-                }),
-            };
-            // where each chunk's bin starts among the tile's entries
-            let mut bin_at = [0usize; CHUNKS];
-            for c in 1..CHUNKS {
-                bin_at[c] = bin_at[c - 1] + src.bins[c - 1].len();
+    // The tiles' costs differ by orders of magnitude (most of the plane is
+    // empty), so the threads take them from one queue, largest first, and
+    // none is left alone with a big tile at the end. Each tile writes only
+    // its own entries, so the order they run in changes no sum.
+    parts.sort_by_key(|(_, p, _)| std::cmp::Reverse(p.len()));
+    let queue: Vec<Mutex<Option<TilePart>>> =
+        parts.into_iter().map(|x| Mutex::new(Some(x))).collect();
+    let taken = AtomicUsize::new(0);
+    let scan_tile = |(tile, ep_out, em_out): (usize, &mut [Rgb], &mut [Rgb])| {
+        let y0 = tile as i32 * rows_per_tile;
+        let y1 = (y0 + rows_per_tile).min(h);
+        let src = Src {
+            bins: std::array::from_fn(|c| {
+                let ck = &chunks[c];
+                &ck.by_tile[ck.start[tile]..ck.start[tile + 1]]
+            }),
+        };
+        // where each chunk's bin starts among the tile's entries
+        let mut bin_at = [0usize; CHUNKS];
+        for c in 1..CHUNKS {
+            bin_at[c] = bin_at[c - 1] + src.bins[c - 1].len();
+        }
+        WORK.with_borrow_mut(|wk| {
+            // keys in patch order: depth high, (chunk, slot) low
+            wk.keys.clear();
+            for (c, bin) in src.bins.iter().enumerate() {
+                let hi = (c as u64) << SLOT_BITS;
+                wk.keys.extend(
+                    bin.iter()
+                        .enumerate()
+                        .map(|(i, pr)| (pr.key as u64) << 32 | hi | i as u64),
+                );
             }
-            WORK.with_borrow_mut(|wk| {
-                // keys in patch order: depth high, (chunk, slot) low
-                wk.keys.clear();
-                for (c, bin) in src.bins.iter().enumerate() {
-                    let hi = (c as u64) << SLOT_BITS;
-                    wk.keys.extend(
-                        bin.iter()
-                            .enumerate()
-                            .map(|(i, pr)| (pr.key as u64) << 32 | hi | i as u64),
-                    );
-                }
-                radix_sort_hi(&mut wk.keys, &mut wk.spare);
-                wk.lp.clear();
-                wk.lp
-                    .extend(wk.keys.iter().map(|&k| inp.l_plus[src.at(k).id as usize]));
-                wk.lm.clear();
-                wk.lm
-                    .extend(wk.keys.iter().map(|&k| inp.l_minus[src.at(k).id as usize]));
-                let n = wk.keys.len();
-                wk.ep.clear();
-                wk.ep.resize(n, Rgb::ZERO);
-                wk.em.clear();
-                wk.em.resize(n, Rgb::ZERO);
-                let mut acc = Band {
-                    lp: &wk.lp,
-                    lm: &wk.lm,
-                    ep: &mut wk.ep,
-                    em: &mut wk.em,
-                };
-                let frags = match inp.visibility {
-                    Visibility::Painter => painter_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
-                    Visibility::ZBuffer => zbuffer_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
-                };
-                // back from sorted order to bin order
-                for ((&k, &p), &m) in wk.keys.iter().zip(&wk.ep).zip(&wk.em) {
-                    let at = bin_at[(k >> SLOT_BITS) as usize % CHUNKS] + (k & SLOT_MASK) as usize;
-                    ep_out[at] = p;
-                    em_out[at] = m;
-                }
-                frags
-            })
+            radix_sort_hi(&mut wk.keys, &mut wk.spare);
+            wk.lp.clear();
+            wk.lp
+                .extend(wk.keys.iter().map(|&k| inp.l_plus[src.at(k).id as usize]));
+            wk.lm.clear();
+            wk.lm
+                .extend(wk.keys.iter().map(|&k| inp.l_minus[src.at(k).id as usize]));
+            let n = wk.keys.len();
+            wk.ep.clear();
+            wk.ep.resize(n, Rgb::ZERO);
+            wk.em.clear();
+            wk.em.resize(n, Rgb::ZERO);
+            let mut acc = Band {
+                lp: &wk.lp,
+                lm: &wk.lm,
+                ep: &mut wk.ep,
+                em: &mut wk.em,
+            };
+            let frags = match inp.visibility {
+                Visibility::Painter => painter_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
+                Visibility::ZBuffer => zbuffer_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
+            };
+            // back from sorted order to bin order
+            for ((&k, &p), &m) in wk.keys.iter().zip(&wk.ep).zip(&wk.em) {
+                let at = bin_at[(k >> SLOT_BITS) as usize % CHUNKS] + (k & SLOT_MASK) as usize;
+                ep_out[at] = p;
+                em_out[at] = m;
+            }
+            frags
         })
-        .collect_into_vec(frags);
+    };
+    let fragments: u64 = (0..rayon::current_num_threads())
+        .into_par_iter()
+        .map(|_| {
+            let mut frags = 0;
+            while let Some(slot) = queue.get(taken.fetch_add(1, Ordering::Relaxed)) {
+                let part = slot.lock().map(|mut s| s.take()).ok().flatten();
+                frags += part.map_or(0, scan_tile);
+            }
+            frags
+        })
+        .sum();
 
     // Sum the tiles in a fixed order: each patch's entries, tile after
     // tile. A chunk's patches are a range of ids and its bins give their
@@ -479,7 +601,7 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
         .zip(out.e_minus.par_chunks_mut(chunk_len))
         .enumerate()
         .for_each(|(c, (p, m))| sum_chunk(c, p, m));
-    out.fragments = frags.iter().sum();
+    out.fragments = fragments;
     out.t_project = t_project;
     out.t_raster = t1.elapsed().as_secs_f64();
 }

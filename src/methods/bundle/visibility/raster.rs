@@ -270,12 +270,17 @@ impl Proj {
         })
     }
 
-    /// The edges' column bounds, for triangles whose rows span more than
-    /// two groups of the scan. Narrower ones are scanned whole: an empty
-    /// group costs less than the bounds' set-up and per-row evaluation.
+    /// The edges' column bounds, when clipping `rows` rows of the box saves
+    /// more than it costs. A row of a triangle covers about half of its
+    /// box's columns, so clipping it saves about `cols / 8` groups of the
+    /// scan, less about one group's work to evaluate its span; the bounds'
+    /// set-up costs about [`CLIP_SETUP_GROUPS`] groups. Narrow or short
+    /// boxes are scanned whole. Either way the fragments are the same.
     #[inline(always)]
-    fn clip(&self) -> Option<RowClip> {
-        (self.x1 - self.x0 >= CLIP_WIDTH).then(|| RowClip::new(self.t, self.x0, self.x1, self.y1))
+    fn clip(&self, rows: i32) -> Option<RowClip> {
+        let cols = self.x1 - self.x0 + 1;
+        (cols > CLIP_WIDTH && rows * (cols - CLIP_WIDTH) > 8 * CLIP_SETUP_GROUPS)
+            .then(|| RowClip::new(self.t, self.x0, self.x1, self.y1))
     }
 
     /// Row `y`'s products (c.x − b.x)(py − b.y) and its turns, the first
@@ -312,6 +317,27 @@ impl Proj {
         }
         let [a, b, c] = self.t;
         let [za, zb, zc] = self.z;
+        if self.x0 == self.x1 {
+            // One column (half the patches of a fine mesh, mostly one
+            // pixel): lane 0 of the loop below, without its 4-lane set-up.
+            // The same operations in the same order give the same bits.
+            let own = |bit: u32| self.owns >> bit & 1 == 1;
+            let (oa, ob, oc) = (own(0), own(1), own(2));
+            let px = self.x0 as f32 + 0.5;
+            for y in ys..=ye {
+                let py = y as f32 + 0.5;
+                let wa = (c.x - b.x) * (py - b.y) - (c.y - b.y) * (px - b.x);
+                let wb = (a.x - c.x) * (py - c.y) - (a.y - c.y) * (px - c.x);
+                let wc = (b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x);
+                if (wa > 0.0 || (wa == 0.0 && oa))
+                    && (wb > 0.0 || (wb == 0.0 && ob))
+                    && (wc > 0.0 || (wc == 0.0 && oc))
+                {
+                    v.visit(self.x0, y, (wa * za + wb * zb + wc * zc) * self.inv);
+                }
+            }
+            return;
+        }
         let lane = |bit: u32| BVec4A::splat(self.owns >> bit & 1 == 1);
         let (oa, ob, oc) = (lane(0), lane(1), lane(2));
         // edge(u, v, p) = (v.x − u.x)(p.y − u.y) − (v.y − u.y)(p.x − u.x),
@@ -329,7 +355,7 @@ impl Proj {
             Vec4::splat(self.inv),
         );
         const HALF: Vec4 = Vec4::new(0.5, 1.5, 2.5, 3.5);
-        let clip = self.clip();
+        let clip = self.clip(ye - ys + 1);
         for y in ys..=ye {
             let (r, xs, xe) = self.row(y, &clip);
             let (ra, rb, rc) = (Vec4::splat(r[0]), Vec4::splat(r[1]), Vec4::splat(r[2]));
@@ -402,9 +428,13 @@ pub(super) struct RowClip {
     lo_slope: Vec4,
 }
 
-/// Boxes at least this many columns wider than one pixel have their rows
-/// clipped ([`Proj::clip`]).
+/// Boxes no wider than this many columns are never clipped ([`Proj::clip`]):
+/// a clipped row saves about one group of the scan per this many columns
+/// beyond it.
 const CLIP_WIDTH: i32 = 8;
+/// The set-up of the row bounds ([`RowClip::new`], in f64 for its error
+/// bound), in groups of the scan that it costs as much as.
+const CLIP_SETUP_GROUPS: i32 = 14;
 
 /// Unit roundoff of f32.
 const U32: f64 = 1.0 / (1u64 << 24) as f64;
@@ -623,7 +653,7 @@ mod tests {
                 for (y0, y1) in [(0, 500), (500, h)] {
                     pr.scan(y0, y1, &mut |x, y, d: f32| got.push((x, y, d.to_bits())));
                 }
-                if let Some(clip) = pr.clip() {
+                if let Some(clip) = pr.clip(pr.y1 - pr.y0 + 1) {
                     for y in pr.y0..=pr.y1 {
                         let (_, xs, xe) = pr.row(y, &Some(clip));
                         span_cols += (xe - xs + 1).max(0) as i64;
