@@ -67,8 +67,7 @@ impl Collapse {
         // half a pack of four triangles, an 8-wide node's (seven binary
         // nodes' worth of boxes, one test cheaper than a pack's) a quarter
         // of a pack of eight. Sah: one wide node test against one pack test
-        // of the same width, as measured for our kernels (BENCHMARKS.md, "The
-        // 8-wide tree")
+        // of the same width
         let (c, leaves) = match (rule, width) {
             (CollapseRule::Greedy, 8) => (0.25, 8),
             (CollapseRule::Greedy, _) => (0.5, 4),
@@ -84,10 +83,13 @@ impl Collapse {
 }
 
 /// [`CollapseRule::Sah`]'s cost of an 8-wide node test relative to a test
-/// of a pack of eight triangles.
-const SAH_C_NODE8: f32 = 1.0;
+/// of a pack of eight triangles. A pack test costs more than the box test
+/// (a division, and the leaf's bookkeeping): trees that trade node tests
+/// for pack tests replay slower, and below this value the visits per ray
+/// hardly change (BENCHMARKS.md, "The 8-wide tree").
+const SAH_C_NODE8: f32 = 0.5;
 /// The same for four boxes against four triangles.
-const SAH_C_NODE4: f32 = 1.0;
+const SAH_C_NODE4: f32 = 0.5;
 
 /// `W` triangles, each coordinate in its own row: `v0`, the edges
 /// `e1 = v0 − v1` and `e2 = v2 − v0`, and `ng = e1 × e2`, in that order. An
@@ -387,10 +389,14 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
             unreachable!("a binary node's two subtrees come before it");
         };
         let count = ln + rn;
-        // The best split of i slots between the children, for i = 2..=W
+        // The best split of i slots between the children, for i = 2..=m: a
+        // subtree fills at most as many slots as it has triangles, so more
+        // than m cost the same as m (and the first best k of m is the first
+        // best of any more)
+        let m = (count as usize).min(W);
         let mut split = [f32::INFINITY; W];
         let mut split_left = [0u8; W];
-        for i in 2..=W {
+        for i in 2..=m {
             for k in 1..i {
                 let c = left[k - 1] + right[i - k - 1];
                 if c < split[i - 1] {
@@ -399,7 +405,7 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
                 }
             }
         }
-        let inner = options.c_node * area + split[W - 1];
+        let inner = options.c_node * area + split[m - 1];
         let leaf = if count as usize <= leaf_max {
             area * (count as f32 / width).ceil()
         } else {
@@ -413,12 +419,12 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
             cost[0] = inner;
         }
         for i in 2..=W {
-            if split[i - 1] < cost[i - 2] {
+            if i <= m && split[i - 1] < cost[i - 2] {
                 cost[i - 1] = split[i - 1];
                 d[i - 1] = split_left[i - 1];
             } else {
                 cost[i - 1] = cost[i - 2];
-                d[i - 1] = PLAN_FEWER | split_left[i - 1];
+                d[i - 1] = PLAN_FEWER | split_left[i.min(m) - 1];
             }
         }
         done.push((cost, count));

@@ -64,7 +64,7 @@ pub struct BenchArgs {
     #[arg(long, value_name = "RULE", value_parser = parse_collapse)]
     collapse: Option<CollapseRule>,
     /// The collapse's cost of a node relative to one pack test: of a wide
-    /// node under sah (default 1), of a binary node under greedy (default
+    /// node under sah (default 0.5), of a binary node under greedy (default
     /// 0.5 for 4 wide, 0.25 for 8 wide).
     #[arg(long, value_name = "C", value_parser = parse_c_node)]
     c_node: Option<f32>,
