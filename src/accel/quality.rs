@@ -41,9 +41,9 @@ pub struct TreeStats {
 }
 
 impl TreeStats {
-    /// The SAH cost, with a wide node's box tests priced as one pack's
-    /// triangle tests (about what they cost in our kernels; BENCHMARKS.md,
-    /// "The 8-wide tree").
+    /// The SAH cost, with a wide node test priced as one pack test: a
+    /// convention to rank trees by (the collapse itself weighs a node test
+    /// at half a pack test, see `collapse.rs`).
     pub fn sah(&self) -> f64 {
         self.node_tests + self.pack_tests
     }
