@@ -31,13 +31,13 @@ pub(super) const MAX_LEAF_PACKS: usize = 8;
 /// How the binary tree becomes a wide one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CollapseRule {
-    /// Wald et al.'s greedy rule: open the largest child until a node has
-    /// `W`, with leaves chosen by the SAH over binary nodes
-    /// ([`leaf_choice`]).
+    /// Wald et al.'s greedy rule (2008): open the largest child until a
+    /// node has its width's children, with leaves chosen by the SAH over
+    /// binary nodes.
     Greedy,
     /// The choice of wide nodes and leaves that minimises the SAH cost of
-    /// the wide tree, by dynamic programming over the binary one
-    /// ([`optimal_plan`]).
+    /// the wide tree, by dynamic programming over the binary one (Ylitie
+    /// et al. 2017, §3).
     Sah,
 }
 
