@@ -29,6 +29,10 @@
 //! default build runs on any x86-64 and the 4-wide SSE2 kernel stays the
 //! fallback. The environment variable `KALOS_ACCEL=bvh4` forces the
 //! fallback (to compare the two, or to test it on an AVX2 machine).
+//!
+//! Either way the binary tree becomes the wide one by the collapse of
+//! `accel/collapse.rs` that minimises the wide tree's SAH cost, and trees
+//! are priced at the width the kernel will walk.
 
 mod collapse;
 mod quality;
