@@ -29,6 +29,10 @@
 //! default build runs on any x86-64 and the 4-wide SSE2 kernel stays the
 //! fallback. The environment variable `KALOS_ACCEL=bvh4` forces the
 //! fallback (to compare the two, or to test it on an AVX2 machine).
+//!
+//! Either way the binary tree becomes the wide one by the collapse of
+//! `accel/collapse.rs` that minimises the wide tree's SAH cost, and trees
+//! are priced at the width the kernel will walk.
 
 mod collapse;
 mod quality;
@@ -52,6 +56,7 @@ use crate::geometry::Ray;
 use crate::scene::Scene;
 use wide::Wide;
 
+pub use collapse::CollapseRule;
 pub use quality::{TreeStats, Visits};
 
 /// A closest hit.
@@ -122,21 +127,32 @@ impl Kernel {
     }
 }
 
-/// The wide BVH of `kernel` for `bvh2`, whose 4-wide collapse `wide4` the
-/// build has already made (to price the tree). The 8-wide form is collapsed
-/// from the same binary tree, and falls back to `wide4` on a CPU without
-/// AVX2 or when it does not fit its own limits.
-fn finish(bvh2: &Bvh2, tris: &[Triangle], wide4: Wide, kernel: Kernel) -> Core {
+/// True when a build for `kernel` makes the 8-wide tree: the CPU has AVX2.
+fn builds_wide8(kernel: Kernel) -> bool {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Bvh8 {
+        return wide8::Avx2::detect().is_some();
+    }
+    let _ = kernel;
+    false
+}
+
+/// The wide BVH of `options` for `bvh2` over `tris`: 8 wide where
+/// `wide8` (see [`builds_wide8`]) and it fits the 8-wide kernel's limits,
+/// else 4 wide; `None` when neither fits.
+fn finish(bvh2: &Bvh2, tris: &[Triangle], options: &BuildOptions, wide8: bool) -> Option<Core> {
+    #[cfg(target_arch = "x86_64")]
+    if wide8 {
         if let Some(avx2) = wide8::Avx2::detect() {
-            if let Some(w) = wide8::Wide8::from_bvh2(bvh2, tris, avx2) {
-                return Core::Bvh8(w);
+            let c = collapse::Collapse::new(options.collapse, 8, options.c_node, options.leaf_max);
+            if let Some(w) = wide8::Wide8::from_bvh2(bvh2, tris, &c, avx2) {
+                return Some(Core::Bvh8(w));
             }
         }
     }
-    let _ = (bvh2, tris, kernel);
-    Core::Bvh4(wide4)
+    let _ = wide8;
+    let c = collapse::Collapse::new(options.collapse, 4, options.c_node, options.leaf_max);
+    Wide::from_bvh2(bvh2, tris, &c).map(Core::Bvh4)
 }
 
 /// The builder of the binary BVH that is collapsed into the wide one.
@@ -220,18 +236,21 @@ impl Builder {
     }
 }
 
-/// How [`Accel::build_with`] builds: the binary builder, then the leaf
-/// choice of the collapse to the wide BVH.
+/// How [`Accel::build_with`] builds: the binary builder, then the
+/// collapse to the wide BVH.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BuildOptions {
     /// The binary BVH's builder.
     pub builder: Builder,
-    /// The cost of a binary node's box tests per unit area relative to one
-    /// pack of four triangle tests, in the surface area heuristic that
-    /// chooses the leaves of the 4-wide tree (the 8-wide tree has its own).
-    pub c_node: f32,
-    /// The most triangles a leaf may hold (1 to 32) in the 4-wide tree.
-    pub leaf_max: usize,
+    /// How the binary BVH becomes a wide one.
+    pub collapse: CollapseRule,
+    /// The collapse's cost of a node per unit area relative to one pack
+    /// test (see [`CollapseRule`]); `None` for the default of the rule and
+    /// the width.
+    pub c_node: Option<f32>,
+    /// The most triangles a leaf may hold (1 to 32); `None` for one pack
+    /// (4 or 8, the tree's width).
+    pub leaf_max: Option<usize>,
     /// The traversal kernel, and so the width of the tree.
     pub kernel: Kernel,
 }
@@ -240,8 +259,9 @@ impl Default for BuildOptions {
     fn default() -> Self {
         BuildOptions {
             builder: Builder::Best,
-            c_node: wide::C_NODE,
-            leaf_max: wide::LEAF_MAX,
+            collapse: CollapseRule::Sah,
+            c_node: None,
+            leaf_max: None,
             kernel: Kernel::from_env(),
         }
     }
@@ -260,9 +280,9 @@ impl Accel {
         Self::build_with(scene, &BuildOptions::default(), on_phase)
     }
 
-    /// [`Accel::build_reporting`] with another builder, leaf choice or
-    /// kernel than the default, for `kalos bench` to compare trees on the
-    /// same rays and for the tests to run both kernels.
+    /// [`Accel::build_reporting`] with another builder, collapse or kernel
+    /// than the default, for `kalos bench` to compare trees on the same
+    /// rays and for the tests to run both kernels.
     pub fn build_with(
         scene: &Scene,
         options: &BuildOptions,
@@ -281,10 +301,8 @@ impl Accel {
         if tris.is_empty() {
             return Accel { core: None };
         }
-        let collapse = wide::Collapse {
-            c_node: options.c_node,
-            leaf_max: options.leaf_max,
-        };
+        // Trees are priced, and built, at the width the kernel will walk
+        let wide8 = builds_wide8(options.kernel);
         let n = tris.len();
         let ploc = |tris: &[Triangle], params: BvhBuildParams| {
             let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
@@ -295,8 +313,7 @@ impl Accel {
                 params.search_depth_threshold,
             );
             ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-            let w = Wide::from_bvh2(&bvh2, tris, &collapse)?;
-            Some((bvh2, w))
+            finish(&bvh2, tris, options, wide8)
         };
         let top_down = |tris: &[Triangle], reinsert: bool| {
             let mut bvh2: Bvh2 = sah::build(tris);
@@ -308,11 +325,10 @@ impl Accel {
             // its wide form always fits the traversal stack; the pack
             // indices run out only past a billion triangles, which would
             // not fit in memory
-            let w = Wide::from_bvh2(&bvh2, tris, &collapse)
-                .expect("a scene of over a billion triangles exceeds the BVH's index range");
-            (bvh2, w)
+            finish(&bvh2, tris, options, wide8)
+                .expect("a scene of over a billion triangles exceeds the BVH's index range")
         };
-        let cost = |t: &(Bvh2, Wide)| quality::tree_stats(&t.1).sah();
+        let cost = |c: &Core| quality::core_stats(c).sah();
         // True when the top-down tree of `tris` is clearly cheaper
         let top_down_wins = |tris: &[Triangle], params: BvhBuildParams| match ploc(tris, params) {
             Some(p) => cost(&top_down(tris, true)) < SWITCH_MARGIN * cost(&p),
@@ -330,7 +346,7 @@ impl Accel {
             .builder
             .ploc_params()
             .filter(|&params| ploc_is_safe(&tris, params));
-        let (bvh2, wide4) = match (options.builder, safe) {
+        let core = match (options.builder, safe) {
             (Builder::Both, Some(params)) => {
                 on_phase(format!(
                     "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
@@ -370,9 +386,7 @@ impl Accel {
                 top_down(&tris, false)
             }
         };
-        Accel {
-            core: Some(finish(&bvh2, &tris, wide4, options.kernel)),
-        }
+        Accel { core: Some(core) }
     }
 
     /// The kernel this build runs (for the tests: [`Kernel::Bvh8`] falls
@@ -432,38 +446,35 @@ impl Accel {
         }
     }
 
-    /// The 4-wide BVH (see [`Accel::counted`]).
-    fn wide4(&self) -> Option<&Wide> {
-        match self.core.as_ref()? {
-            Core::Bvh4(w) => Some(w),
-            #[cfg(target_arch = "x86_64")]
-            Core::Bvh8(_) => None,
-        }
-    }
-
-    /// True when this build can report [`Accel::tree_stats`] and count
-    /// visits: the counters are in the 4-wide kernel only, so `kalos bench`
-    /// builds a 4-wide copy of the same binary tree for them (an empty
-    /// scene counts nothing either way).
-    pub fn counted(&self) -> bool {
-        self.core.is_none() || self.wide4().is_some()
-    }
-
-    /// The shape of the 4-wide tree and its surface area heuristic cost
-    /// (for `kalos bench`); all zero for an 8-wide build.
+    /// The shape of the wide tree and its surface area heuristic cost (for
+    /// `kalos bench`); all zero for a scene without triangles.
     pub fn tree_stats(&self) -> TreeStats {
-        self.wide4().map(quality::tree_stats).unwrap_or_default()
+        self.core
+            .as_ref()
+            .map(quality::core_stats)
+            .unwrap_or_default()
     }
 
-    /// [`Accel::intersect`] on the 4-wide tree, adding the nodes and packs
-    /// it tests to `visits` (for `kalos bench`; the uncounted query is the
-    /// fast one). `None` for an 8-wide build.
+    /// [`Accel::intersect`], adding the nodes and packs it tests to
+    /// `visits` (for `kalos bench`; the uncounted query is the fast one).
+    /// The 4-wide tree is counted by its kernel; the 8-wide one by
+    /// `quality.rs`'s scalar copy of its kernel, which visits the same nodes
+    /// in the same order.
     pub fn intersect_counted(&self, ray: &Ray, visits: &mut Visits) -> Option<Hit> {
-        let w = self.wide4()?;
-        let h = traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?;
+        let (h, ids) = match self.core.as_ref()? {
+            Core::Bvh4(w) => (
+                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?,
+                &w.ids,
+            ),
+            #[cfg(target_arch = "x86_64")]
+            Core::Bvh8(w) => (
+                quality::closest8_counted(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?,
+                &w.ids,
+            ),
+        };
         Some(Hit {
             t: h.t,
-            tri: w.ids[h.slot],
+            tri: ids[h.slot],
             b1: h.b1,
             b2: h.b2,
         })
@@ -472,8 +483,14 @@ impl Accel {
     /// [`Accel::occluded_ray`], adding the nodes and packs it tests to
     /// `visits`.
     pub fn occluded_ray_counted(&self, ray: &Ray, visits: &mut Visits) -> bool {
-        self.wide4()
-            .is_some_and(|w| traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits))
+        match &self.core {
+            None => false,
+            Some(Core::Bvh4(w)) => traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits),
+            #[cfg(target_arch = "x86_64")]
+            Some(Core::Bvh8(w)) => {
+                quality::any8_counted(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)
+            }
+        }
     }
 }
 

@@ -2,11 +2,13 @@
 //! 4-wide layout (`wide.rs`) and the 8-wide one (`wide8.rs`), which differ
 //! only in width, alignment and leaf costs.
 //!
-//! The collapse follows Wald et al., "Getting rid of packets" (2008): a wide
-//! node takes the two children of a binary node, then keeps opening the
-//! largest (by surface area, the likeliest to be entered) of its children
-//! until it has `W`. Small subtrees become leaves where the surface area
-//! heuristic says so ([`leaf_choice`]).
+//! Two rules ([`CollapseRule`]). The greedy one follows Wald et al., "Getting rid of
+//! packets" (2008): a wide node takes the two children of a binary node,
+//! then keeps opening the largest (by surface area, the likeliest to be
+//! entered) of its children until it has `W`, and small subtrees become
+//! leaves where the surface area heuristic says so ([`leaf_choice`]). The
+//! optimal one chooses the wide nodes and leaves together, to minimise the
+//! wide tree's SAH cost with the costs of its kernel ([`optimal_plan`]).
 
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
@@ -26,14 +28,68 @@ pub(super) fn leaf_packs(r: u32) -> std::ops::Range<usize> {
 /// Packs a leaf reference can count (bits 0..3).
 pub(super) const MAX_LEAF_PACKS: usize = 8;
 
-/// The leaf choice of the collapse (see [`leaf_choice`]).
+/// How the binary tree becomes a wide one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CollapseRule {
+    /// Wald et al.'s greedy rule (2008): open the largest child until a
+    /// node has its width's children, with leaves chosen by the SAH over
+    /// binary nodes.
+    Greedy,
+    /// The choice of wide nodes and leaves that minimises the SAH cost of
+    /// the wide tree, by dynamic programming over the binary one (Ylitie
+    /// et al. 2017, §3).
+    Sah,
+}
+
+/// The collapse's rule and costs.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Collapse {
-    /// A binary node's cost per unit area, relative to one pack test.
+    /// The rule.
+    pub rule: CollapseRule,
+    /// The cost per unit area of a node relative to one pack test: under
+    /// [`CollapseRule::Greedy`] of a binary node (a wide node holds `W − 1` of them),
+    /// under [`CollapseRule::Sah`] of one `W`-wide node test.
     pub c_node: f32,
     /// The most triangles in a leaf, at most `W * MAX_LEAF_PACKS`.
     pub leaf_max: usize,
 }
+
+impl Collapse {
+    /// The collapse `rule` to width `width` (4 or 8) with the costs of that
+    /// width's kernel, unless `c_node` or `leaf_max` say otherwise.
+    pub fn new(
+        rule: CollapseRule,
+        width: usize,
+        c_node: Option<f32>,
+        leaf_max: Option<usize>,
+    ) -> Self {
+        // Greedy: a binary node's share of a 4-wide node's test costs about
+        // half a pack of four triangles, an 8-wide node's (seven binary
+        // nodes' worth of boxes, one test cheaper than a pack's) a quarter
+        // of a pack of eight. Sah: one wide node test against one pack test
+        // of the same width
+        let (c, leaves) = match (rule, width) {
+            (CollapseRule::Greedy, 8) => (0.25, 8),
+            (CollapseRule::Greedy, _) => (0.5, 4),
+            (CollapseRule::Sah, 8) => (SAH_C_NODE8, 8),
+            (CollapseRule::Sah, _) => (SAH_C_NODE4, 4),
+        };
+        Collapse {
+            rule,
+            c_node: c_node.unwrap_or(c),
+            leaf_max: leaf_max.unwrap_or(leaves),
+        }
+    }
+}
+
+/// [`CollapseRule::Sah`]'s cost of an 8-wide node test relative to a test
+/// of a pack of eight triangles. A pack test costs more than the box test
+/// (a division, and the leaf's bookkeeping): trees that trade node tests
+/// for pack tests replay slower, and below this value the visits per ray
+/// hardly change (BENCHMARKS.md, "The 8-wide tree").
+const SAH_C_NODE8: f32 = 0.5;
+/// The same for four boxes against four triangles.
+const SAH_C_NODE4: f32 = 0.5;
 
 /// `W` triangles, each coordinate in its own row: `v0`, the edges
 /// `e1 = v0 − v1` and `e2 = v2 − v0`, and `ng = e1 × e2`, in that order. An
@@ -53,6 +109,13 @@ pub(super) struct Collapsed<const W: usize> {
     pub root: u32,
 }
 
+/// Which binary nodes become leaves, and which become the children of a
+/// wide node: the rule's answer, read by [`collapse`].
+enum Plan {
+    Greedy(Vec<bool>),
+    Sah(OptimalPlan),
+}
+
 /// Collapses `bvh2` (over `tris`, not empty) into a `W`-wide BVH, or `None`
 /// when the result would be too deep for a traversal stack of `stack`
 /// entries (a node pushes at most `W − 1` and descends into the last), or
@@ -63,7 +126,10 @@ pub(super) fn collapse<const W: usize>(
     options: &Collapse,
     stack: usize,
 ) -> Option<Collapsed<W>> {
-    let leaves = leaf_choice::<W>(bvh2, options);
+    let plan = match options.rule {
+        CollapseRule::Greedy => Plan::Greedy(leaf_choice::<W>(bvh2, options)),
+        CollapseRule::Sah => Plan::Sah(optimal_plan::<W>(bvh2, options)),
+    };
     let mut out = Collapsed {
         boxes: Vec::with_capacity(bvh2.nodes.len() / (W - 1) + 1),
         child: Vec::with_capacity(bvh2.nodes.len() / (W - 1) + 1),
@@ -73,7 +139,13 @@ pub(super) fn collapse<const W: usize>(
     };
     let mut scratch = Vec::new();
     let mut kids = Vec::with_capacity(W);
-    let is_inner = |k: u32| !bvh2.nodes[k as usize].is_leaf() && !leaves[k as usize];
+    let is_inner = |k: u32| {
+        !bvh2.nodes[k as usize].is_leaf()
+            && match &plan {
+                Plan::Greedy(leaves) => !leaves[k as usize],
+                Plan::Sah(p) => !p.is_leaf(k),
+            }
+    };
     // (binary node, where its reference goes: wide node and slot, depth)
     let mut todo = vec![(0u32, None::<(usize, usize)>, 0usize)];
     while let Some((n, slot, depth)) = todo.pop() {
@@ -85,19 +157,24 @@ pub(super) fn collapse<const W: usize>(
             collect_prims(bvh2, n, &mut scratch);
             out.leaf(&scratch, tris)?
         } else {
-            // Open the largest child until there are W
-            let first = bvh2.nodes[n as usize].first_index;
             kids.clear();
-            kids.extend([first, first + 1]);
-            while kids.len() < W {
-                let area = |k: u32| bvh2.nodes[k as usize].aabb().half_area();
-                let open = (0..kids.len())
-                    .filter(|&i| is_inner(kids[i]))
-                    .max_by(|&a, &b| area(kids[a]).total_cmp(&area(kids[b])));
-                let Some(i) = open else { break };
-                let k = kids.swap_remove(i);
-                let first = bvh2.nodes[k as usize].first_index;
-                kids.extend([first, first + 1]);
+            match &plan {
+                Plan::Greedy(_) => {
+                    // Open the largest child until there are W
+                    let first = bvh2.nodes[n as usize].first_index;
+                    kids.extend([first, first + 1]);
+                    while kids.len() < W {
+                        let area = |k: u32| bvh2.nodes[k as usize].aabb().half_area();
+                        let open = (0..kids.len())
+                            .filter(|&i| is_inner(kids[i]))
+                            .max_by(|&a, &b| area(kids[a]).total_cmp(&area(kids[b])));
+                        let Some(i) = open else { break };
+                        let k = kids.swap_remove(i);
+                        let first = bvh2.nodes[k as usize].first_index;
+                        kids.extend([first, first + 1]);
+                    }
+                }
+                Plan::Sah(p) => p.children::<W>(bvh2, n, &mut kids),
             }
             let index = out.boxes.len();
             if index as u32 >= LEAF_BIT {
@@ -211,6 +288,151 @@ fn leaf_choice<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> Vec<bool> {
         }
     }
     leaf
+}
+
+/// [`CollapseRule::Sah`]'s decisions: per binary node, one byte for each number of
+/// wide-node slots `i` = 1..=`W` it may fill (Ylitie et al. 2017, "Efficient
+/// incoherent ray traversal on GPUs through compressed wide BVHs", §3).
+/// Slot 1's byte says whether the node is a leaf ([`PLAN_LEAF`]); the
+/// others, whether the node costs no more in `i − 1` slots
+/// ([`PLAN_FEWER`]), and in their low bits how many of the `i` slots go to
+/// the left child in the best way to spread its two subtrees over them.
+struct OptimalPlan {
+    width: usize,
+    decisions: Vec<u8>,
+}
+
+const PLAN_LEAF: u8 = 0x80;
+const PLAN_FEWER: u8 = 0x40;
+const PLAN_LEFT: u8 = 0x3f;
+
+impl OptimalPlan {
+    fn is_leaf(&self, n: u32) -> bool {
+        self.decisions[n as usize * self.width] & PLAN_LEAF != 0
+    }
+
+    /// The children of the wide node made of binary node `n`, in tree
+    /// order (left subtree first), into `kids`.
+    fn children<const W: usize>(&self, bvh2: &Bvh2, n: u32, kids: &mut Vec<u32>) {
+        let first = bvh2.nodes[n as usize].first_index;
+        let left = (self.decisions[n as usize * W + W - 1] & PLAN_LEFT) as usize;
+        self.gather::<W>(bvh2, first, left, kids);
+        self.gather::<W>(bvh2, first + 1, W - left, kids);
+    }
+
+    /// The subtree of `n` spread over at most `i` slots, as chosen.
+    fn gather<const W: usize>(&self, bvh2: &Bvh2, n: u32, mut i: usize, kids: &mut Vec<u32>) {
+        loop {
+            if i == 1 {
+                kids.push(n);
+                return;
+            }
+            let d = self.decisions[n as usize * W + i - 1];
+            if d & PLAN_FEWER != 0 {
+                i -= 1;
+                continue;
+            }
+            let left = (d & PLAN_LEFT) as usize;
+            let first = bvh2.nodes[n as usize].first_index;
+            self.gather::<W>(bvh2, first, left, kids);
+            self.gather::<W>(bvh2, first + 1, i - left, kids);
+            return;
+        }
+    }
+}
+
+/// The collapse that minimises the SAH cost of the `W`-wide tree, by
+/// dynamic programming over the binary tree, children before parents
+/// (Ylitie et al. 2017, §3). `C(n, i)`, the least cost of the subtree of
+/// `n` spread over at most `i` slots of a wide node, is:
+///
+/// - for `i = 1`, the cheaper of a leaf (its area times its packs, where it
+///   holds at most `leaf_max` triangles) and a wide node (`c_node` times its
+///   area, plus its subtrees spread over `W` slots);
+/// - for `i > 1`, the cheaper of `C(n, i − 1)` and the best split of the
+///   `i` slots between the two children, `min over k of C(l, k) + C(r, i − k)`.
+///
+/// Unlike the greedy rule, this may leave a large child closed to open two
+/// small ones whose boxes are rays' likelier targets, and it sizes leaves
+/// by whole packs of `W` triangles.
+fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan {
+    const { assert!(W <= PLAN_LEFT as usize) };
+    let leaf_max = options.leaf_max.clamp(1, W * MAX_LEAF_PACKS);
+    let mut decisions = vec![0u8; bvh2.nodes.len() * W];
+    // Preorder, right subtree first; walked backwards it visits each
+    // subtree's nodes together, its root last, the left subtree before the
+    // right: each node finds its children's costs on top of the stack
+    let mut order = Vec::with_capacity(bvh2.nodes.len());
+    let mut todo = vec![0u32];
+    while let Some(n) = todo.pop() {
+        order.push(n);
+        let node = &bvh2.nodes[n as usize];
+        if !node.is_leaf() {
+            todo.extend([node.first_index, node.first_index + 1]);
+        }
+    }
+    // (C(n, 1..=W), triangles under n) of the subtrees done
+    let mut done: Vec<([f32; W], u32)> = Vec::new();
+    let width = W as f32;
+    for &n in order.iter().rev() {
+        let node = &bvh2.nodes[n as usize];
+        let d = &mut decisions[n as usize * W..][..W];
+        let area = node.aabb().half_area();
+        if node.is_leaf() {
+            let count = node.prim_count;
+            d[0] = PLAN_LEAF;
+            d[1..].fill(PLAN_FEWER);
+            done.push(([area * (count as f32 / width).ceil(); W], count));
+            continue;
+        }
+        let (Some((right, rn)), Some((left, ln))) = (done.pop(), done.pop()) else {
+            unreachable!("a binary node's two subtrees come before it");
+        };
+        let count = ln + rn;
+        // The best split of i slots between the children, for i = 2..=m: a
+        // subtree fills at most as many slots as it has triangles, so more
+        // than m cost the same as m (and the first best k of m is the first
+        // best of any more)
+        let m = (count as usize).min(W);
+        let mut split = [f32::INFINITY; W];
+        let mut split_left = [0u8; W];
+        for i in 2..=m {
+            for k in 1..i {
+                let c = left[k - 1] + right[i - k - 1];
+                if c < split[i - 1] {
+                    split[i - 1] = c;
+                    split_left[i - 1] = k as u8;
+                }
+            }
+        }
+        let inner = options.c_node * area + split[m - 1];
+        let leaf = if count as usize <= leaf_max {
+            area * (count as f32 / width).ceil()
+        } else {
+            f32::INFINITY
+        };
+        let mut cost = [0f32; W];
+        if leaf <= inner {
+            cost[0] = leaf;
+            d[0] = PLAN_LEAF;
+        } else {
+            cost[0] = inner;
+        }
+        for i in 2..=W {
+            if i <= m && split[i - 1] < cost[i - 2] {
+                cost[i - 1] = split[i - 1];
+                d[i - 1] = split_left[i - 1];
+            } else {
+                cost[i - 1] = cost[i - 2];
+                d[i - 1] = PLAN_FEWER | split_left[i.min(m) - 1];
+            }
+        }
+        done.push((cost, count));
+    }
+    OptimalPlan {
+        width: W,
+        decisions,
+    }
 }
 
 /// Appends the triangle indices under node `n` of `bvh2` to `out`.

@@ -149,9 +149,11 @@ fn split(items: &mut [u32], boxes: &[Aabb], centers: &[glam::Vec3A], depth: usiz
             0.0
         }
     });
+    // Clamped while still a float (max first, so that NaN goes to bin 0 as
+    // before): f32 to i32 is one conversion where f32 to usize is several
     let bin_of = |i: u32, axis: usize| {
         let t = (centers[i as usize][axis] - lo[axis]) * scale[axis];
-        (t as usize).min(BINS - 1)
+        t.max(0.0).min((BINS - 1) as f32) as i32 as usize
     };
     let mut counts = [[0usize; BINS]; 3];
     let mut bin_boxes = [[Aabb::empty(); BINS]; 3];
@@ -213,8 +215,9 @@ fn split(items: &mut [u32], boxes: &[Aabb], centers: &[glam::Vec3A], depth: usiz
 fn exact(items: &mut [u32], boxes: &[Aabb], centers: &[glam::Vec3A]) -> usize {
     let n = items.len();
     let mut sorted = [0u32; BINS];
+    let mut best_sorted = [0u32; BINS];
     let mut right = [0.0f32; BINS];
-    let (mut best_axis, mut best_cut, mut best_cost) = (0, n / 2, f32::INFINITY);
+    let (mut best_axis, mut best_cut, mut best_cost) = (None, n / 2, f32::INFINITY);
     for axis in [0, 1, 2] {
         let sorted = &mut sorted[..n];
         sorted.copy_from_slice(items);
@@ -231,12 +234,19 @@ fn exact(items: &mut [u32], boxes: &[Aabb], centers: &[glam::Vec3A]) -> usize {
             acc = acc.union(&boxes[sorted[k - 1] as usize]);
             let cost = acc.half_area() * k as f32 + right[k];
             if cost < best_cost {
-                (best_axis, best_cut, best_cost) = (axis, k, cost);
+                (best_axis, best_cut, best_cost) = (Some(axis), k, cost);
             }
         }
+        // Keep the best axis's order rather than sort again at the end
+        if best_axis == Some(axis) {
+            best_sorted[..n].copy_from_slice(sorted);
+        }
     }
-    items.sort_unstable_by(|&a, &b| {
-        centers[a as usize][best_axis].total_cmp(&centers[b as usize][best_axis])
-    });
+    match best_axis {
+        Some(_) => items.copy_from_slice(&best_sorted[..n]),
+        // No finite cost (boxes of infinite area): x, as before
+        None => items
+            .sort_unstable_by(|&a, &b| centers[a as usize][0].total_cmp(&centers[b as usize][0])),
+    }
     best_cut
 }

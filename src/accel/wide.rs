@@ -10,23 +10,13 @@
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 
-/// By default, a subtree with more triangles than this is never stored as
-/// one leaf.
-pub(super) const LEAF_MAX: usize = 4;
-
-/// The default cost of a binary node's box tests per unit area, relative to
-/// one pack of four triangle tests (see `collapse.rs`'s `leaf_choice`).
-pub(super) const C_NODE: f32 = 0.5;
-
-use super::collapse::{collapse, MAX_LEAF_PACKS};
+use super::collapse::collapse;
 pub(super) use super::collapse::{Collapse, LEAF_BIT};
 
 /// Entries of the traversal stack. A wide node pushes at most three (it
 /// descends into the fourth), so a tree of depth `d` needs at most `3d`;
 /// [`Wide::from_bvh2`] declines trees that would need more.
 pub(super) const STACK: usize = 256;
-
-const _: () = assert!(LEAF_MAX.div_ceil(4) <= MAX_LEAF_PACKS);
 
 /// Four child boxes. `b[2 * axis]` holds the four minima along `axis` and
 /// `b[2 * axis + 1]` the maxima; an unused slot has an empty box (min +∞,

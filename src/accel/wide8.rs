@@ -5,10 +5,9 @@
 //! Embree's BVH8). Leaf triangles are in packs of eight ([`Pack8`], the
 //! layout of `wide.rs`'s `Pack` eight lanes wide), tested at once too.
 //!
-//! The collapse is `collapse.rs`'s, eight wide, opening the largest child
-//! until a node has eight; which subtrees become leaves is chosen by the
-//! surface area heuristic with the costs of this layout, where one node
-//! test covers eight boxes and one pack test eight triangles.
+//! The collapse is `collapse.rs`'s, eight wide, with the costs of this
+//! layout, where one node test covers eight boxes and one pack test eight
+//! triangles.
 //!
 //! A [`Wide8`] can only be built with an [`Avx2`] token, which only
 //! [`Avx2::detect`] makes, on a CPU that has AVX2: the kernels' safety rests
@@ -17,23 +16,13 @@
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 
-/// A subtree with more triangles than this is never stored as one leaf.
-const LEAF_MAX: usize = 8;
-
-/// The cost of a binary node's box tests per unit area, relative to one
-/// pack of eight triangle tests (see `collapse.rs`'s `leaf_choice`). An 8-wide node
-/// holds seven binary nodes' worth of boxes for one test that costs less
-/// than a pack's.
-const C_NODE: f32 = 0.25;
-
 /// Entries of the traversal stack. A node pushes at most seven (it
 /// descends into the eighth), so a tree of depth `d` needs at most `7d`;
 /// [`Wide8::from_bvh2`] declines trees that would need more.
 pub(super) const STACK: usize = 512;
 
 pub(super) use super::collapse::LEAF_BIT;
-use super::collapse::{collapse, Collapse, MAX_LEAF_PACKS};
-const _: () = assert!(LEAF_MAX.div_ceil(8) <= MAX_LEAF_PACKS);
+use super::collapse::{collapse, Collapse};
 
 /// Proof that the CPU running this process has AVX2.
 #[derive(Clone, Copy)]
@@ -73,12 +62,13 @@ impl Wide8 {
     /// Collapses `bvh2` (over `tris`, not empty) into an 8-wide BVH, or
     /// `None` when the result would be too deep for the fixed traversal
     /// stack, or too large for a child reference's bits.
-    pub fn from_bvh2(bvh2: &Bvh2, tris: &[Triangle], avx2: Avx2) -> Option<Wide8> {
-        let options = Collapse {
-            c_node: C_NODE,
-            leaf_max: LEAF_MAX,
-        };
-        let c = collapse::<8>(bvh2, tris, &options, STACK)?;
+    pub fn from_bvh2(
+        bvh2: &Bvh2,
+        tris: &[Triangle],
+        options: &Collapse,
+        avx2: Avx2,
+    ) -> Option<Wide8> {
+        let c = collapse::<8>(bvh2, tris, options, STACK)?;
         Some(Wide8 {
             nodes: (c.boxes.into_iter().zip(c.child))
                 .map(|(b, child)| Node8 { b, child })

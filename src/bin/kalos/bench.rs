@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Args;
 
-use kalos::accel::{Accel, BuildOptions, Builder, Kernel, Visits};
+use kalos::accel::{Accel, BuildOptions, Builder, CollapseRule, Visits};
 use kalos::bench::rayset::{self, RaySets, SetKind};
 use kalos::bench::replay::{self, KalosTracer, Timing, Tracer};
 use kalos::scene::Scene;
@@ -59,11 +59,17 @@ pub struct BenchArgs {
     /// sah-reinsert, both, best).
     #[arg(long, value_name = "BUILDER", value_parser = parse_builder)]
     bvh: Option<Builder>,
-    /// The leaf choice's cost of a binary node relative to a pack of four
-    /// triangle tests (default 0.5).
+    /// How kalos's binary BVH becomes the wide one: sah (the default; the
+    /// wide tree of least SAH cost) or greedy (open the largest child).
+    #[arg(long, value_name = "RULE", value_parser = parse_collapse)]
+    collapse: Option<CollapseRule>,
+    /// The collapse's cost of a node relative to one pack test: of a wide
+    /// node under sah (default 0.5), of a binary node under greedy (default
+    /// 0.5 for 4 wide, 0.25 for 8 wide).
     #[arg(long, value_name = "C", value_parser = parse_c_node)]
     c_node: Option<f32>,
-    /// The most triangles in a leaf of kalos's BVH (1 to 32; default 4).
+    /// The most triangles in a leaf of kalos's BVH (1 to 32; default one
+    /// pack: the tree's width, 4 or 8).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=32))]
     leaf_max: Option<u64>,
 }
@@ -79,6 +85,14 @@ fn parse_builder(s: &str) -> Result<Builder, String> {
                 names.join(", ")
             )
         })
+}
+
+fn parse_collapse(s: &str) -> Result<CollapseRule, String> {
+    match s {
+        "sah" => Ok(CollapseRule::Sah),
+        "greedy" => Ok(CollapseRule::Greedy),
+        _ => Err(format!("unknown collapse '{s}'; expected sah or greedy")),
+    }
 }
 
 fn parse_c_node(s: &str) -> Result<f32, String> {
@@ -128,37 +142,31 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let defaults = BuildOptions::default();
     let options = BuildOptions {
         builder: a.bvh.unwrap_or(defaults.builder),
-        c_node: a.c_node.unwrap_or(defaults.c_node),
-        leaf_max: a.leaf_max.map_or(defaults.leaf_max, |n| n as usize),
+        collapse: a.collapse.unwrap_or(defaults.collapse),
+        c_node: a.c_node.or(defaults.c_node),
+        leaf_max: a.leaf_max.map(|n| n as usize).or(defaults.leaf_max),
         kernel: defaults.kernel,
     };
     if options != defaults {
         let t = Instant::now();
         world.accel = Accel::build_with(&world.scene, &options, &mut |_| {});
+        let or_default = |x: Option<String>| x.unwrap_or_else(|| "default".into());
         say!(
-            "kalos BVH rebuilt with {}, C_node {}, at most {} triangles a leaf: {:.2} s",
+            "kalos BVH rebuilt with {}, the {} collapse, C_node {}, at most {} triangles a leaf: {:.2} s",
             options.builder.name(),
-            options.c_node,
-            options.leaf_max,
+            match options.collapse {
+                CollapseRule::Sah => "sah",
+                CollapseRule::Greedy => "greedy",
+            },
+            or_default(options.c_node.map(|c| c.to_string())),
+            or_default(options.leaf_max.map(|n| n.to_string())),
             t.elapsed().as_secs_f64()
         );
     }
-    // The counters are in the 4-wide kernel: an 8-wide build is described
-    // by the 4-wide collapse of the same binary tree
-    let counted4 = (!world.accel.counted()).then(|| {
-        let options = BuildOptions {
-            kernel: Kernel::Bvh4,
-            ..options
-        };
-        Accel::build_with(&world.scene, &options, &mut |_| {})
-    });
-    let stats_accel = counted4.as_ref().unwrap_or(&world.accel);
-    if counted4.is_some() {
-        say!("kalos traverses an 8-wide BVH; the tree's figures below are of the 4-wide collapse of the same binary tree, which the counters walk");
-    }
-    let q = stats_accel.tree_stats();
+    let q = world.accel.tree_stats();
     say!(
-        "kalos BVH: {} wide nodes, {} leaves, {} packs ({:.2} triangles a pack); SAH cost {:.2} ({:.2} node tests + {:.2} pack tests a ray entering the root)",
+        "kalos BVH, {} wide: {} nodes, {} leaves, {} packs ({:.2} triangles a pack); SAH cost {:.2} ({:.2} node tests + {:.2} pack tests a ray entering the root)",
+        q.width,
         q.nodes,
         q.leaves,
         q.packs,
@@ -213,7 +221,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let mut tracers: Vec<&dyn Tracer> = vec![&kalos_core];
         tracers.extend_from_slice(others);
         report_answers(&world.scene, &sets, &tracers);
-        report_visits(stats_accel, &sets);
+        report_visits(&world.accel, &sets);
         let timings =
             replay::measure(&sets, &tracers, &threads, repeat).context("making a thread pool")?;
         report_timings(&timings, repeat);
