@@ -159,6 +159,16 @@ impl<const N: usize> Stack<N> {
                 .write(u64::from(r) | (u64::from(dist.to_bits()) << 32))
         };
     }
+
+    /// Writes three entries, packed as [`Stack::set`] packs them, from
+    /// entry `i` up (`i` at most `len`), with one bounds check.
+    #[inline(always)]
+    pub fn set3(&mut self, i: usize, e: [u64; 3]) {
+        // The tree's depth was checked against the stack when it was built
+        assert!(i + 3 <= N);
+        // SAFETY: i + 3 <= N
+        unsafe { self.ptr().add(i).cast::<[u64; 3]>().write_unaligned(e) };
+    }
 }
 
 /// What a kernel tells as it walks: the wide nodes and triangle packs it

@@ -205,6 +205,51 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
                     r = node.child[near];
                     continue;
                 }
+                if rest.count_ones() <= 3 {
+                    // Three or four children: a sorting network, whose
+                    // compare-exchanges need no branches (the insertion
+                    // below branches on each comparison, on distances the
+                    // predictor cannot guess). A key is the
+                    // entry distance's bits, which order as the distances
+                    // do when these are not negative (they are at least
+                    // `tmin`; a negative `tmin` could change the order of
+                    // visits, not the closest distance), above 7 − lane,
+                    // so that equal distances are popped last lane first,
+                    // as the insertion would; a missing fourth is u64::MAX
+                    // and sorts last.
+                    let key = |m: u32| {
+                        let i = m.trailing_zeros() as usize;
+                        (u64::from(t0a[i].to_bits()) << 32) | (7 - i) as u64
+                    };
+                    let (m1, m2) = (rest, rest & (rest - 1));
+                    let m3 = m2 & (m2 - 1);
+                    // (lane 7 stands in for a missing fourth, to read in bounds)
+                    let k3 = key(m3 | 0x80);
+                    let mut k = [
+                        key(mask),
+                        key(m1),
+                        key(m2),
+                        if m3 != 0 { k3 } else { u64::MAX },
+                    ];
+                    for (a, b) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
+                        let (lo, hi) = (k[a].min(k[b]), k[a].max(k[b]));
+                        (k[a], k[b]) = (lo, hi);
+                    }
+                    // Push the farthest first, as stack entries (the key's
+                    // distance above the child); without a fourth, the
+                    // third slot written is past the new top, unused
+                    let child = |k: u64| node.child[(k & 7) as usize ^ 7];
+                    let entry = |k: u64| (k & !0xffff_ffff) | u64::from(child(k));
+                    let (e1, e2, e3) = (entry(k[1]), entry(k[2]), entry(k[3]));
+                    let four = m3 != 0;
+                    stack.set3(
+                        stack.len,
+                        [if four { e3 } else { e2 }, if four { e2 } else { e1 }, e1],
+                    );
+                    stack.len += 2 + usize::from(four);
+                    r = child(k[0]);
+                    continue;
+                }
                 let base = stack.len;
                 let mut bits = mask;
                 while bits != 0 {
