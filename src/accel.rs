@@ -410,7 +410,7 @@ impl Accel {
             ),
             #[cfg(target_arch = "x86_64")]
             Core::Bvh8(w) => (
-                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax)?,
+                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)?,
                 &w.ids,
             ),
         };
@@ -442,7 +442,7 @@ impl Accel {
             None => false,
             Some(Core::Bvh4(w)) => traverse::any(w, o, d, tmin, tmax, &mut traverse::NoCount),
             #[cfg(target_arch = "x86_64")]
-            Some(Core::Bvh8(w)) => traverse8::any(w, o, d, tmin, tmax),
+            Some(Core::Bvh8(w)) => traverse8::any(w, o, d, tmin, tmax, &mut traverse::NoCount),
         }
     }
 
@@ -457,9 +457,8 @@ impl Accel {
 
     /// [`Accel::intersect`], adding the nodes and packs it tests to
     /// `visits` (for `kalos bench`; the uncounted query is the fast one).
-    /// The 4-wide tree is counted by its kernel; the 8-wide one by
-    /// `quality.rs`'s scalar copy of its kernel, which visits the same nodes
-    /// in the same order.
+    /// Either kernel counts itself, so the counts are of the nodes and
+    /// packs the fast query tests.
     pub fn intersect_counted(&self, ray: &Ray, visits: &mut Visits) -> Option<Hit> {
         let (h, ids) = match self.core.as_ref()? {
             Core::Bvh4(w) => (
@@ -468,7 +467,7 @@ impl Accel {
             ),
             #[cfg(target_arch = "x86_64")]
             Core::Bvh8(w) => (
-                quality::closest8_counted(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?,
+                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?,
                 &w.ids,
             ),
         };
@@ -487,9 +486,7 @@ impl Accel {
             None => false,
             Some(Core::Bvh4(w)) => traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits),
             #[cfg(target_arch = "x86_64")]
-            Some(Core::Bvh8(w)) => {
-                quality::any8_counted(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)
-            }
+            Some(Core::Bvh8(w)) => traverse8::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits),
         }
     }
 }

@@ -358,8 +358,7 @@ proptest! {
 
     /// The trees of every builder, collapse and leaf choice answer as the
     /// brute force, and the counted queries as the uncounted ones, bit for
-    /// bit (the 4-wide kernel counts itself; the 8-wide kernel is counted by
-    /// a scalar copy of it), in both widths where this CPU has the 8-wide.
+    /// bit, in both widths where this CPU has the 8-wide.
     #[test]
     fn every_build_matches_brute_force(
         (tris, rays) in prop::collection::vec(triangle(), 1..300)

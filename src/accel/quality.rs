@@ -9,11 +9,6 @@ use super::wide::{Node, Wide, LEAF_BIT};
 use super::wide8::Wide8;
 use super::Core;
 
-#[cfg(target_arch = "x86_64")]
-mod count8;
-#[cfg(target_arch = "x86_64")]
-pub(super) use count8::{any8_counted, closest8_counted};
-
 /// The shape of a wide BVH and its surface area heuristic (SAH) cost.
 ///
 /// The SAH prices a tree for rays that enter the root's box with uniformly

@@ -13,7 +13,7 @@ use std::arch::x86_64::*;
 use glam::Vec3;
 
 use super::collapse::leaf_packs;
-use super::traverse::{SlotHit, Stack};
+use super::traverse::{Count, SlotHit, Stack};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 
 /// The far distance's widening of `traverse.rs` (pbrt-v4's 1 + 2γ₃, §6.8.2),
@@ -156,22 +156,43 @@ impl Prepared {
 
 /// The closest hit along `o + t d` in `[tmin, tmax)`.
 #[inline]
-pub(super) fn closest(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+pub(super) fn closest(
+    w: &Wide8,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+    count: &mut impl Count,
+) -> Option<SlotHit> {
     let _ = w.avx2;
     // SAFETY: a Wide8 holds an Avx2 token, made only where AVX2 was detected
-    unsafe { closest_avx2(w, o, d, tmin, tmax) }
+    unsafe { closest_avx2(w, o, d, tmin, tmax, count) }
 }
 
 /// True when anything meets `o + t d` within `[tmin, tmax)`.
 #[inline]
-pub(super) fn any(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+pub(super) fn any(
+    w: &Wide8,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+    count: &mut impl Count,
+) -> bool {
     let _ = w.avx2;
     // SAFETY: as in `closest`
-    unsafe { any_avx2(w, o, d, tmin, tmax) }
+    unsafe { any_avx2(w, o, d, tmin, tmax, count) }
 }
 
 #[target_feature(enable = "avx2")]
-fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+fn closest_avx2<C: Count>(
+    w: &Wide8,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+    count: &mut C,
+) -> Option<SlotHit> {
     let ray = Prepared::new(o, d);
     let vmin = _mm256_set1_ps(tmin);
     let mut best: Option<SlotHit> = None;
@@ -182,6 +203,7 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
         if r & LEAF_BIT == 0 {
             // Test the eight children; descend into the nearest, push the others
             let node = &w.nodes[r as usize];
+            count.node();
             let (mask, t0) = ray.boxes(node, vmin, _mm256_set1_ps(t_best));
             if mask != 0 {
                 if mask & (mask - 1) == 0 {
@@ -275,6 +297,7 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
         } else {
             // Test the leaf's triangles, eight at a time
             for p in leaf_packs(r) {
+                count.pack();
                 let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, _mm256_set1_ps(t_best));
                 if mask != 0 {
                     let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
@@ -317,7 +340,7 @@ fn closest_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Slo
 }
 
 #[target_feature(enable = "avx2")]
-fn any_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+fn any_avx2<C: Count>(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32, count: &mut C) -> bool {
     let ray = Prepared::new(o, d);
     let (vmin, vmax) = (_mm256_set1_ps(tmin), _mm256_set1_ps(tmax));
     let mut stack = Stack::<STACK>::new();
@@ -326,6 +349,7 @@ fn any_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         if r & LEAF_BIT == 0 {
             // Any order will do: descend into the first child hit, push the rest
             let node = &w.nodes[r as usize];
+            count.node();
             let (mut mask, _) = ray.boxes(node, vmin, vmax);
             if mask != 0 {
                 r = node.child[mask.trailing_zeros() as usize];
@@ -339,6 +363,7 @@ fn any_avx2(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
             }
         } else {
             for p in leaf_packs(r) {
+                count.pack();
                 if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
                     return true;
                 }
