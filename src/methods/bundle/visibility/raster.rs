@@ -12,7 +12,7 @@
 //! every pixel the edge tests pass ([`RowClip`]), so that the scan skips
 //! most of the box's empty groups without changing a fragment.
 
-use glam::{BVec4A, Vec2, Vec3, Vec4};
+use glam::{BVec4A, Vec2, Vec3, Vec3A, Vec4};
 
 use crate::geometry::Frame;
 
@@ -93,7 +93,8 @@ impl ToMap {
     /// are the same.
     #[inline(always)]
     pub fn patch(&self, v: &[Vec3; 3]) -> ([Vec2; 3], [f32; 3], f32) {
-        let m = (v[0] + v[1] + v[2]) / 3.0;
+        // in 4 lanes (the same per-component operations, so the same bits)
+        let m = (Vec3A::from(v[0]) + Vec3A::from(v[1]) + Vec3A::from(v[2])) / 3.0;
         let c = self.center;
         // the centroid lane subtracts 0, which leaves it as it is
         let x = Vec4::new(v[0].x, v[1].x, v[2].x, m.x) - Vec4::new(c.x, c.x, c.x, 0.0);
