@@ -332,6 +332,32 @@ impl View {
         // (emission is exact per pixel)
         let vert = (mode == ImageMode::Gouraud)
             .then(|| self.eye_vertices(world, patches, d, e_plus, e_minus));
+        let vert = vert.as_deref();
+        if self.positions == Positions::Fixed && !self.nee && !self.gather {
+            // The paper's form: each pixel only reflects what its stored
+            // sample's patch received, and most patches received nothing
+            // along ±ω_m. The general path's per-pixel calls (sample,
+            // direct light, gather) cost more than that, so here the
+            // iteration's block of samples is walked in chunks. The sums
+            // are the general path's, operation for operation.
+            let n = sum.len();
+            let block = &self.samples[(iter as usize % SAMPLES) * n..][..n];
+            sum.par_chunks_mut(PIXEL_CHUNK)
+                .zip(block.par_chunks(PIXEL_CHUNK))
+                .for_each(|(acc, ss)| {
+                    for (acc, s) in acc.iter_mut().zip(ss) {
+                        // no direct light in this form: its term is zero
+                        let mut l = s.le + Rgb::ZERO;
+                        if s.patch != NO_PATCH {
+                            l += reflected(patches, vert, s, d, e_plus, e_minus);
+                        }
+                        if l.is_finite() {
+                            *acc += l.as_dvec3();
+                        }
+                    }
+                });
+            return 0;
+        }
         sum.par_iter_mut()
             .enumerate()
             .map(|(pix, acc)| {
@@ -345,29 +371,7 @@ impl View {
                     l += lg;
                     traced += g_rays;
                 } else if s.patch != NO_PATCH {
-                    let i = s.patch as usize;
-                    match &vert {
-                        // Phong: the patch's reflection of the pair ±d
-                        None => {
-                            let p = &patches.p[i];
-                            let k = 2.0 * std::f32::consts::PI / p.area;
-                            let mut r = Rgb::ZERO;
-                            if e_plus[i] != Rgb::ZERO {
-                                r += transfer::brdf(p, s.ns, d, s.wo) * e_plus[i];
-                            }
-                            if e_minus[i] != Rgb::ZERO {
-                                r += transfer::brdf(p, s.ns, -d, s.wo) * e_minus[i];
-                            }
-                            l += s.thr * r * k;
-                        }
-                        Some(vert) => {
-                            let vid = patches.vid[i];
-                            let r = vert[vid[0] as usize] * s.w.x
-                                + vert[vid[1] as usize] * s.w.y
-                                + vert[vid[2] as usize] * s.w.z;
-                            l += s.thr * r;
-                        }
-                    }
+                    l += reflected(patches, vert, s, d, e_plus, e_minus);
                 }
                 if l.is_finite() {
                     *acc += l.as_dvec3();
@@ -413,6 +417,47 @@ impl View {
                 }
             })
             .collect()
+    }
+}
+
+/// Pixels per task of the image estimate's fast path.
+const PIXEL_CHUNK: usize = 4096;
+
+/// What sample `s` (on a patch) adds to its pixel from the sweep along
+/// ±d: the patch's reflection of the pair (Phong), or the eye radiance
+/// `vert` interpolated from its vertices (Gouraud); times the sample's
+/// delta-chain throughput.
+#[inline(always)]
+fn reflected(
+    patches: &Patches,
+    vert: Option<&[Rgb]>,
+    s: &PixelSample,
+    d: Vec3,
+    e_plus: &[Rgb],
+    e_minus: &[Rgb],
+) -> Rgb {
+    let i = s.patch as usize;
+    match vert {
+        // Phong: the patch's reflection of the pair ±d
+        None => {
+            let p = &patches.p[i];
+            let k = 2.0 * std::f32::consts::PI / p.area;
+            let mut r = Rgb::ZERO;
+            if e_plus[i] != Rgb::ZERO {
+                r += transfer::brdf(p, s.ns, d, s.wo) * e_plus[i];
+            }
+            if e_minus[i] != Rgb::ZERO {
+                r += transfer::brdf(p, s.ns, -d, s.wo) * e_minus[i];
+            }
+            s.thr * r * k
+        }
+        Some(vert) => {
+            let vid = patches.vid[i];
+            let r = vert[vid[0] as usize] * s.w.x
+                + vert[vid[1] as usize] * s.w.y
+                + vert[vid[2] as usize] * s.w.z;
+            s.thr * r
+        }
     }
 }
 

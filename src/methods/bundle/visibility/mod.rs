@@ -381,7 +381,9 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
     let chunks = &mut scratch.chunks;
     chunks.resize_with(CHUNKS, Default::default);
     // a projection's rows are inside the map (Proj::new clips them)
-    let tiles_of = |pr: &Proj| tile_of[pr.y0 as usize] as usize..=tile_of[pr.y1 as usize] as usize;
+    // (an exclusive range: an inclusive one iterates with an extra flag)
+    let tiles_of =
+        |pr: &Proj| tile_of[pr.y0 as usize] as usize..tile_of[pr.y1 as usize] as usize + 1;
     patches
         .p
         .par_chunks(chunk_len)
@@ -411,9 +413,12 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
             }
             ck.next.clear();
             ck.next.extend_from_slice(&ck.start[..ntiles]);
-            ck.by_tile.clear();
+            // every entry below start[ntiles] is written next, so the old
+            // ones need no clearing (only new room is filled)
+            let total = ck.start[ntiles];
+            ck.by_tile.truncate(total);
             if let Some(&first) = ck.by_id.first() {
-                ck.by_tile.resize(ck.start[ntiles], first);
+                ck.by_tile.resize(total, first);
             }
             for pr in &ck.by_id {
                 for t in tiles_of(pr) {

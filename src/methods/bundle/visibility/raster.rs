@@ -12,7 +12,7 @@
 //! every pixel the edge tests pass ([`RowClip`]), so that the scan skips
 //! most of the box's empty groups without changing a fragment.
 
-use glam::{BVec4A, Vec2, Vec3, Vec4};
+use glam::{BVec4A, Vec2, Vec3, Vec3A, Vec4};
 
 use crate::geometry::Frame;
 
@@ -34,6 +34,7 @@ fn owns(a: Vec2, b: Vec2) -> bool {
 
 /// ⌊v⌋ as i32 (saturating, NaN → 0), like `v.floor() as i32`, without the
 /// libm call that `floor` compiles to on baseline x86-64.
+#[cfg(any(test, not(target_arch = "x86_64")))]
 #[inline]
 pub(super) fn floor_i32(v: f32) -> i32 {
     let i = v as i32;
@@ -45,6 +46,7 @@ pub(super) fn floor_i32(v: f32) -> i32 {
 }
 
 /// ⌈v⌉ as i32 (saturating, NaN → 0), like `v.ceil() as i32`.
+#[cfg(any(test, not(target_arch = "x86_64")))]
 #[inline]
 pub(super) fn ceil_i32(v: f32) -> i32 {
     let i = v as i32;
@@ -52,6 +54,60 @@ pub(super) fn ceil_i32(v: f32) -> i32 {
         i.saturating_add(1)
     } else {
         i
+    }
+}
+
+/// Bound of the lanes of [`box_bounds`]: its values, and any larger,
+/// lie beyond every map's last pixel, so they clip the same.
+const BOX_LIMIT: f32 = (1 << 30) as f32;
+
+/// The box of pixel centres of a box `lo`..`hi` on the map, before
+/// clipping: [⌈lo.x − ½⌉, ⌈lo.y − ½⌉, ⌊hi.x − ½⌋, ⌊hi.y − ½⌋]. For finite
+/// values this clips to the map like `ceil_i32` and `floor_i32` (the
+/// lanes are first clamped to ±[`BOX_LIMIT`], where the scalar forms
+/// saturate, and both clip to the same pixels); [`Proj::new`] never
+/// passes NaN. Four lanes at once, where the scalar forms need a
+/// saturating cast and a correction each.
+#[inline(always)]
+pub(super) fn box_bounds(lo: Vec2, hi: Vec2) -> [i32; 4] {
+    let v = Vec4::new(lo.x, lo.y, hi.x, hi.y) - Vec4::splat(0.5);
+    let v = v.max(Vec4::splat(-BOX_LIMIT)).min(Vec4::splat(BOX_LIMIT));
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{
+            _mm_add_epi32, _mm_and_si128, _mm_castps_si128, _mm_cmpgt_ps, _mm_cmplt_ps,
+            _mm_cvtepi32_ps, _mm_cvtsi128_si32, _mm_cvttps_epi32, _mm_set_epi32, _mm_shuffle_epi32,
+            _mm_sub_epi32,
+        };
+        // SAFETY: SSE2 is part of the x86_64 baseline, and these
+        // intrinsics only compute on registers.
+        unsafe {
+            // Truncation is exact here (|v| ≤ 2^30), and so is the way back.
+            let v = v.into();
+            let i = _mm_cvttps_epi32(v);
+            let f = _mm_cvtepi32_ps(i);
+            // masks are −1 where true: ceil lanes add 1 when truncation fell
+            // below v, floor lanes subtract 1 when it rose above
+            let up = _mm_and_si128(
+                _mm_castps_si128(_mm_cmplt_ps(f, v)),
+                _mm_set_epi32(0, 0, -1, -1),
+            );
+            let down = _mm_and_si128(
+                _mm_castps_si128(_mm_cmpgt_ps(f, v)),
+                _mm_set_epi32(-1, -1, 0, 0),
+            );
+            let r = _mm_add_epi32(_mm_sub_epi32(i, up), down);
+            [
+                _mm_cvtsi128_si32(r),
+                _mm_cvtsi128_si32(_mm_shuffle_epi32::<0b01>(r)),
+                _mm_cvtsi128_si32(_mm_shuffle_epi32::<0b10>(r)),
+                _mm_cvtsi128_si32(_mm_shuffle_epi32::<0b11>(r)),
+            ]
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        [ceil_i32(v.x), ceil_i32(v.y), floor_i32(v.z), floor_i32(v.w)]
     }
 }
 
@@ -93,7 +149,8 @@ impl ToMap {
     /// are the same.
     #[inline(always)]
     pub fn patch(&self, v: &[Vec3; 3]) -> ([Vec2; 3], [f32; 3], f32) {
-        let m = (v[0] + v[1] + v[2]) / 3.0;
+        // in 4 lanes (the same per-component operations, so the same bits)
+        let m = (Vec3A::from(v[0]) + Vec3A::from(v[1]) + Vec3A::from(v[2])) / 3.0;
         let c = self.center;
         // the centroid lane subtracts 0, which leaves it as it is
         let x = Vec4::new(v[0].x, v[1].x, v[2].x, m.x) - Vec4::new(c.x, c.x, c.x, 0.0);
@@ -247,10 +304,9 @@ impl Proj {
         }
         let lo = a.min(b).min(c);
         let hi = a.max(b).max(c);
-        let x0 = ceil_i32(lo.x - 0.5).max(0);
-        let x1 = floor_i32(hi.x - 0.5).min(pj.w - 1);
-        let y0 = ceil_i32(lo.y - 0.5).max(0);
-        let y1 = floor_i32(hi.y - 0.5).min(pj.h - 1);
+        let [x0, y0, x1, y1] = box_bounds(lo, hi);
+        let (x0, x1) = (x0.max(0), x1.min(pj.w - 1));
+        let (y0, y1) = (y0.max(0), y1.min(pj.h - 1));
         if x0 > x1 || y0 > y1 {
             return None;
         }
@@ -724,6 +780,59 @@ mod tests {
         for v in vals {
             assert_eq!(floor_i32(v), v.floor() as i32, "floor {v}");
             assert_eq!(ceil_i32(v), v.ceil() as i32, "ceil {v}");
+        }
+    }
+
+    /// The 4-lane box bounds clip to the same pixels as the scalar
+    /// ceil/floor, for finite values from sub-pixel to saturating.
+    #[test]
+    fn box_bounds_match_scalar() {
+        let mut rng = Pcg32::keyed(&[78]);
+        let mut vals = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            1.5,
+            -1.5,
+            2.5e9,
+            -2.5e9,
+            1.5e30,
+            -1.5e30,
+            16777217.0,
+            -0.49999997,
+            0.50000006,
+            1023.5,
+            1024.5,
+            1e-30,
+        ];
+        vals.extend((0..100_000).map(|_| (rng.next_f32() - 0.5) * 3000.0));
+        vals.extend((0..1000).map(|_| (rng.next_f32() - 0.5) * 1e12));
+        let (w, h) = (1025, 1025);
+        for (k, &x) in vals.iter().enumerate() {
+            let y = vals[(k * 7 + 3) % vals.len()];
+            // boxes from sub-pixel to many pixels wide
+            let e = Vec2::new(rng.next_f32(), rng.next_f32()) * [1.0, 4.0, 40.0][k % 3];
+            let (lo, hi) = (Vec2::new(x, y), Vec2::new(x, y) + e);
+            let [x0, y0, x1, y1] = box_bounds(lo, hi);
+            let want = [
+                ceil_i32(lo.x - 0.5),
+                ceil_i32(lo.y - 0.5),
+                floor_i32(hi.x - 0.5),
+                floor_i32(hi.y - 0.5),
+            ];
+            // below the clamp, the very same bounds
+            if lo.abs().max(hi.abs()).max_element() < 1e9 {
+                assert_eq!([x0, y0, x1, y1], want, "lo {lo} hi {hi}");
+            }
+            // the clipped box, or None when it holds no pixel (the value
+            // of an empty bound does not matter)
+            let clip = |[x0, y0, x1, y1]: [i32; 4]| {
+                let b = (x0.max(0), y0.max(0), x1.min(w - 1), y1.min(h - 1));
+                (b.0 <= b.2 && b.1 <= b.3).then_some(b)
+            };
+            assert_eq!(clip([x0, y0, x1, y1]), clip(want), "lo {lo} hi {hi}");
         }
     }
 }
