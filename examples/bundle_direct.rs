@@ -8,7 +8,7 @@ use std::path::Path;
 
 use glam::Vec3;
 use kalos::methods::bundle::patches::{edge_for_count, Patches};
-use kalos::methods::bundle::visibility::{sweep, SweepInput, Visibility};
+use kalos::methods::bundle::visibility::{sweep, Plane, SweepInput, Visibility};
 use kalos::methods::World;
 use kalos::sampling::{uniform_sphere, uniform_triangle, Pcg32};
 
@@ -38,21 +38,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let inc = sweep(
             &patches,
             &SweepInput {
-                d,
+                plane: Plane {
+                    d,
+                    res,
+                    center: world.lights.center,
+                    radius: world.lights.radius,
+                    keys: [5, k],
+                    visibility: if std::env::var("ZB").is_ok() {
+                        Visibility::ZBuffer
+                    } else {
+                        Visibility::Painter
+                    },
+                    centre_rr: true,
+                },
                 l_plus: &lp,
                 l_minus: &lm,
                 sky_plus: Vec3::ZERO,
                 sky_minus: Vec3::ZERO,
-                res,
-                center: world.lights.center,
-                radius: world.lights.radius,
-                keys: [5, k],
-                visibility: if std::env::var("ZB").is_ok() {
-                    Visibility::ZBuffer
-                } else {
-                    Visibility::Painter
-                },
-                centre_rr: true,
             },
             &mut Default::default(),
         );

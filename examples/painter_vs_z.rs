@@ -5,7 +5,7 @@ use std::path::Path;
 
 use glam::Vec3;
 use kalos::methods::bundle::patches::{edge_for_count, Patches};
-use kalos::methods::bundle::visibility::{sweep, SweepInput, Visibility};
+use kalos::methods::bundle::visibility::{sweep, Plane, SweepInput, Visibility};
 use kalos::methods::World;
 use kalos::sampling::{uniform_sphere, Pcg32};
 
@@ -32,17 +32,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sweep(
                 &patches,
                 &SweepInput {
-                    d,
+                    plane: Plane {
+                        d,
+                        res,
+                        center: world.lights.center,
+                        radius: world.lights.radius,
+                        keys: [5, k],
+                        visibility: v,
+                        centre_rr: true,
+                    },
                     l_plus: l,
                     l_minus: m,
                     sky_plus: Vec3::ZERO,
                     sky_minus: Vec3::ZERO,
-                    res,
-                    center: world.lights.center,
-                    radius: world.lights.radius,
-                    keys: [5, k],
-                    visibility: v,
-                    centre_rr: true,
                 },
                 &mut Default::default(),
             )
@@ -69,17 +71,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sweep(
                 &patches,
                 &SweepInput {
-                    d,
+                    plane: Plane {
+                        d,
+                        res,
+                        center: world.lights.center,
+                        radius: world.lights.radius,
+                        keys: [5, k],
+                        visibility: v,
+                        centre_rr: true,
+                    },
                     l_plus: &le,
                     l_minus: &lem,
                     sky_plus: Vec3::ZERO,
                     sky_minus: Vec3::ZERO,
-                    res,
-                    center: world.lights.center,
-                    radius: world.lights.radius,
-                    keys: [5, k],
-                    visibility: v,
-                    centre_rr: true,
                 },
                 &mut Default::default(),
             )

@@ -19,7 +19,7 @@ use kalos::film::Image;
 use kalos::geometry::look_at;
 use kalos::image_io::read_image;
 use kalos::methods::bundle::patches::Patches;
-use kalos::methods::bundle::visibility::{sweep, SweepInput, Visibility};
+use kalos::methods::bundle::visibility::{sweep, Plane, SweepInput, Visibility};
 use kalos::methods::{bundle, MethodConfig};
 use kalos::metrics::{rel_mse, rel_mse_pair};
 use kalos::sampling::{uniform_sphere, Pcg32};
@@ -96,17 +96,19 @@ fn form_factor(vis: Visibility) {
             let inc = sweep(
                 &patches,
                 &SweepInput {
-                    d,
+                    plane: Plane {
+                        d,
+                        res: 128,
+                        center: lights.center,
+                        radius: lights.radius,
+                        keys: [3, k],
+                        visibility: vis,
+                        centre_rr: true,
+                    },
                     l_plus: &l,
                     l_minus: &l,
                     sky_plus: Vec3::ZERO,
                     sky_minus: Vec3::ZERO,
-                    res: 128,
-                    center: lights.center,
-                    radius: lights.radius,
-                    keys: [3, k],
-                    visibility: vis,
-                    centre_rr: true,
                 },
                 &mut scratch,
             );
@@ -184,17 +186,19 @@ fn painter_pairs_equal_zbuffer_on_cbox() {
             sweep(
                 &patches,
                 &SweepInput {
-                    d,
+                    plane: Plane {
+                        d,
+                        res,
+                        center: lights.center,
+                        radius: lights.radius,
+                        keys: [5, k],
+                        visibility,
+                        centre_rr: true,
+                    },
                     l_plus: &l_plus,
                     l_minus: &l_minus,
                     sky_plus: Vec3::ZERO,
                     sky_minus: Vec3::ZERO,
-                    res,
-                    center: lights.center,
-                    radius: lights.radius,
-                    keys: [5, k],
-                    visibility,
-                    centre_rr: true,
                 },
                 &mut Default::default(),
             )
@@ -231,17 +235,19 @@ fn sweep_same_whatever_the_thread_count() {
     let run = |threads: usize, k: u64, visibility: Visibility, res: u32| {
         let d = uniform_sphere(Pcg32::keyed(&[2, k]).next_2d());
         let inp = SweepInput {
-            d,
+            plane: Plane {
+                d,
+                res,
+                center: lights.center,
+                radius: lights.radius,
+                keys: [9, k],
+                visibility,
+                centre_rr: true,
+            },
             l_plus: &l_plus,
             l_minus: &l_minus,
             sky_plus: Vec3::new(0.5, 0.25, 0.125),
             sky_minus: Vec3::new(0.125, 0.25, 0.5),
-            res,
-            center: lights.center,
-            radius: lights.radius,
-            keys: [9, k],
-            visibility,
-            centre_rr: true,
         };
         let inc = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)

@@ -501,19 +501,12 @@ impl Method for Bundle {
             centre_rr: self.settings.centre_rr,
         };
         let inp = SweepInput {
-            d,
+            plane: plane(d, self.iter),
             l_plus: &self.l_plus,
             l_minus: &self.l_minus,
             sky_plus: sky(-d),
             sky_minus: sky(d),
-            res: setup.res,
-            center: world.lights.center,
-            radius: world.lights.radius,
-            keys: [seed, self.iter],
-            visibility: self.settings.visibility,
-            centre_rr: self.settings.centre_rr,
         };
-        debug_assert_eq!(inp.plane(), plane(d, self.iter));
         let inc = &mut self.incoming;
         visibility::sweep_into(patches, &inp, &mut self.scratch, inc);
         self.timings.project += inc.t_project;

@@ -113,8 +113,8 @@ pub struct Incoming {
 
 /// What a sweep needs besides the patches.
 pub struct SweepInput<'a> {
-    /// Flow direction d (unit).
-    pub d: Vec3,
+    /// The direction, the map and its random streams.
+    pub plane: Plane,
     /// Radiance of every patch toward +d.
     pub l_plus: &'a [Rgb],
     /// Radiance of every patch toward −d.
@@ -123,34 +123,6 @@ pub struct SweepInput<'a> {
     pub sky_plus: Rgb,
     /// Sky radiance flowing along −d.
     pub sky_minus: Rgb,
-    /// Map resolution (pixels per side over the bounding sphere's diameter).
-    pub res: u32,
-    /// Centre of the scene's bounding sphere.
-    pub center: Vec3,
-    /// Its radius.
-    pub radius: f32,
-    /// Random stream keys (seed, iteration).
-    pub keys: [u64; 2],
-    /// Painter or z-buffer.
-    pub visibility: Visibility,
-    /// Sub-pixel patches: Russian roulette by the pixel-centre test (true)
-    /// or by a uniformly placed single pixel (false); see the module notes.
-    pub centre_rr: bool,
-}
-
-impl SweepInput<'_> {
-    /// The fields that place the map and its patches' projections.
-    pub fn plane(&self) -> Plane {
-        Plane {
-            d: self.d,
-            res: self.res,
-            center: self.center,
-            radius: self.radius,
-            keys: self.keys,
-            visibility: self.visibility,
-            centre_rr: self.centre_rr,
-        }
-    }
 }
 
 /// What the projection of the patches depends on: the direction, the map
@@ -171,7 +143,8 @@ pub struct Plane {
     pub keys: [u64; 2],
     /// Painter or z-buffer (the painter sorts by depth).
     pub visibility: Visibility,
-    /// Sub-pixel rule, as in [`SweepInput`].
+    /// Sub-pixel patches: Russian roulette by the pixel-centre test (true)
+    /// or by a uniformly placed single pixel (false); see the module notes.
     pub centre_rr: bool,
 }
 
@@ -440,7 +413,7 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
 /// one [`project`] left in `scratch` for this plane, or made now.
 pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out: &mut Incoming) {
     let n = patches.len();
-    let plane = inp.plane();
+    let plane = inp.plane;
     let Layout {
         w,
         h,
@@ -541,7 +514,7 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
                 ep: &mut wk.ep,
                 em: &mut wk.em,
             };
-            let frags = match inp.visibility {
+            let frags = match inp.plane.visibility {
                 Visibility::Painter => painter_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
                 Visibility::ZBuffer => zbuffer_band(&src, &wk.keys, inp, y0..y1, w, &mut acc),
             };
