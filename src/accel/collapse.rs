@@ -399,7 +399,10 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
         for i in 2..=m {
             for k in 1..i {
                 let c = left[k - 1] + right[i - k - 1];
-                if c < split[i - 1] {
+                // The first k is taken whatever its cost, so that a split
+                // exists even where every cost is infinite or NaN (boxes
+                // of extreme coordinates overflow their areas)
+                if split_left[i - 1] == 0 || c < split[i - 1] {
                     split[i - 1] = c;
                     split_left[i - 1] = k as u8;
                 }
@@ -412,7 +415,9 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
             f32::INFINITY
         };
         let mut cost = [0f32; W];
-        if leaf <= inner {
+        // Tested on the count too: with an infinite area an oversized
+        // leaf would tie with the inner node
+        if count as usize <= leaf_max && leaf <= inner {
             cost[0] = leaf;
             d[0] = PLAN_LEAF;
         } else {

@@ -459,3 +459,45 @@ fn top_down_fallback_answers() {
         assert!(accel.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0)));
     }
 }
+
+/// Coordinates near `f32::MAX` overflow the boxes' areas to infinity (and
+/// to NaN where an extent is zero), so every SAH cost ties. Every builder
+/// and collapse rule must still place every triangle in a leaf it can
+/// encode, and answer as the brute force (a mutated scene file once made
+/// the SAH-optimal collapse choose an oversized leaf there).
+#[test]
+fn infinite_areas_still_build() {
+    let n = 300;
+    let at = |i: usize| (2.0 * i as f32 / n as f32 - 1.0) * 3e38;
+    let tris: Vec<[Vec3; 3]> = (0..n)
+        .map(|i| {
+            let (x, w, z) = (at(i), 1e35, i as f32);
+            [
+                Vec3::new(x - w, -1.0, z),
+                Vec3::new(x + w, -1.0, z),
+                Vec3::new(x, 1.0, z),
+            ]
+        })
+        .collect();
+    let scene = soup(&tris);
+    for builder in [Builder::Best, Builder::Sah, Builder::PlocMedium] {
+        for collapse in [CollapseRule::Sah, CollapseRule::Greedy] {
+            for kernel in kernels() {
+                let options = BuildOptions {
+                    builder,
+                    collapse,
+                    kernel,
+                    ..BuildOptions::default()
+                };
+                let accel = Accel::build_with(&scene, &options, &mut |_| {});
+                assert_eq!(accel.tree_stats().triangles, n, "{options:?}");
+                for i in (0..n).step_by(7) {
+                    let o = Vec3::new(at(i), 0.0, i as f32 + 0.5);
+                    let h = accel.intersect(&Ray::new(o, -Vec3::Z));
+                    assert_eq!(h.map(|h| h.tri), Some(i as u32), "{options:?}");
+                    check(&accel, &tris, o, -Vec3::Z, 0.0, f32::INFINITY).unwrap();
+                }
+            }
+        }
+    }
+}
