@@ -347,13 +347,10 @@ impl Accel {
             .ploc_params()
             .filter(|&params| ploc_is_safe(&tris, params));
         let core = match (options.builder, safe) {
-            (Builder::Both, Some(params)) => {
-                on_phase(format!(
-                    "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
-                ));
-                both(params)
-            }
-            (Builder::Best, Some(params)) if n <= CHOICE_SAMPLE => {
+            // A scene no larger than the sample is built both ways in full
+            (b @ (Builder::Both | Builder::Best), Some(params))
+                if b == Builder::Both || n <= CHOICE_SAMPLE =>
+            {
                 on_phase(format!(
                     "building the BVH over {n} triangles, by PLOC and top-down, to keep the cheaper"
                 ));
@@ -403,14 +400,21 @@ impl Accel {
     /// The closest hit along `ray` in `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.closest(ray, &mut traverse::NoCount)
+    }
+
+    /// [`Accel::intersect`], telling `count` the nodes and packs tested;
+    /// with [`traverse::NoCount`] the counting inlines to nothing.
+    #[inline(always)]
+    fn closest(&self, ray: &Ray, count: &mut impl traverse::Count) -> Option<Hit> {
         let (h, ids) = match self.core.as_ref()? {
             Core::Bvh4(w) => (
-                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)?,
+                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, count)?,
                 &w.ids,
             ),
             #[cfg(target_arch = "x86_64")]
             Core::Bvh8(w) => (
-                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)?,
+                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, count)?,
                 &w.ids,
             ),
         };
@@ -427,22 +431,29 @@ impl Accel {
     /// ([`crate::geometry::offset_point`]); the segment stops just short of `b`.
     #[inline]
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
-        self.any(a, b - a, 0.0, 1.0 - 1e-4)
+        self.any(a, b - a, 0.0, 1.0 - 1e-4, &mut traverse::NoCount)
     }
 
     /// True when something blocks the ray within `[ray.tmin, ray.tmax)`.
     #[inline]
     pub fn occluded_ray(&self, ray: &Ray) -> bool {
-        self.any(ray.o, ray.d, ray.tmin, ray.tmax)
+        self.any(ray.o, ray.d, ray.tmin, ray.tmax, &mut traverse::NoCount)
     }
 
     #[inline(always)]
-    fn any(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+    fn any(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        tmin: f32,
+        tmax: f32,
+        count: &mut impl traverse::Count,
+    ) -> bool {
         match &self.core {
             None => false,
-            Some(Core::Bvh4(w)) => traverse::any(w, o, d, tmin, tmax, &mut traverse::NoCount),
+            Some(Core::Bvh4(w)) => traverse::any(w, o, d, tmin, tmax, count),
             #[cfg(target_arch = "x86_64")]
-            Some(Core::Bvh8(w)) => traverse8::any(w, o, d, tmin, tmax, &mut traverse::NoCount),
+            Some(Core::Bvh8(w)) => traverse8::any(w, o, d, tmin, tmax, count),
         }
     }
 
@@ -460,34 +471,13 @@ impl Accel {
     /// Either kernel counts itself, so the counts are of the nodes and
     /// packs the fast query tests.
     pub fn intersect_counted(&self, ray: &Ray, visits: &mut Visits) -> Option<Hit> {
-        let (h, ids) = match self.core.as_ref()? {
-            Core::Bvh4(w) => (
-                traverse::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?,
-                &w.ids,
-            ),
-            #[cfg(target_arch = "x86_64")]
-            Core::Bvh8(w) => (
-                traverse8::closest(w, ray.o, ray.d, ray.tmin, ray.tmax, visits)?,
-                &w.ids,
-            ),
-        };
-        Some(Hit {
-            t: h.t,
-            tri: ids[h.slot],
-            b1: h.b1,
-            b2: h.b2,
-        })
+        self.closest(ray, visits)
     }
 
     /// [`Accel::occluded_ray`], adding the nodes and packs it tests to
     /// `visits`.
     pub fn occluded_ray_counted(&self, ray: &Ray, visits: &mut Visits) -> bool {
-        match &self.core {
-            None => false,
-            Some(Core::Bvh4(w)) => traverse::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits),
-            #[cfg(target_arch = "x86_64")]
-            Some(Core::Bvh8(w)) => traverse8::any(w, ray.o, ray.d, ray.tmin, ray.tmax, visits),
-        }
+        self.any(ray.o, ray.d, ray.tmin, ray.tmax, visits)
     }
 }
 
