@@ -255,18 +255,8 @@ fn leaf_choice<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> Vec<bool> {
     let mut counts = vec![0u32; bvh2.nodes.len()];
     let mut cost = vec![0f32; bvh2.nodes.len()];
     let mut leaf = vec![false; bvh2.nodes.len()];
-    // Preorder, then children before parents by walking it backwards
-    let mut order = Vec::with_capacity(bvh2.nodes.len());
-    let mut stack = vec![0u32];
-    while let Some(n) = stack.pop() {
-        order.push(n);
-        let node = &bvh2.nodes[n as usize];
-        if !node.is_leaf() {
-            stack.extend([node.first_index, node.first_index + 1]);
-        }
-    }
     let width = W as f32;
-    for &n in order.iter().rev() {
+    for &n in preorder(bvh2).iter().rev() {
         let node = &bvh2.nodes[n as usize];
         let n = n as usize;
         let area = node.aabb().half_area();
@@ -359,22 +349,11 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
     const { assert!(W <= PLAN_LEFT as usize) };
     let leaf_max = options.leaf_max.clamp(1, W * MAX_LEAF_PACKS);
     let mut decisions = vec![0u8; bvh2.nodes.len() * W];
-    // Preorder, right subtree first; walked backwards it visits each
-    // subtree's nodes together, its root last, the left subtree before the
-    // right: each node finds its children's costs on top of the stack
-    let mut order = Vec::with_capacity(bvh2.nodes.len());
-    let mut todo = vec![0u32];
-    while let Some(n) = todo.pop() {
-        order.push(n);
-        let node = &bvh2.nodes[n as usize];
-        if !node.is_leaf() {
-            todo.extend([node.first_index, node.first_index + 1]);
-        }
-    }
-    // (C(n, 1..=W), triangles under n) of the subtrees done
+    // (C(n, 1..=W), triangles under n) of the subtrees done; walking the
+    // preorder backwards, each node finds its children's on top
     let mut done: Vec<([f32; W], u32)> = Vec::new();
     let width = W as f32;
-    for &n in order.iter().rev() {
+    for &n in preorder(bvh2).iter().rev() {
         let node = &bvh2.nodes[n as usize];
         let d = &mut decisions[n as usize * W..][..W];
         let area = node.aabb().half_area();
@@ -438,6 +417,22 @@ fn optimal_plan<const W: usize>(bvh2: &Bvh2, options: &Collapse) -> OptimalPlan 
         width: W,
         decisions,
     }
+}
+
+/// The nodes of `bvh2` in preorder, right subtree first. Walked backwards
+/// it visits children before parents, each subtree's nodes together with
+/// its root last, the left subtree before the right.
+fn preorder(bvh2: &Bvh2) -> Vec<u32> {
+    let mut order = Vec::with_capacity(bvh2.nodes.len());
+    let mut todo = vec![0u32];
+    while let Some(n) = todo.pop() {
+        order.push(n);
+        let node = &bvh2.nodes[n as usize];
+        if !node.is_leaf() {
+            todo.extend([node.first_index, node.first_index + 1]);
+        }
+    }
+    order
 }
 
 /// Appends the triangle indices under node `n` of `bvh2` to `out`.

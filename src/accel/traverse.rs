@@ -175,9 +175,9 @@ impl<const N: usize> Stack<N> {
 /// tests. The queries pass [`NoCount`], whose empty methods vanish when the
 /// kernel is inlined; `kalos bench` passes [`super::Visits`].
 pub(super) trait Count {
-    /// One wide node's four boxes were tested.
+    /// One wide node's boxes were tested (all at once).
     fn node(&mut self);
-    /// One pack of four triangles was tested.
+    /// One pack of triangles was tested (all at once).
     fn pack(&mut self);
 }
 
