@@ -458,6 +458,16 @@ impl Method for Bundle {
         let setup = self.setup.as_ref().expect("built above");
         let patches = &setup.patches;
         let nee = self.settings.direct == Direct::Nee;
+        // What patch i sends along ±dir in iteration `it` before any
+        // reflection: its emission (the paper) or the first shot's direct
+        // light, with the rays that took
+        let source = |i: usize, p: &patches::Patch, dir: Vec3, it: u64| {
+            if nee {
+                transfer::direct(world, p, dir, &mut first_shot_rng(seed, i, it))
+            } else {
+                (p.le(dir), p.le(-dir), 0)
+            }
+        };
         if self.iter == 0 {
             // ω_1 and L[i] = L_i^e(±ω_1), or the first shot's direct light
             self.d = self.dirs.next_dir();
@@ -469,11 +479,7 @@ impl Method for Bundle {
                 .zip(patches.p.par_iter())
                 .enumerate()
                 .map(|(i, ((lp, lm), p))| {
-                    let (sp, sm, r) = if nee {
-                        transfer::direct(world, p, d, &mut first_shot_rng(seed, i, 0))
-                    } else {
-                        (p.le(d), p.le(-d), 0)
-                    };
+                    let (sp, sm, r) = source(i, p, d, 0);
                     (*lp, *lm) = (sp, sm);
                     r
                 })
@@ -562,16 +568,7 @@ impl Method for Bundle {
                             .enumerate()
                             .map(|(i, ((lp, lm), p))| {
                                 let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
-                                let (sp, sm, r) = if nee {
-                                    transfer::direct(
-                                        world,
-                                        p,
-                                        dn,
-                                        &mut first_shot_rng(seed, i, next),
-                                    )
-                                } else {
-                                    (p.le(dn), p.le(-dn), 0)
-                                };
+                                let (sp, sm, r) = source(i, p, dn, next);
                                 *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
                                 *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
                                 r
