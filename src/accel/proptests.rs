@@ -30,6 +30,11 @@ enum Class {
 }
 
 /// Classes triangle `[a, b, c]` against `o + t d` in `[tmin, tmax)`.
+///
+/// The margins are [`MARGIN`] plus a first-order bound on the kernels' f32
+/// error ([`f32_error`]): near edge-on triangles the f32 distance and
+/// weights are ill-conditioned, so such a triangle is too close to call
+/// even when f64 places it clearly outside.
 fn classify(tri: [Vec3; 3], o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Class {
     let [a, b, c] = tri.map(DVec3::from);
     let (o, d) = (DVec3::from(o), DVec3::from(d));
@@ -51,15 +56,49 @@ fn classify(tri: [Vec3; 3], o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Class {
     let v = d.dot(q) / det;
     let t = e2.dot(q) / det;
     let w = 1.0 - u - v;
+    let err = f32_error([a, b, c], o, d, det, [u, v, t]);
     let (tmin, tmax) = (f64::from(tmin), f64::from(tmax));
-    let tm = MARGIN * (1.0 + t.abs()) / d.length().min(1.0);
-    if u.min(v).min(w) < -MARGIN || t < tmin - tm || t > tmax + tm {
+    let tm = MARGIN * (1.0 + t.abs()) / d.length().min(1.0) + err[2];
+    let bm = [MARGIN + err[0], MARGIN + err[1], MARGIN + err[0] + err[1]];
+    let outside = u < -bm[0] || v < -bm[1] || w < -bm[2];
+    let inside = u > bm[0] && v > bm[1] && w > bm[2];
+    if outside || t < tmin - tm || t > tmax + tm {
         Class::Miss
-    } else if u.min(v).min(w) > MARGIN && t > tmin + tm && t < tmax - tm {
+    } else if inside && t > tmin + tm && t < tmax - tm {
         Class::Hit(t)
     } else {
         Class::Unsure
     }
+}
+
+/// A first-order bound on how far the kernels' f32 Möller–Trumbore (edges
+/// `b − a`, `c − a` and normal `e1 × e2` rounded at build, then `det = ng·d`,
+/// `u, v = (d × (a − o))·e2, e1 / det`, `t = ng·(a − o) / det`) can put
+/// `[u, v, t]` from their exact values, four times over. Each rounded
+/// difference, product and sum adds a relative error of at most 2⁻²⁴ of
+/// the magnitudes it combines; the errors of the numerators and of `det`
+/// are divided by `|det|`.
+fn f32_error(tri: [DVec3; 3], o: DVec3, d: DVec3, det: f64, uvt: [f64; 3]) -> [f64; 3] {
+    let eps = f64::from(f32::EPSILON) / 2.0;
+    let [a, b, c] = tri;
+    let (e1, e2, ca) = ((b - a).length(), (c - a).length(), (a - o).length());
+    let dl = d.length();
+    // Rounding of the edges, of a − o, of the normal
+    let de = eps * (a.length() + b.length() + c.length());
+    let dc = eps * (a.length() + o.length());
+    let dng = 2.0 * eps * e1 * e2 + de * (e1 + e2);
+    let ng = e1 * e2;
+    let ddet = (dng + 3.0 * eps * ng) * dl;
+    let du = dl * (dc * e2 + ca * de) + 5.0 * eps * dl * ca * e2;
+    let dv = dl * (dc * e1 + ca * de) + 5.0 * eps * dl * ca * e1;
+    let dt = dng * ca + ng * dc + 3.0 * eps * ng * ca;
+    let [u, v, t] = uvt;
+    let safety = 4.0;
+    [
+        safety * (du + u.abs() * ddet) / det.abs(),
+        safety * (dv + v.abs() * ddet) / det.abs(),
+        safety * (dt + t.abs() * ddet) / det.abs(),
+    ]
 }
 
 /// A coordinate on a grid of quarters in [−2, 2], or anywhere in it.
