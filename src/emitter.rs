@@ -279,6 +279,10 @@ pub struct Lights {
     dist: Distribution1D,
     /// Entry index of each triangle (u32::MAX when it does not emit).
     tri_entry: Vec<u32>,
+    /// Per shape: whether any of its triangles has an entry. Small enough to
+    /// stay in cache, so that a hit on a non-emitting shape (nearly every
+    /// hit) need not read `tri_entry`, an array as long as the scene.
+    shape_emits: Vec<bool>,
     /// The environment, if any (the first `constant` or `envmap` of the scene).
     pub env: Option<Env>,
     env_entry: u32,
@@ -298,6 +302,7 @@ impl Lights {
         let mut entries = Vec::new();
         let mut weights = Vec::new();
         let mut tri_entry = vec![u32::MAX; scene.triangles.len()];
+        let mut shape_emits = vec![false; scene.shapes.len()];
         let mut env = None;
         let mut env_entry = u32::MAX;
         for e in &scene.emitters {
@@ -309,6 +314,7 @@ impl Lights {
                         let w = (PI * area * luminance(*radiance)) as f64;
                         if w > 0.0 {
                             tri_entry[tri as usize] = entries.len() as u32;
+                            shape_emits[*shape as usize] = true;
                             let corners = scene.tri_vertices(tri);
                             let [a, b, c] = corners;
                             entries.push(Entry::Tri {
@@ -347,6 +353,7 @@ impl Lights {
             entries,
             dist: Distribution1D::new(&weights),
             tri_entry,
+            shape_emits,
             env,
             env_entry,
             center,
@@ -383,6 +390,16 @@ impl Lights {
         self.tri_entry
             .get(tri as usize)
             .is_some_and(|&e| e != u32::MAX)
+    }
+
+    /// [`Lights::is_emitter`] for a triangle of shape `shape`, which it must
+    /// be: the same answer, reading the long per-triangle table only for
+    /// shapes that emit.
+    #[inline]
+    pub fn is_emitter_of(&self, tri: u32, shape: u32) -> bool {
+        self.shape_emits
+            .get(shape as usize)
+            .is_some_and(|&e| e && self.is_emitter(tri))
     }
 
     /// Radiance of the environment from direction `dir` (zero without one).

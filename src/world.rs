@@ -6,7 +6,7 @@ use std::hash::{DefaultHasher, Hash, Hasher};
 use crate::accel::Accel;
 use crate::camera::Camera;
 use crate::emitter::Lights;
-use crate::scene::{EmitterDesc, Scene, Shape};
+use crate::scene::{EmitterDesc, Scene, Shape, TriRecords};
 
 /// Everything a method reads: the scene and what is built from it once.
 pub struct World {
@@ -18,6 +18,8 @@ pub struct World {
     pub lights: Lights,
     /// The camera.
     pub camera: Camera,
+    /// One cache line per triangle for [`World::surface_point`].
+    pub tris: TriRecords,
 }
 
 /// What [`World::build`] reports while it works, for a progress display.
@@ -52,11 +54,13 @@ impl World {
         on_event(BuildEvent::Phase("building the light distribution".into()));
         let lights = Lights::new(&scene);
         let camera = Camera::new(&scene.camera);
+        let tris = TriRecords::new(&scene);
         World {
             scene,
             accel,
             lights,
             camera,
+            tris,
         }
     }
 }

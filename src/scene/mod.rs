@@ -11,6 +11,7 @@ pub mod mitsuba;
 pub mod obj;
 pub mod pbrt;
 pub mod ply;
+pub mod records;
 pub mod shapes;
 pub mod summary;
 
@@ -21,6 +22,7 @@ use glam::{Mat4, Vec2, Vec3};
 
 use crate::geometry::Frame;
 pub use material::{Material, MicrofacetKind, TexImage, Texture};
+pub use records::{TriRecord, TriRecords};
 pub use shapes::MeshData;
 pub use summary::Summary;
 
@@ -432,33 +434,16 @@ impl Scene {
     #[inline(always)]
     pub fn surface_point(&self, tri: u32, b1: f32, b2: f32) -> SurfacePoint {
         let t = self.triangles[tri as usize];
-        let (i0, i1, i2) = (t[0] as usize, t[1] as usize, t[2] as usize);
-        let (a, b, c) = (self.positions[i0], self.positions[i1], self.positions[i2]);
-        let b0 = 1.0 - b1 - b2;
-        let p = a * b0 + b * b1 + c * b2;
-        let ng = (b - a).cross(c - a).normalize_or(Vec3::Z);
-        let shape = self.tri_shape[tri as usize];
-        let ns = if self.shapes[shape as usize].smooth {
-            let n = self.normals[i0] * b0 + self.normals[i1] * b1 + self.normals[i2] * b2;
-            // keep the shading normal on the geometric normal's side
-            let n = n.normalize_or(ng);
-            if n.dot(ng) < 0.0 {
-                -n
-            } else {
-                n
-            }
-        } else {
-            ng
-        };
-        let uv = self.uvs[i0] * b0 + self.uvs[i1] * b1 + self.uvs[i2] * b2;
-        SurfacePoint {
-            p,
-            ng,
-            frame: Frame::from_normal(ns),
-            uv,
+        records::interpolate(
+            self,
             tri,
-            shape,
-        }
+            self.tri_shape[tri as usize],
+            t.map(|i| self.positions[i as usize]),
+            t.map(|i| self.uvs[i as usize]),
+            || t,
+            b1,
+            b2,
+        )
     }
 
     /// The material of a surface point.

@@ -202,7 +202,7 @@ impl CameraPass {
                     match world.accel.intersect(&ray) {
                         None => world.lights.env.is_some(),
                         Some(hit) => {
-                            let sp = world.scene.surface_point(hit.tri, hit.b1, hit.b2);
+                            let sp = world.surface_point(&hit);
                             let b = world.scene.material_of(&sp).bsdf(sp.uv);
                             b.has_delta() || (glossy && b.has_glossy())
                         }

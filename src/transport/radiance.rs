@@ -32,7 +32,7 @@ pub fn radiance_from(
     rng: &mut Pcg32,
     depth: u32,
 ) -> (Rgb, u64) {
-    let (scene, accel, lights) = (&world.scene, &world.accel, &world.lights);
+    let (accel, lights) = (&world.accel, &world.lights);
     let max_depth = limits.max_depth.unwrap_or(u32::MAX);
     let mut l = Rgb::ZERO;
     let mut beta = Rgb::ONE;
@@ -58,11 +58,11 @@ pub fn radiance_from(
             }
             break;
         };
-        let sp = scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let sp = world.surface_point(&hit);
         let wo_world = -ray.d;
 
         // Emission of a hit light, weighted against light sampling
-        if lights.is_emitter(hit.tri) {
+        if lights.is_emitter_of(hit.tri, sp.shape) {
             let le = lights.le_tri(hit.tri, sp.frame.n, wo_world);
             if le != Rgb::ZERO {
                 let w = if specular {

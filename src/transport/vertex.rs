@@ -105,10 +105,18 @@ impl Shading {
 }
 
 impl World {
+    /// The surface point at `hit`: [`crate::scene::Scene::surface_point`],
+    /// read from the per-triangle records.
+    #[inline(always)]
+    pub fn surface_point(&self, hit: &Hit) -> SurfacePoint {
+        self.tris
+            .surface_point(&self.scene, hit.tri, hit.b1, hit.b2)
+    }
+
     /// The vertex where `ray` meets the scene at `hit`.
     #[inline(always)]
     pub fn vertex(&self, ray: &Ray, hit: &Hit) -> Vertex {
-        let sp = self.scene.surface_point(hit.tri, hit.b1, hit.b2);
+        let sp = self.surface_point(hit);
         Vertex::new(self, sp, -ray.d)
     }
 }
