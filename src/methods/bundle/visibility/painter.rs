@@ -94,6 +94,7 @@ pub(super) fn painter_band(
                 *span = (span.0.min(pr.x0), span.1.max(pr.x1 + 1));
             }
             fr.cur = cur;
+            fr.acc.reach(inp, pr.id);
             pr.scan(y0, y1, &mut fr);
         }
         let frags = fr.frags;
@@ -211,6 +212,9 @@ pub(super) fn zbuffer_band(
     let mut cur_z = vec![f32::INFINITY; size];
     let mut cur_id = vec![NONE; size];
     let mut frags = 0u64;
+    for &k in keys {
+        acc.reach(inp, src.at(k).id);
+    }
     for _layer in 0..1024 {
         cur_z.fill(f32::INFINITY);
         cur_id.fill(NONE);
