@@ -9,7 +9,7 @@
 //! [`TriRecords`] copies what [`Scene::surface_point`] reads into one 64-byte,
 //! 64-aligned record per triangle, so a hit costs one line, fetched without
 //! an index first. The values are copies, and the arithmetic is shared with
-//! [`Scene::surface_point`] ([`interpolate`]), so the surface point is the
+//! [`Scene::surface_point`] (`interpolate`), so the surface point is the
 //! same bit for bit. Smooth shapes still read their normals through the
 //! indices (three more vectors would not fit in the line).
 
