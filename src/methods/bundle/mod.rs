@@ -113,7 +113,8 @@ pub struct Settings {
     /// Master seed (set from [`super::Common`]).
     #[cfg_attr(feature = "cli", arg(skip))]
     pub seed: u64,
-    /// Target number of patches (unless a patch edge is given).
+    /// Most patches: the finest uniform mesh within this many (at least one
+    /// patch per scene triangle), unless a patch edge is given.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 5_000))]
     pub patches: usize,
     /// Target patch edge length in scene units (overrides the number of

@@ -214,29 +214,64 @@ fn subdivision(longest: f32, edge: f32) -> u32 {
     }
 }
 
-/// The target edge length h for about `n` patches. Starts from equilateral
-/// triangles (area √3/4 h², so h = √(4 A / (√3 n))), then rescales h a few
-/// times by √(count / n), since rounding k up per triangle makes more patches.
+/// The target edge length h for `n` patches: the shortest h whose uniform
+/// mesh has at most `n` patches, so that `--patches n` gives as many as the
+/// mesh can come to without passing `n`. Every scene triangle keeps at least
+/// one patch, so a scene of more than `n` triangles gets one patch per
+/// triangle (h = its longest edge).
+///
+/// The count Σ k², with k = ⌈longest edge / h⌉ per triangle, falls as h
+/// grows, in steps; a bisection on h finds the step at `n`. A single
+/// rescaling from the equilateral estimate (area √3/4 h² per patch) misses
+/// it, because rounding k up per triangle adds patches.
 pub fn edge_for_count(scene: &Scene, n: usize) -> f32 {
-    let n = n.max(1) as f64;
+    let n = n.max(1) as u64;
     let longest: Vec<f32> = (0..scene.triangles.len() as u32)
         .map(|t| longest_edge(scene, t))
         .collect();
+    let count = |h: f32| -> u64 {
+        longest
+            .iter()
+            .map(|&l| (subdivision(l, h) as u64).pow(2))
+            .sum()
+    };
+    // the coarsest mesh: one patch per triangle (an infinite edge, from
+    // coordinates near f32::MAX, splits nothing, as `subdivision` says)
+    let hi = longest.iter().copied().fold(0.0f32, f32::max);
+    if hi.is_nan() || hi <= 0.0 {
+        return 1.0;
+    }
+    if count(hi) >= n {
+        return hi;
+    }
     let total: f64 = (0..scene.triangles.len() as u32)
         .map(|t| scene.tri_area(t) as f64)
         .sum();
-    let mut h = (4.0 * total / (3f64.sqrt() * n)).sqrt() as f32;
-    for _ in 0..6 {
-        let count: f64 = longest
-            .iter()
-            .map(|&l| (subdivision(l, h) as f64).powi(2))
-            .sum();
-        if count <= 1.1 * n {
+    // from the equilateral estimate, halve until the mesh has more than n
+    // (or every triangle is split as finely as allowed)
+    let estimate = (4.0 * total / (3f64.sqrt() * n as f64)).sqrt() as f32;
+    let mut lo = if estimate > 0.0 { estimate.min(hi) } else { hi };
+    while count(lo) <= n {
+        let finer = lo * 0.5;
+        if finer <= 0.0 || count(finer) == count(lo) {
+            return lo;
+        }
+        lo = finer;
+    }
+    // count(lo) > n ≥ count(hi): bisect to the shortest h with count ≤ n
+    let mut hi = hi;
+    for _ in 0..64 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
             break;
         }
-        h *= (count / n).sqrt() as f32;
+        if count(mid) > n {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
     }
-    h
+    hi
 }
 
 impl Patches {

@@ -196,3 +196,24 @@ fn default_budget_is_area() {
     use kalos::methods::bundle::{PatchBudget, Settings};
     assert_eq!(Settings::default().budget, PatchBudget::Area);
 }
+
+/// `--patches n` gives at most `n` patches, and as many as the uniform mesh
+/// can come to: a slightly shorter edge would pass `n`. On cbox the old
+/// rescaling gave 5,012 patches for 5,000. A scene of more triangles than
+/// `n` keeps one patch per triangle.
+#[test]
+fn area_count_is_at_most_the_target_and_closest() {
+    let cbox = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("cbox");
+    for n in [100, 500, 5000, 20_000] {
+        let edge = edge_for_count(&cbox, n);
+        let count = Layout::area(&cbox, edge).patch_count();
+        let finer = Layout::area(&cbox, edge * (1.0 - 1e-4)).patch_count();
+        assert!(
+            count <= n && finer > n,
+            "cbox, target {n}: {count} patches at edge {edge}, {finer} at a slightly shorter edge"
+        );
+    }
+    let triangles = cbox.triangles.len();
+    let edge = edge_for_count(&cbox, triangles / 2);
+    assert_eq!(Layout::area(&cbox, edge).patch_count(), triangles);
+}
