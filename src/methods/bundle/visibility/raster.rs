@@ -178,8 +178,9 @@ impl ToMap {
 pub(super) enum Cover {
     /// Scan-convert the triangle.
     Raster,
-    /// A sub-pixel patch kept by single-pixel Russian roulette: the one
-    /// pixel (x0, y0) at depth `z[0]`.
+    /// The one pixel (x0, y0) at depth `z[0]`: a sub-pixel patch kept by
+    /// single-pixel Russian roulette, or a patch whose box holds one pixel
+    /// centre, found covered when projected.
     One,
 }
 
@@ -311,7 +312,7 @@ impl Proj {
             return None;
         }
         let owns = owns(b, c) as u32 | (owns(c, a) as u32) << 1 | (owns(a, b) as u32) << 2;
-        Some(Proj {
+        let pr = Proj {
             t: [a, b, c],
             z: [za, zb, zc],
             inv: 1.0 / area,
@@ -323,7 +324,41 @@ impl Proj {
             y1,
             owns,
             cover: Cover::Raster,
-        })
+        };
+        if x0 == x1 && y0 == y1 {
+            // One pixel centre in the box (most sub-pixel patches of a fine
+            // mesh): test it here, once, with the scan's own expression, so
+            // that a patch missing it costs no tile entry and one covering
+            // it is a single fragment at the same depth bits
+            let z = pr.centre(x0, y0)?;
+            return Some(Proj {
+                z: [z; 3],
+                cover: Cover::One,
+                ..pr
+            });
+        }
+        Some(pr)
+    }
+
+    /// The depth at pixel centre (x, y) of column `x`, when the patch
+    /// covers it: the scan's test of one pixel, without its 4-lane set-up.
+    #[inline(always)]
+    fn centre(&self, x: i32, y: i32) -> Option<f32> {
+        let [a, b, c] = self.t;
+        let [za, zb, zc] = self.z;
+        let own = |bit: u32| self.owns >> bit & 1 == 1;
+        let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
+        let wa = (c.x - b.x) * (py - b.y) - (c.y - b.y) * (px - b.x);
+        let wb = (a.x - c.x) * (py - c.y) - (a.y - c.y) * (px - c.x);
+        let wc = (b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x);
+        let inside = (wa > 0.0 || (wa == 0.0 && own(0)))
+            && (wb > 0.0 || (wb == 0.0 && own(1)))
+            && (wc > 0.0 || (wc == 0.0 && own(2)));
+        if inside {
+            Some((wa * za + wb * zb + wc * zc) * self.inv)
+        } else {
+            None
+        }
     }
 
     /// The edges' column bounds, when clipping `rows` rows of the box saves
@@ -371,29 +406,19 @@ impl Proj {
             v.visit(self.x0, self.y0, self.z[0]);
             return;
         }
-        let [a, b, c] = self.t;
-        let [za, zb, zc] = self.z;
         if self.x0 == self.x1 {
-            // One column (half the patches of a fine mesh, mostly one
-            // pixel): lane 0 of the loop below, without its 4-lane set-up.
-            // The same operations in the same order give the same bits.
-            let own = |bit: u32| self.owns >> bit & 1 == 1;
-            let (oa, ob, oc) = (own(0), own(1), own(2));
-            let px = self.x0 as f32 + 0.5;
+            // One column (half the patches of a fine mesh): lane 0 of the
+            // loop below, without its 4-lane set-up. The same operations in
+            // the same order give the same bits.
             for y in ys..=ye {
-                let py = y as f32 + 0.5;
-                let wa = (c.x - b.x) * (py - b.y) - (c.y - b.y) * (px - b.x);
-                let wb = (a.x - c.x) * (py - c.y) - (a.y - c.y) * (px - c.x);
-                let wc = (b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x);
-                if (wa > 0.0 || (wa == 0.0 && oa))
-                    && (wb > 0.0 || (wb == 0.0 && ob))
-                    && (wc > 0.0 || (wc == 0.0 && oc))
-                {
-                    v.visit(self.x0, y, (wa * za + wb * zb + wc * zc) * self.inv);
+                if let Some(z) = self.centre(self.x0, y) {
+                    v.visit(self.x0, y, z);
                 }
             }
             return;
         }
+        let [a, b, c] = self.t;
+        let [za, zb, zc] = self.z;
         let lane = |bit: u32| BVec4A::splat(self.owns >> bit & 1 == 1);
         let (oa, ob, oc) = (lane(0), lane(1), lane(2));
         // edge(u, v, p) = (v.x − u.x)(p.y − u.y) − (v.y − u.y)(p.x − u.x),
@@ -609,7 +634,7 @@ mod tests {
             keys: [0, 0],
         };
         let mut rng = Pcg32::keyed(&[79]);
-        let mut covered = 0;
+        let (mut covered, mut single) = (0, 0);
         for k in 0..20_000u32 {
             let size = [0.7, 2.0, 5.0, 40.0][k as usize % 4];
             let o = Vec2::new(rng.next_f32() * 45.0 - 4.0, rng.next_f32() * 37.0 - 4.0);
@@ -627,6 +652,7 @@ mod tests {
             let want = scalar_scan(&t, &z, w, h);
             let mut got = Vec::new();
             if let Some(pr) = Proj::new(&pj, k, t, z, 0) {
+                single += (pr.cover == Cover::One) as usize;
                 // in two bands of rows, as two tiles would scan it
                 for (y0, y1) in [(0, 13), (13, h)] {
                     pr.scan(y0, y1, &mut |x, y, d: f32| got.push((x, y, d.to_bits())));
@@ -636,6 +662,8 @@ mod tests {
             assert_eq!(got, want, "triangle {t:?}");
         }
         assert!(covered > 10_000, "the triangles covered {covered} pixels");
+        // one-pixel boxes, resolved when projected, were among them
+        assert!(single > 500, "{single} one-pixel projections");
     }
 
     /// Rows clipped to the edges give exactly the fragments of the scan
