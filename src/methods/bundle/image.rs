@@ -64,8 +64,8 @@ const MAX_DELTA: u32 = 8;
 pub enum Positions {
     /// A fresh jittered position per pixel and iteration (the default).
     Jittered,
-    /// [`SAMPLES`] positions per pixel, traced once at setup (the paper's
-    /// preprocessing).
+    /// Four stratified positions per pixel (`SAMPLES`), traced once at setup
+    /// (the paper's preprocessing).
     Fixed,
 }
 

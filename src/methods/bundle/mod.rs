@@ -122,8 +122,8 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long = "patch-edge"))]
     pub edge: Option<f32>,
     /// How the patches are spread: uniformly by area (the paper's mesh,
-    /// the default), or by what the camera sees at the same count
-    /// ([`budget`]).
+    /// the default), or by what the camera sees at the same count (see the
+    /// `budget` module).
     #[cfg_attr(
         feature = "cli",
         arg(long = "patch-budget", value_enum, default_value = "area")
@@ -190,7 +190,7 @@ pub enum PatchBudget {
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Glass {
     /// Fresnel reflection and refraction, each widened to a narrow lobe
-    /// ([`transfer::eval_glass`]).
+    /// (`transfer::eval_glass`).
     Lobes,
     /// Glass neither reflects nor transmits in the transfer (the camera
     /// still sees through it).
@@ -201,7 +201,7 @@ pub enum Glass {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Gather {
-    /// Pixels whose visible point has a glossy lobe ([`crate::bsdf::Bsdf::has_glossy`]):
+    /// Pixels whose visible point has a glossy lobe (`Bsdf::has_glossy`):
     /// one BSDF-sampled ray per pixel and iteration, reading the patch
     /// solution where it lands.
     Glossy,

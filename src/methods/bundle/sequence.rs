@@ -31,7 +31,7 @@ pub enum Sequence {
     Random,
     /// Halton, bases 2 and 3.
     Halton,
-    /// Hammersley with [`HAMMERSLEY_N`] points.
+    /// Hammersley with 4096 points (`HAMMERSLEY_N`), reused in turn.
     Hammersley,
     /// The fractional-part sequence of §6.1.
     Frac,
