@@ -26,28 +26,67 @@ pub struct TexImage {
     texels: Texels,
 }
 
-/// The storage of a [`TexImage`]'s pixels, row-major, top row first.
+/// Side of a square tile of byte texels: a tile of 4×4 texels, four bytes
+/// each (the fourth is padding), is one 64-byte cache line, and most
+/// bilinear footprints (2×2 texels) fall inside one tile.
+const TILE: usize = 4;
+
+/// One tile of byte texels, row-major within the tile, aligned to a line.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+struct Tile([[u8; 4]; TILE * TILE]);
+
+/// The storage of a [`TexImage`]'s pixels.
 #[derive(Clone, Debug)]
 enum Texels {
-    /// Linear floats as given.
+    /// Linear floats as given, row-major, top row first.
     F32(Vec<Rgb>),
-    /// One byte per channel, indexing that channel's table of floats.
+    /// One byte per channel, indexing that channel's table of floats, in
+    /// tiles of `TILE`² texels (tiles row-major, top row first).
     U8 {
-        index: Vec<[u8; 3]>,
+        tiles: Vec<Tile>,
+        /// Tiles per row of tiles.
+        tiles_x: usize,
+        /// Number of texels.
+        len: usize,
         table: Box<[[f32; 256]; 3]>,
     },
+}
+
+impl Texels {
+    /// Where texel (x, y) lives in the tiles: tile and place within it.
+    #[inline(always)]
+    fn tiled(x: usize, y: usize, tiles_x: usize) -> (usize, usize) {
+        (
+            (y / TILE) * tiles_x + x / TILE,
+            (y % TILE) * TILE + x % TILE,
+        )
+    }
+
+    /// The float texel of bytes `b`.
+    #[inline(always)]
+    fn decode(table: &[[f32; 256]; 3], b: [u8; 4]) -> Rgb {
+        Rgb::new(
+            table[0][b[0] as usize],
+            table[1][b[1] as usize],
+            table[2][b[2] as usize],
+        )
+    }
 }
 
 impl Texels {
     /// The bytes and tables of `data` if each channel has at most 256
     /// distinct values (compared by bits, so the table returns exactly the
     /// floats given, signed zeros included).
-    fn compact(data: &[Rgb]) -> Option<Texels> {
+    fn compact(width: u32, data: &[Rgb]) -> Option<Texels> {
+        let w = (width as usize).max(1);
+        let h = data.len().div_ceil(w);
+        let tiles_x = w.div_ceil(TILE);
+        let mut tiles = vec![Tile::default(); tiles_x * h.div_ceil(TILE)];
         let mut table = Box::new([[0.0f32; 256]; 3]);
         let mut seen: [std::collections::HashMap<u32, u8>; 3] = Default::default();
-        let mut index = Vec::with_capacity(data.len());
-        for c in data {
-            let mut px = [0u8; 3];
+        for (i, c) in data.iter().enumerate() {
+            let mut px = [0u8; 4];
             for (ch, v) in c.to_array().into_iter().enumerate() {
                 let n = seen[ch].len();
                 let i = match seen[ch].entry(v.to_bits()) {
@@ -60,15 +99,21 @@ impl Texels {
                 };
                 px[ch] = i;
             }
-            index.push(px);
+            let (t, k) = Texels::tiled(i % w, i / w, tiles_x);
+            tiles[t].0[k] = px;
         }
-        Some(Texels::U8 { index, table })
+        Some(Texels::U8 {
+            tiles,
+            tiles_x,
+            len: data.len(),
+            table,
+        })
     }
 
     fn len(&self) -> usize {
         match self {
             Texels::F32(d) => d.len(),
-            Texels::U8 { index, .. } => index.len(),
+            Texels::U8 { len, .. } => *len,
         }
     }
 }
@@ -77,7 +122,7 @@ impl TexImage {
     /// An image from linear pixels, row-major, top row first
     /// (`data.len()` should be `width * height`).
     pub fn new(width: u32, height: u32, data: Vec<Rgb>) -> Self {
-        let texels = Texels::compact(&data).unwrap_or(Texels::F32(data));
+        let texels = Texels::compact(width, &data).unwrap_or(Texels::F32(data));
         TexImage {
             width,
             height,
@@ -105,13 +150,15 @@ impl TexImage {
     pub fn pixel(&self, i: usize) -> Rgb {
         match &self.texels {
             Texels::F32(d) => d[i],
-            Texels::U8 { index, table } => {
-                let [r, g, b] = index[i];
-                Rgb::new(
-                    table[0][r as usize],
-                    table[1][g as usize],
-                    table[2][b as usize],
-                )
+            Texels::U8 {
+                tiles,
+                tiles_x,
+                table,
+                ..
+            } => {
+                let w = (self.width as usize).max(1);
+                let (t, k) = Texels::tiled(i % w, i / w, *tiles_x);
+                Texels::decode(table, tiles[t].0[k])
             }
         }
     }
@@ -156,23 +203,26 @@ impl TexImage {
         };
         let (xi0, yi0) = (wrap(x0, self.width), wrap(y0, self.height));
         let (xi1, yi1) = (wrap(x0 + 1.0, self.width), wrap(y0 + 1.0, self.height));
-        // The four texels' indices, clamped as `texel` does; one match on
-        // the storage for all four
-        let at = |x: i64, y: i64| {
-            let x = x.clamp(0, self.width as i64 - 1) as usize;
-            let y = y.clamp(0, self.height as i64 - 1) as usize;
-            y * self.width as usize + x
-        };
-        let idx = [at(xi0, yi0), at(xi1, yi0), at(xi0, yi1), at(xi1, yi1)];
+        // The four texels' coordinates, clamped as `texel` does; one match
+        // on the storage for all four
+        let cx = |x: i64| x.clamp(0, self.width as i64 - 1) as usize;
+        let cy = |y: i64| y.clamp(0, self.height as i64 - 1) as usize;
+        let xy = [
+            (cx(xi0), cy(yi0)),
+            (cx(xi1), cy(yi0)),
+            (cx(xi0), cy(yi1)),
+            (cx(xi1), cy(yi1)),
+        ];
         let [t00, t10, t01, t11] = match &self.texels {
-            Texels::F32(d) => idx.map(|i| d[i]),
-            Texels::U8 { index, table } => idx.map(|i| {
-                let [r, g, b] = index[i];
-                Rgb::new(
-                    table[0][r as usize],
-                    table[1][g as usize],
-                    table[2][b as usize],
-                )
+            Texels::F32(d) => xy.map(|(x, y)| d[y * self.width as usize + x]),
+            Texels::U8 {
+                tiles,
+                tiles_x,
+                table,
+                ..
+            } => xy.map(|(x, y)| {
+                let (t, k) = Texels::tiled(x, y, *tiles_x);
+                Texels::decode(table, tiles[t].0[k])
             }),
         };
         let a = t00 * (1.0 - fx) + t10 * fx;
