@@ -83,25 +83,16 @@ impl Texels {
         let h = data.len().div_ceil(w);
         let tiles_x = w.div_ceil(TILE);
         let mut tiles = vec![Tile::default(); tiles_x * h.div_ceil(TILE)];
-        let mut table = Box::new([[0.0f32; 256]; 3]);
-        let mut seen: [std::collections::HashMap<u32, u8>; 3] = Default::default();
+        let mut seen: [Palette; 3] = std::array::from_fn(|_| Palette::new());
         for (i, c) in data.iter().enumerate() {
             let mut px = [0u8; 4];
             for (ch, v) in c.to_array().into_iter().enumerate() {
-                let n = seen[ch].len();
-                let i = match seen[ch].entry(v.to_bits()) {
-                    std::collections::hash_map::Entry::Occupied(e) => *e.get(),
-                    std::collections::hash_map::Entry::Vacant(e) => {
-                        let i = u8::try_from(n).ok()?;
-                        table[ch][n] = v;
-                        *e.insert(i)
-                    }
-                };
-                px[ch] = i;
+                px[ch] = seen[ch].index(v)?;
             }
             let (t, k) = Texels::tiled(i % w, i / w, tiles_x);
             tiles[t].0[k] = px;
         }
+        let table = Box::new(seen.map(|p| p.table));
         Some(Texels::U8 {
             tiles,
             tiles_x,
@@ -114,6 +105,51 @@ impl Texels {
         match self {
             Texels::F32(d) => d.len(),
             Texels::U8 { len, .. } => *len,
+        }
+    }
+}
+
+/// The distinct values of one channel, at most 256, each with its byte.
+/// Every texel of every channel passes through here once at load, so it is
+/// a small open-addressing table keyed by the float's bits (Knuth's
+/// multiplicative hash, linear probing, at most a quarter full).
+struct Palette {
+    /// The bits of a value plus 2³² (0 marks an empty slot).
+    keys: Box<[u64; 1024]>,
+    bytes: Box<[u8; 1024]>,
+    table: [f32; 256],
+    len: usize,
+}
+
+impl Palette {
+    fn new() -> Self {
+        Palette {
+            keys: Box::new([0; 1024]),
+            bytes: Box::new([0; 1024]),
+            table: [0.0; 256],
+            len: 0,
+        }
+    }
+
+    /// The byte of `v`, given a new one if unseen; `None` past 256 values.
+    #[inline]
+    fn index(&mut self, v: f32) -> Option<u8> {
+        let bits = v.to_bits();
+        let key = bits as u64 | 1 << 32;
+        let mut slot = (bits.wrapping_mul(0x9E37_79B1) >> 22) as usize;
+        loop {
+            match self.keys[slot] {
+                k if k == key => return Some(self.bytes[slot]),
+                0 => {
+                    let b = u8::try_from(self.len).ok()?;
+                    self.keys[slot] = key;
+                    self.bytes[slot] = b;
+                    self.table[self.len] = v;
+                    self.len += 1;
+                    return Some(b);
+                }
+                _ => slot = (slot + 1) % 1024,
+            }
         }
     }
 }
