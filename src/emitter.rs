@@ -44,11 +44,7 @@ pub enum Env {
 impl Env {
     fn from_map(image: &TexImage, scale: f32, to_world: Mat3) -> Self {
         let (w, h) = (image.width, image.height);
-        let data: Vec<Rgb> = image
-            .data
-            .iter()
-            .map(|c| (*c * scale).max(Rgb::ZERO))
-            .collect();
+        let data: Vec<Rgb> = image.pixels().map(|c| (c * scale).max(Rgb::ZERO)).collect();
         let mut row_w = Vec::with_capacity(h as usize);
         let mut cols = Vec::with_capacity(h as usize);
         for y in 0..h {
@@ -589,11 +585,7 @@ mod tests {
     /// measured from the samples.
     #[test]
     fn env_map_sampling_is_a_density() {
-        let image = TexImage {
-            width: 4,
-            height: 2,
-            data: vec![Rgb::ONE; 8],
-        };
+        let image = TexImage::new(4, 2, vec![Rgb::ONE; 8]);
         let env = Env::from_map(&image, 1.0, Mat3::IDENTITY);
         let mut rng = Pcg32::keyed(&[3]);
         let n = 200_000;

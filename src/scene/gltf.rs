@@ -91,9 +91,7 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
                         let img = if factor == Rgb::ONE {
                             img
                         } else {
-                            let mut scaled = (*img).clone();
-                            scaled.data.iter_mut().for_each(|c| *c *= factor);
-                            Arc::new(scaled)
+                            Arc::new(img.map(|c| c * factor))
                         };
                         // glTF's uv (0, 0) is the image's top-left corner, as
                         // Mitsuba's; TexImage puts v = 0 at the bottom
@@ -576,9 +574,5 @@ fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
             }
         })
         .collect();
-    Some(TexImage {
-        width: d.width,
-        height: d.height,
-        data,
-    })
+    Some(TexImage::new(d.width, d.height, data))
 }

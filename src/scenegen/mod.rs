@@ -241,7 +241,7 @@ mod tests {
             .iter()
             .find(|i| i.width == 512 && i.height == 512)
             .unwrap();
-        let lum: Vec<f32> = floor.data.iter().map(|c| c.x + c.y + c.z).collect();
+        let lum: Vec<f32> = floor.pixels().map(|c| c.x + c.y + c.z).collect();
         let (lo, hi) = lum
             .iter()
             .fold((f32::MAX, 0.0f32), |(a, b), &l| (a.min(l), b.max(l)));

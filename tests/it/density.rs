@@ -800,11 +800,7 @@ fn environment_map_emits_particles() {
     );
     sc.emitters.clear();
     sc.emitters.push(scene::EmitterDesc::EnvMap {
-        image: std::sync::Arc::new(scene::TexImage {
-            width: 64,
-            height: 32,
-            data: vec![Vec3::ONE; 64 * 32],
-        }),
+        image: std::sync::Arc::new(scene::TexImage::new(64, 32, vec![Vec3::ONE; 64 * 32])),
         scale: 1.0,
         to_world: glam::Mat4::IDENTITY,
     });

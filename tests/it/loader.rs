@@ -454,7 +454,7 @@ fn textures_and_envmap_load_images() {
         panic!("no bitmap")
     };
     // sRGB 128 is linear 0.2158
-    assert!((image.data[3].x - 0.2158).abs() < 1e-3);
+    assert!((image.pixel(3).x - 0.2158).abs() < 1e-3);
     // Mitsuba's uv (0, 0) is the top-left pixel
     let t = &s.materials[s.shapes[0].material as usize];
     if let Material::Diffuse { reflectance } = t {

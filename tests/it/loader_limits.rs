@@ -443,12 +443,9 @@ fn pfm_is_read_as_a_texture_and_an_environment_map() {
     };
     // linear, as stored (no sRGB decoding)
     assert_eq!((image.width, image.height), (2, 1));
-    assert!(
-        image.data.contains(&glam::Vec3::new(2.0, 4.0, 8.0)),
-        "{:?}",
-        image.data
-    );
-    assert!(image.data.contains(&glam::Vec3::new(0.25, 0.5, 0.75)));
+    let data: Vec<_> = image.pixels().collect();
+    assert!(data.contains(&glam::Vec3::new(2.0, 4.0, 8.0)), "{data:?}");
+    assert!(data.contains(&glam::Vec3::new(0.25, 0.5, 0.75)));
     // a NaN texel is an error naming the image
     let mut bad = b"PF\n1 1\n-1.0\n".to_vec();
     for v in [f32::NAN, 0.0, 0.0] {

@@ -136,11 +136,7 @@ impl<'t> Builder<'t> {
         } else {
             data
         };
-        let img = Arc::new(TexImage {
-            width,
-            height,
-            data,
-        });
+        let img = Arc::new(TexImage::new(width, height, data));
         self.images.insert((path, srgb), img.clone());
         Ok(img)
     }
@@ -151,7 +147,7 @@ pub(super) fn tex_max(t: &Texture) -> Rgb {
     match t {
         Texture::Constant(c) => *c,
         Texture::Checkerboard { color0, color1, .. } => color0.max(*color1),
-        Texture::Bitmap { image, .. } => image.data.iter().fold(Rgb::ZERO, |a, &b| a.max(b)),
+        Texture::Bitmap { image, .. } => image.pixels().fold(Rgb::ZERO, |a, b| a.max(b)),
     }
 }
 

@@ -341,11 +341,7 @@ impl Builder {
             .iter()
             .map(|c| c.map(&decode).max(Rgb::ZERO))
             .collect();
-        let tex = Arc::new(TexImage {
-            width: img.width,
-            height: img.height,
-            data,
-        });
+        let tex = Arc::new(TexImage::new(img.width, img.height, data));
         self.images.insert(key, tex.clone());
         Ok(tex)
     }
@@ -395,11 +391,7 @@ fn equal_area_to_latlong(img: &TexImage) -> TexImage {
             data.push(img.texel(px, py));
         }
     }
-    TexImage {
-        width: w,
-        height: h,
-        data,
-    }
+    TexImage::new(w, h, data)
 }
 
 #[cfg(test)]

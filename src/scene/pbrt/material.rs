@@ -9,7 +9,7 @@ use super::lexer::Directive;
 use super::params::Params;
 use super::spectra::{glass_ior, Kind};
 use super::{Builder, Result};
-use crate::scene::{Material, MicrofacetKind, Rgb, TexImage, Texture};
+use crate::scene::{Material, MicrofacetKind, Rgb, Texture};
 
 /// pbrt-v4's roughness to a microfacet α: with `remaproughness` (the
 /// default) pbrt takes the square root of the user's value
@@ -429,18 +429,10 @@ impl Builder {
                 ps.ignore(&["filter", "maxanisotropy", "wrap"]);
                 let img = self.image(d.line, file, encoding.as_deref())?;
                 let img = if invert || scale != 1.0 {
-                    Arc::new(TexImage {
-                        width: img.width,
-                        height: img.height,
-                        data: img
-                            .data
-                            .iter()
-                            .map(|c| {
-                                let c = if invert { (Rgb::ONE - *c).max(Rgb::ZERO) } else { *c };
-                                c * scale
-                            })
-                            .collect(),
-                    })
+                    Arc::new(img.map(|c| {
+                        let c = if invert { (Rgb::ONE - c).max(Rgb::ZERO) } else { c };
+                        c * scale
+                    }))
                 } else {
                     img
                 };
@@ -540,11 +532,7 @@ fn scale_rgb(t: &Texture, s: Rgb) -> Texture {
             to_uv: *to_uv,
         },
         Texture::Bitmap { image, to_uv } => Texture::Bitmap {
-            image: Arc::new(TexImage {
-                width: image.width,
-                height: image.height,
-                data: image.data.iter().map(|c| *c * s).collect(),
-            }),
+            image: Arc::new(image.map(|c| c * s)),
             to_uv: *to_uv,
         },
     }
