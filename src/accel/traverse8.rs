@@ -107,13 +107,12 @@ impl Prepared {
                 _mm256_load_ps(rows[2].as_ptr()),
             ]
         };
-        let (v0, e1, e2) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2));
+        let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
         let (add, sub, mul) = (
             |a, b| _mm256_add_ps(a, b),
             |a, b| _mm256_sub_ps(a, b),
             |a, b| _mm256_mul_ps(a, b),
         );
-        let ng = cross(&e1, &e2);
         let dot = |a: &[__m256; 3], b: &[__m256; 3]| {
             add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
         };
@@ -153,20 +152,6 @@ impl Prepared {
         );
         (_mm256_movemask_ps(hit) as u32, t, u, v)
     }
-}
-
-/// `a × b` eight lanes wide, each component the difference of the same two
-/// products in the same order as glam's `Vec3A::cross`, which computed the
-/// normals `wide.rs`'s packs store: the same bits.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn cross(a: &[__m256; 3], b: &[__m256; 3]) -> [__m256; 3] {
-    let (sub, mul) = (|x, y| _mm256_sub_ps(x, y), |x, y| _mm256_mul_ps(x, y));
-    [
-        sub(mul(a[1], b[2]), mul(a[2], b[1])),
-        sub(mul(a[2], b[0]), mul(a[0], b[2])),
-        sub(mul(a[0], b[1]), mul(a[1], b[0])),
-    ]
 }
 
 /// The closest hit along `o + t d` in `[tmin, tmax)`.
@@ -389,66 +374,5 @@ fn any_avx2<C: Count>(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32, count: 
         }
         r = stack.get(stack.len - 1).0;
         stack.len -= 1;
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use glam::Vec3A;
-    use proptest::prelude::*;
-
-    /// A coordinate of any magnitude, where products round (or overflow).
-    fn coord() -> impl Strategy<Value = f32> {
-        prop_oneof![
-            -4.0f32..4.0,
-            (-1.0f32..1.0, -60i32..=127).prop_map(|(m, k)| m * 2f32.powi(k)),
-        ]
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig::with_cases(512))]
-
-        /// The kernel's normal is the one the packs stored before, which
-        /// `collapse.rs` still computes for the 4-wide packs, bit for bit.
-        #[test]
-        fn kernel_normal_is_the_stored_one(
-            tris in prop::collection::vec(prop::array::uniform9(coord()), 8),
-        ) {
-            if !std::arch::is_x86_feature_detected!("avx2") {
-                return Ok(());
-            }
-            let mut rows = [[[0f32; 8]; 3]; 2];
-            let mut want = [[0f32; 8]; 3];
-            for (lane, c) in tris.iter().enumerate() {
-                let v = |k: usize| Vec3A::new(c[3 * k], c[3 * k + 1], c[3 * k + 2]);
-                // As `collapse.rs` builds a pack
-                let (e1, e2) = (v(0) - v(1), v(2) - v(0));
-                let ng = e1.cross(e2);
-                for axis in 0..3 {
-                    rows[0][axis][lane] = e1[axis];
-                    rows[1][axis][lane] = e2[axis];
-                    want[axis][lane] = ng[axis];
-                }
-            }
-            // SAFETY: AVX2 was detected above
-            let got = unsafe { kernel_cross(&rows) };
-            for axis in 0..3 {
-                prop_assert_eq!(got[axis].map(f32::to_bits), want[axis].map(f32::to_bits));
-            }
-        }
-    }
-
-    #[target_feature(enable = "avx2")]
-    fn kernel_cross(rows: &[[[f32; 8]; 3]; 2]) -> [[f32; 8]; 3] {
-        // SAFETY: eight readable f32s a row; no alignment needed
-        let ld = |r: &[[f32; 8]; 3]| unsafe { r.map(|row| _mm256_loadu_ps(row.as_ptr())) };
-        let ng = cross(&ld(&rows[0]), &ld(&rows[1]));
-        let mut out = [[0f32; 8]; 3];
-        for axis in 0..3 {
-            // SAFETY: eight writable f32s; no alignment needed
-            unsafe { _mm256_storeu_ps(out[axis].as_mut_ptr(), ng[axis]) };
-        }
-        out
     }
 }

@@ -3,12 +3,7 @@
 //! in structure-of-arrays layout, tested at once in one 256-bit register, so
 //! that a ray passes through about half as many levels (the layout of
 //! Embree's BVH8). Leaf triangles are in packs of eight ([`Pack8`], the
-//! layout of `wide.rs`'s `Pack` eight lanes wide, without the normal),
-//! tested at once too.
-//!
-//! On large scenes the kernels wait on memory more than they compute, so a
-//! pack leaves out the normal `e1 × e2`, which the kernel computes from
-//! the edges to the same bits: five cache lines a pack instead of six.
+//! layout of `wide.rs`'s `Pack` eight lanes wide), tested at once too.
 //!
 //! The collapse is `collapse.rs`'s, eight wide, with the costs of this
 //! layout, where one node test covers eight boxes and one pack test eight
@@ -79,7 +74,7 @@ impl Wide8 {
                 .map(|(b, child)| Node8 { b, child })
                 .collect(),
             packs: (c.packs.into_iter())
-                .map(|[v0, e1, e2, _]| Pack8 { v0, e1, e2 })
+                .map(|[v0, e1, e2, ng]| Pack8 { v0, e1, e2, ng })
                 .collect(),
             ids: c.ids,
             root: c.root,
@@ -88,14 +83,15 @@ impl Wide8 {
     }
 }
 
-/// Eight triangles, each coordinate in its own row: `v0` and the edges
-/// `e1 = v0 − v1` and `e2 = v2 − v0`, as in `wide.rs`'s `Pack`, whose
-/// `ng = e1 × e2` the kernel computes instead of loading. An unused slot is
-/// all zeros: its `ng` is zero, which the test rejects.
+/// Eight triangles, each coordinate in its own row: `v0`, the edges
+/// `e1 = v0 − v1` and `e2 = v2 − v0`, and `ng = e1 × e2`, as in `wide.rs`'s
+/// `Pack`. An unused slot is all zeros: its `ng` is zero, which the test
+/// rejects.
 #[derive(Clone, Copy, Default)]
 #[repr(C, align(32))]
 pub(super) struct Pack8 {
     pub v0: [[f32; 8]; 3],
     pub e1: [[f32; 8]; 3],
     pub e2: [[f32; 8]; 3],
+    pub ng: [[f32; 8]; 3],
 }
