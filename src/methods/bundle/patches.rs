@@ -251,12 +251,14 @@ pub fn edge_for_count(scene: &Scene, n: usize) -> f32 {
     // (or every triangle is split as finely as allowed)
     let estimate = (4.0 * total / (3f64.sqrt() * n as f64)).sqrt() as f32;
     let mut lo = if estimate > 0.0 { estimate.min(hi) } else { hi };
-    while count(lo) <= n {
+    let mut at_lo = count(lo);
+    while at_lo <= n {
         let finer = lo * 0.5;
-        if finer <= 0.0 || count(finer) == count(lo) {
+        let at_finer = count(finer);
+        if finer <= 0.0 || at_finer == at_lo {
             return lo;
         }
-        lo = finer;
+        (lo, at_lo) = (finer, at_finer);
     }
     // count(lo) > n ≥ count(hi): bisect to the shortest h with count ≤ n
     let mut hi = hi;
