@@ -25,12 +25,14 @@ use tree::LightTree;
 pub enum LightSelection {
     /// In proportion to power alone, wherever the shading point is
     /// (Mitsuba 3's choice).
-    #[default]
     Power,
     /// Area lights in proportion to an importance at the shading point
     /// (power, distance, and the orientation of light and surface), through
     /// a light tree (pbrt-v4's `BVHLightSampler`); the environment keeps
-    /// its power share.
+    /// its power share. The default: far less noise where many lights are
+    /// spread out, the same image where one light shines (BENCHMARKS.md,
+    /// "Light selection by the shading point").
+    #[default]
     Spatial,
 }
 
@@ -299,6 +301,10 @@ pub struct Lights {
     tree: LightTree,
     /// Probability of choosing the environment (its power share).
     p_env: f32,
+    /// The tree's choices do not depend on the shading point (one emitting
+    /// quad, as in cbox): [`LightSelection::Spatial`] is then the power
+    /// selection, and takes its cheaper path.
+    tree_static: bool,
     /// Entry index of each triangle (u32::MAX when it does not emit).
     tri_entry: Vec<u32>,
     /// Per shape: whether any of its triangles has an entry. Small enough to
@@ -389,6 +395,7 @@ impl Lights {
         Lights {
             entries,
             dist,
+            tree_static: tree.is_static(),
             tree,
             p_env,
             tri_entry,
@@ -491,7 +498,7 @@ impl Lights {
     /// environment for u32::MAX) from `p` with normal `n`.
     pub fn selection_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, tri: u32) -> f32 {
         if tri == u32::MAX {
-            return match selection {
+            return match self.effective(selection) {
                 _ if self.env_entry == u32::MAX => 0.0,
                 LightSelection::Power => self.dist.pmf(self.env_entry as usize) as f32,
                 LightSelection::Spatial => self.p_env,
@@ -503,10 +510,21 @@ impl Lights {
         }
     }
 
+    /// The selection that gives the same probabilities as `selection` at the
+    /// least cost.
+    #[inline(always)]
+    fn effective(&self, selection: LightSelection) -> LightSelection {
+        if self.tree_static {
+            LightSelection::Power
+        } else {
+            selection
+        }
+    }
+
     /// Probability of choosing entry `e`, a triangle.
     #[inline]
     fn entry_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, e: usize) -> f32 {
-        match selection {
+        match self.effective(selection) {
             LightSelection::Power => self.dist.pmf(e) as f32,
             LightSelection::Spatial => (1.0 - self.p_env) * self.tree.pmf(p, n, e as u32),
         }
@@ -524,7 +542,7 @@ impl Lights {
         if self.is_empty() {
             return None;
         }
-        match selection {
+        match self.effective(selection) {
             LightSelection::Power => {
                 let (i, pmf, _) = self.dist.sample(u_sel as f64);
                 Some((i, pmf as f32))

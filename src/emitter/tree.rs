@@ -37,6 +37,11 @@ use glam::Vec3;
 struct Bounds {
     lo: Vec3,
     hi: Vec3,
+    /// Centre of the box.
+    centre: Vec3,
+    /// Radius r of the box's bounding sphere (half its diagonal), and r².
+    r: f32,
+    r2: f32,
     /// Axis ω of the normal cone.
     axis: Vec3,
     /// cos θ_o of the normal cone.
@@ -50,12 +55,27 @@ struct Bounds {
 impl Bounds {
     /// The bounds of one triangle with corners `c`, unit normal `n` and power `phi`.
     fn triangle(c: [Vec3; 3], n: Vec3, phi: f32) -> Self {
+        Bounds::new(
+            c[0].min(c[1]).min(c[2]),
+            c[0].max(c[1]).max(c[2]),
+            n,
+            1.0,
+            phi,
+        )
+    }
+
+    /// The bounds of box `lo`..`hi`, cone (`axis`, `cos_o`) and power `phi`.
+    fn new(lo: Vec3, hi: Vec3, axis: Vec3, cos_o: f32, phi: f32) -> Self {
+        let r2 = (hi - lo).length_squared() * 0.25;
         Bounds {
-            lo: c[0].min(c[1]).min(c[2]),
-            hi: c[0].max(c[1]).max(c[2]),
-            axis: n,
-            cos_o: 1.0,
-            sin_o: 0.0,
+            lo,
+            hi,
+            centre: (lo + hi) * 0.5,
+            r: r2.sqrt(),
+            r2,
+            axis,
+            cos_o,
+            sin_o: (1.0 - cos_o * cos_o).max(0.0).sqrt(),
             phi,
         }
     }
@@ -64,31 +84,29 @@ impl Bounds {
     /// both cones, the powers' sum.
     fn union(&self, o: &Bounds) -> Bounds {
         let (axis, cos_o) = cone_union(self.axis, self.cos_o, o.axis, o.cos_o);
-        Bounds {
-            lo: self.lo.min(o.lo),
-            hi: self.hi.max(o.hi),
+        Bounds::new(
+            self.lo.min(o.lo),
+            self.hi.max(o.hi),
             axis,
             cos_o,
-            sin_o: (1.0 - cos_o * cos_o).max(0.0).sqrt(),
-            phi: self.phi + o.phi,
-        }
+            self.phi + o.phi,
+        )
     }
 
     /// The importance I(p, n) of the module documentation.
     #[inline(always)]
     fn importance(&self, p: Vec3, n: Vec3) -> f32 {
-        let pc = (self.lo + self.hi) * 0.5;
-        let r2 = (self.hi - self.lo).length_squared() * 0.25;
-        let to_p = p - pc;
+        let to_p = p - self.centre;
         let dist2 = to_p.length_squared();
         // Inside the bounding sphere every direction is possible: no angle bound
-        if dist2 <= r2 {
-            return self.phi / r2.max(f32::MIN_POSITIVE);
+        if dist2 <= self.r2 {
+            return self.phi / self.r2.max(f32::MIN_POSITIVE);
         }
-        let wi = to_p / dist2.sqrt();
+        let inv_d = dist2.sqrt().recip();
+        let wi = to_p * inv_d;
         // θ_b: half-angle of the cone from p that holds the bounding sphere
-        let sin2_b = r2 / dist2;
-        let (sin_b, cos_b) = (sin2_b.sqrt(), (1.0 - sin2_b).max(0.0).sqrt());
+        let sin_b = self.r * inv_d;
+        let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
         // θ' = max(0, θ_w − θ_o − θ_b)
         let cos_w = self.axis.dot(wi).clamp(-1.0, 1.0);
         let sin_w = (1.0 - cos_w * cos_w).max(0.0).sqrt();
@@ -98,7 +116,7 @@ impl Bounds {
         if cos_t <= 0.0 {
             return 0.0;
         }
-        let mut imp = self.phi * cos_t / dist2;
+        let mut imp = self.phi * cos_t * (inv_d * inv_d);
         if n != Vec3::ZERO {
             let cos_i = n.dot(wi).abs().min(1.0);
             let sin_i = (1.0 - cos_i * cos_i).max(0.0).sqrt();
@@ -245,8 +263,9 @@ impl LightTree {
     /// no light can reach p. The root is not tested: a tree of one light
     /// gives it with probability 1 (where it cannot reach p, its sample
     /// faces away and is refused), and below the root the children's
-    /// importances decide.
-    #[inline(always)]
+    /// importances decide. Not inlined: the walk is long, and the caller's
+    /// loop (the path tracer's) keeps its registers.
+    #[inline(never)]
     pub(super) fn sample(&self, p: Vec3, n: Vec3, mut u: f32) -> Option<(u32, f32)> {
         if self.nodes.is_empty() {
             return None;
@@ -271,8 +290,16 @@ impl LightTree {
         }
     }
 
+    /// True when no choice depends on the shading point: every interior
+    /// node has a fixed share (one quad, or none), so that the tree gives
+    /// each light its power share.
+    pub(super) fn is_static(&self) -> bool {
+        self.nodes.iter().all(|n| n.leaf || n.share >= 0.0)
+    }
+
     /// Probability that [`LightTree::sample`] chooses light `light` from
     /// `p` with normal `n`.
+    #[inline(never)]
     pub(super) fn pmf(&self, p: Vec3, n: Vec3, light: u32) -> f32 {
         let Some(&(bits, depth)) = self.trail.get(light as usize) else {
             return 0.0;

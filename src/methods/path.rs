@@ -35,10 +35,11 @@ pub struct Settings {
     /// 5, so that noise compares like for like).
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 5))]
     pub rr_depth: u32,
-    /// How next-event estimation chooses the light: by power alone
-    /// (Mitsuba's choice), or spatially, by each light's importance at the
-    /// shading point (power, distance, orientation; pbrt-v4's light tree).
-    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "power"))]
+    /// How next-event estimation chooses the light: spatially, by each
+    /// light's importance at the shading point (power, distance,
+    /// orientation; pbrt-v4's light tree; the default), or by power alone
+    /// (Mitsuba's choice).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "spatial"))]
     pub light_selection: LightSelection,
 }
 
@@ -48,7 +49,7 @@ impl Default for Settings {
             seed: 0,
             max_depth: None,
             rr_depth: 5,
-            light_selection: LightSelection::Power,
+            light_selection: LightSelection::Spatial,
         }
     }
 }

@@ -315,3 +315,24 @@ fn path_image_is_the_same_with_either_selection() {
         "the selections disagree: |z| = {z:.2} in block {block}"
     );
 }
+
+/// With one emitting quad (cbox), no choice depends on the shading point:
+/// the spatial selection makes the power selection's choices with the
+/// power selection's probabilities, bit for bit, so that its image is the
+/// same.
+#[test]
+fn one_quad_is_chosen_by_power() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let s = scene::load(&root.join("scenes/cbox/cbox.xml")).expect("scene");
+    let lights = World::new(s).lights;
+    let mut rng = Pcg32::new(9, 0);
+    for _ in 0..1000 {
+        let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 550.0;
+        let n = uniform_sphere(rng.next_2d());
+        let u = rng.next_f32();
+        assert_eq!(
+            lights.select(LightSelection::Spatial, p, n, u),
+            lights.select(LightSelection::Power, p, n, u)
+        );
+    }
+}
