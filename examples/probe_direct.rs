@@ -53,6 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         seed: 0,
         max_depth: Some(2),
         rr_depth: 5,
+        light_selection: Default::default(),
     };
     let mut lp = 0f64;
     let cam = world.camera.position();

@@ -1,9 +1,12 @@
-//! Light sources ready for sampling: area lights chosen by power, and the
+//! Light sources ready for sampling: area lights chosen by power or by
+//! their importance at the shading point ([`LightSelection`]), and the
 //! environment (constant or an importance-sampled lat-long map).
 //!
 //! Two uses: next-event estimation from a surface point (`sample_li`,
 //! `pdf_li`) for camera paths, and emission of particles (`sample_emission`)
 //! for light tracing, density estimation and light path building.
+
+mod tree;
 
 use std::f32::consts::PI;
 
@@ -14,6 +17,24 @@ use crate::sampling::{
     concentric_disk, cosine_hemisphere, uniform_sphere, uniform_triangle, Distribution1D,
 };
 use crate::scene::{luminance, EmitterDesc, Rgb, Scene, TexImage};
+use tree::LightTree;
+
+/// How next-event estimation chooses the light to sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum LightSelection {
+    /// In proportion to power alone, wherever the shading point is
+    /// (Mitsuba 3's choice).
+    Power,
+    /// Area lights in proportion to an importance at the shading point
+    /// (power, distance, and the orientation of light and surface), through
+    /// a light tree (pbrt-v4's `BVHLightSampler`); the environment keeps
+    /// its power share. The default: far less noise where many lights are
+    /// spread out, the same image where one light shines (BENCHMARKS.md,
+    /// "Light selection by the shading point").
+    #[default]
+    Spatial,
+}
 
 /// The environment around the scene.
 #[derive(Clone, Debug)]
@@ -268,11 +289,22 @@ enum Entry {
     Env,
 }
 
-/// All the lights of a scene, with the power distribution that chooses among them.
+/// All the lights of a scene, with the power distribution and the light
+/// tree that choose among them.
 #[derive(Clone, Debug)]
 pub struct Lights {
+    /// Emitting triangles first, then the environment if it has power.
     entries: Vec<Entry>,
     dist: Distribution1D,
+    /// The emitting triangles for [`LightSelection::Spatial`]: light i of
+    /// the tree is entry i.
+    tree: LightTree,
+    /// Probability of choosing the environment (its power share).
+    p_env: f32,
+    /// The tree's choices do not depend on the shading point (one emitting
+    /// quad, as in cbox): [`LightSelection::Spatial`] is then the power
+    /// selection, and takes its cheaper path.
+    tree_static: bool,
     /// Entry index of each triangle (u32::MAX when it does not emit).
     tri_entry: Vec<u32>,
     /// Per shape: whether any of its triangles has an entry. Small enough to
@@ -337,6 +369,15 @@ impl Lights {
                 _ => {}
             }
         }
+        let (mut corners, mut normals) = (Vec::new(), Vec::new());
+        for e in &entries {
+            if let Entry::Tri { corners: c, n, .. } = e {
+                corners.push(*c);
+                normals.push(*n);
+            }
+        }
+        let phi: Vec<f32> = weights.iter().map(|&w| w as f32).collect();
+        let tree = LightTree::new(&corners, &normals, &phi);
         if let Some(e) = &env {
             let w = (PI * radius * radius * luminance(e.integral())) as f64;
             if w > 0.0 {
@@ -345,9 +386,18 @@ impl Lights {
                 weights.push(w);
             }
         }
+        let dist = Distribution1D::new(&weights);
+        let p_env = if env_entry == u32::MAX {
+            0.0
+        } else {
+            dist.pmf(env_entry as usize) as f32
+        };
         Lights {
             entries,
-            dist: Distribution1D::new(&weights),
+            dist,
+            tree_static: tree.is_static(),
+            tree,
+            p_env,
             tri_entry,
             shape_emits,
             env,
@@ -404,13 +454,116 @@ impl Lights {
         self.env.as_ref().map_or(Rgb::ZERO, |e| e.le(dir))
     }
 
-    /// Samples a light as seen from `p` (next-event estimation).
+    /// Samples a light as seen from `p` (next-event estimation), chosen by
+    /// power ([`LightSelection::Power`]).
     #[inline(always)]
     pub fn sample_li(&self, p: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
+        self.sample_li_from(LightSelection::Power, p, Vec3::ZERO, u_sel, u)
+    }
+
+    /// Samples a light as seen from `p`, where the surface has normal `n`
+    /// (either side; zero for none), chosen by `selection`.
+    #[inline(always)]
+    pub fn sample_li_from(
+        &self,
+        selection: LightSelection,
+        p: Vec3,
+        n: Vec3,
+        u_sel: f32,
+        u: Vec2,
+    ) -> Option<LightSample> {
+        let (i, pmf) = self.select_entry(selection, p, n, u_sel)?;
+        self.sample_entry(i, pmf, p, u)
+    }
+
+    /// Chooses a light for `u_sel` as seen from `p` with normal `n`: the
+    /// emitting triangle (u32::MAX for the environment) and the probability
+    /// of the choice; None when no light can be chosen. For tests and
+    /// diagnostics; [`Lights::sample_li_from`] makes the same choice.
+    pub fn select(
+        &self,
+        selection: LightSelection,
+        p: Vec3,
+        n: Vec3,
+        u_sel: f32,
+    ) -> Option<(u32, f32)> {
+        let (i, pmf) = self.select_entry(selection, p, n, u_sel)?;
+        Some(match self.entries[i] {
+            Entry::Tri { tri, .. } => (tri, pmf),
+            Entry::Env => (u32::MAX, pmf),
+        })
+    }
+
+    /// Probability that `selection` chooses emitting triangle `tri` (or the
+    /// environment for u32::MAX) from `p` with normal `n`.
+    pub fn selection_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, tri: u32) -> f32 {
+        if tri == u32::MAX {
+            return match self.effective(selection) {
+                _ if self.env_entry == u32::MAX => 0.0,
+                LightSelection::Power => self.dist.pmf(self.env_entry as usize) as f32,
+                LightSelection::Spatial => self.p_env,
+            };
+        }
+        match self.tri_entry.get(tri as usize) {
+            Some(&e) if e != u32::MAX => self.entry_pmf(selection, p, n, e as usize),
+            _ => 0.0,
+        }
+    }
+
+    /// The selection that gives the same probabilities as `selection` at the
+    /// least cost.
+    #[inline(always)]
+    fn effective(&self, selection: LightSelection) -> LightSelection {
+        if self.tree_static {
+            LightSelection::Power
+        } else {
+            selection
+        }
+    }
+
+    /// Probability of choosing entry `e`, a triangle.
+    #[inline]
+    fn entry_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, e: usize) -> f32 {
+        match self.effective(selection) {
+            LightSelection::Power => self.dist.pmf(e) as f32,
+            LightSelection::Spatial => (1.0 - self.p_env) * self.tree.pmf(p, n, e as u32),
+        }
+    }
+
+    /// Chooses an entry: its index and probability.
+    #[inline(always)]
+    fn select_entry(
+        &self,
+        selection: LightSelection,
+        p: Vec3,
+        n: Vec3,
+        u_sel: f32,
+    ) -> Option<(usize, f32)> {
         if self.is_empty() {
             return None;
         }
-        let (i, pmf, _) = self.dist.sample(u_sel as f64);
+        match self.effective(selection) {
+            LightSelection::Power => {
+                let (i, pmf, _) = self.dist.sample(u_sel as f64);
+                Some((i, pmf as f32))
+            }
+            LightSelection::Spatial => {
+                // The environment first, with its power share; the rest of
+                // [0, 1) goes down the tree
+                if u_sel < self.p_env {
+                    return Some((self.env_entry as usize, self.p_env));
+                }
+                let u = ((u_sel - self.p_env) / (1.0 - self.p_env))
+                    .clamp(0.0, 1.0 - f32::EPSILON / 2.0);
+                let (i, pmf) = self.tree.sample(p, n, u)?;
+                Some((i as usize, (1.0 - self.p_env) * pmf))
+            }
+        }
+    }
+
+    /// Samples a point on entry `i`, chosen with probability `pmf`, as seen from `p`.
+    #[inline(always)]
+    fn sample_entry(&self, i: usize, pmf: f32, p: Vec3, u: Vec2) -> Option<LightSample> {
         match self.entries[i] {
             Entry::Tri {
                 le,
@@ -431,7 +584,7 @@ impl Lights {
                 if cos_l <= 0.0 {
                     return None;
                 }
-                let pdf = pmf as f32 / area * dist2 / cos_l;
+                let pdf = pmf / area * dist2 / cos_l;
                 Some(LightSample {
                     wi,
                     p: q,
@@ -452,7 +605,7 @@ impl Lights {
                     p: p + wi * (2.0 * self.radius + (p - self.center).length()),
                     n: Vec3::ZERO,
                     le,
-                    pdf: pmf as f32 * pdf_dir,
+                    pdf: pmf * pdf_dir,
                     is_env: true,
                 })
             }
@@ -462,6 +615,20 @@ impl Lights {
     /// Solid-angle pdf with which [`Lights::sample_li`] from `p` picks the
     /// point `q` (normal `nq`) on emitting triangle `tri`.
     pub fn pdf_li_tri(&self, p: Vec3, q: Vec3, nq: Vec3, tri: u32) -> f32 {
+        self.pdf_li_tri_from(LightSelection::Power, p, Vec3::ZERO, q, nq, tri)
+    }
+
+    /// Solid-angle pdf with which [`Lights::sample_li_from`] from `p` with
+    /// normal `n` picks the point `q` (normal `nq`) on emitting triangle `tri`.
+    pub fn pdf_li_tri_from(
+        &self,
+        selection: LightSelection,
+        p: Vec3,
+        n: Vec3,
+        q: Vec3,
+        nq: Vec3,
+        tri: u32,
+    ) -> f32 {
         let e = match self.tri_entry.get(tri as usize) {
             Some(&e) if e != u32::MAX => e as usize,
             _ => return 0.0,
@@ -475,7 +642,7 @@ impl Lights {
         let Entry::Tri { area, .. } = self.entries[e] else {
             return 0.0;
         };
-        self.dist.pmf(e) as f32 / area * dist2 / cos_l
+        self.entry_pmf(selection, p, n, e) / area * dist2 / cos_l
     }
 
     /// Solid-angle pdf with which [`Lights::sample_li`] picks the environment

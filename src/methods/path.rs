@@ -11,6 +11,7 @@
 use rayon::prelude::*;
 
 use super::{Method, MethodError, StepStats, World};
+use crate::emitter::LightSelection;
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
 use crate::partial::{Shard, State};
@@ -34,6 +35,12 @@ pub struct Settings {
     /// 5, so that noise compares like for like).
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 5))]
     pub rr_depth: u32,
+    /// How next-event estimation chooses the light: spatially, by each
+    /// light's importance at the shading point (power, distance,
+    /// orientation; pbrt-v4's light tree; the default), or by power alone
+    /// (Mitsuba's choice).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "spatial"))]
+    pub light_selection: LightSelection,
 }
 
 impl Default for Settings {
@@ -42,6 +49,7 @@ impl Default for Settings {
             seed: 0,
             max_depth: None,
             rr_depth: 5,
+            light_selection: LightSelection::Spatial,
         }
     }
 }
@@ -199,6 +207,7 @@ pub fn radiance(world: &World, settings: &Settings, ray: Ray, rng: &mut Pcg32) -
     let limits = DepthLimits {
         max_depth: settings.max_depth,
         rr_depth: settings.rr_depth,
+        light_selection: settings.light_selection,
     };
     radiance_from(world, &limits, ray, rng, 1)
 }

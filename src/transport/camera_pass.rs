@@ -63,6 +63,7 @@ use glam::Vec3;
 use super::dispatch::dispatched;
 use super::{radiance_from, DepthLimits};
 use crate::bsdf::{Bsdf, Mode};
+use crate::emitter::LightSelection;
 use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
 use crate::partial::Shard;
@@ -150,6 +151,7 @@ impl CameraPass {
             limits: DepthLimits {
                 max_depth,
                 rr_depth: RR_DEPTH,
+                light_selection: LightSelection::Power,
             },
             shard: Shard::WHOLE,
         }

@@ -4,13 +4,16 @@
 //! throughput. `path` is this estimator from the eye; the camera pass
 //! continues it after a delta lobe.
 
+use glam::Vec3;
+
 use crate::bsdf::Mode;
+use crate::emitter::LightSelection;
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::{power_heuristic, Pcg32};
 use crate::scene::Rgb;
 use crate::world::World;
 
-/// How deep a camera path may go.
+/// How deep a camera path may go, and how it chooses lights.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DepthLimits {
     /// Longest path in segments (Mitsuba's `max_depth`); None = unlimited.
@@ -18,6 +21,8 @@ pub struct DepthLimits {
     /// Depth from which Russian roulette may stop a path (Mitsuba's
     /// `rr_depth`).
     pub rr_depth: u32,
+    /// How next-event estimation chooses the light.
+    pub light_selection: LightSelection,
 }
 
 /// Radiance arriving along `ray`, which is the `depth`-th segment of a camera
@@ -33,6 +38,7 @@ pub fn radiance_from(
     depth: u32,
 ) -> (Rgb, u64) {
     let (accel, lights) = (&world.accel, &world.lights);
+    let selection = limits.light_selection;
     let max_depth = limits.max_depth.unwrap_or(u32::MAX);
     let mut l = Rgb::ZERO;
     let mut beta = Rgb::ONE;
@@ -41,6 +47,8 @@ pub fn radiance_from(
     let mut prev_pdf = 0.0f32;
     let mut specular = true;
     let mut prev_p = ray.o;
+    // the previous vertex's geometric normal, for the light selection's pdf
+    let mut prev_n = Vec3::ZERO;
     let mut eta_scale = 1.0f32;
     let mut depth = depth;
     loop {
@@ -68,7 +76,10 @@ pub fn radiance_from(
                 let w = if specular {
                     1.0
                 } else {
-                    power_heuristic(prev_pdf, lights.pdf_li_tri(prev_p, sp.p, sp.ng, hit.tri))
+                    power_heuristic(
+                        prev_pdf,
+                        lights.pdf_li_tri_from(selection, prev_p, prev_n, sp.p, sp.ng, hit.tri),
+                    )
                 };
                 l += beta * le * w;
             }
@@ -85,7 +96,7 @@ pub fn radiance_from(
         if bsdf.has_smooth() && depth < max_depth {
             let u_sel = rng.next_f32();
             let u_l = rng.next_2d();
-            if let Some(ls) = lights.sample_li(sp.p, u_sel, u_l) {
+            if let Some(ls) = lights.sample_li_from(selection, sp.p, ng, u_sel, u_l) {
                 let wi = frame.to_local(ls.wi);
                 let f = bsdf.eval(wo, wi, Mode::Radiance) * wi.z.abs();
                 if f != Rgb::ZERO && ls.wi.dot(ng) * wi.z > 0.0 {
@@ -125,6 +136,7 @@ pub fn radiance_from(
         specular = s.delta;
         prev_pdf = s.pdf;
         prev_p = sp.p;
+        prev_n = ng;
         if s.eta != 1.0 {
             eta_scale *= s.eta * s.eta;
         }

@@ -40,7 +40,7 @@ fn each_method_help_lists_only_its_own_flags() {
     // every method's own flags, complete: a flag listed for another method
     // and not for this one must not show in this one's help
     let own: [(&str, &[&str]); 5] = [
-        ("path", &["--rr-depth"]),
+        ("path", &["--rr-depth", "--light-selection"]),
         ("light", &["--variant", "--discard", "--camera-pass"]),
         (
             "plb",

@@ -18,6 +18,7 @@ mod farm;
 mod fuzz;
 mod geometry;
 mod image_io;
+mod lights;
 mod loader;
 mod loader_limits;
 mod methods;
