@@ -59,7 +59,7 @@ pub(super) fn ceil_i32(v: f32) -> i32 {
 
 /// Bound of the lanes of [`box_bounds`]: its values, and any larger,
 /// lie beyond every map's last pixel, so they clip the same.
-const BOX_LIMIT: f32 = (1 << 30) as f32;
+pub(super) const BOX_LIMIT: f32 = (1 << 30) as f32;
 
 /// The box of pixel centres of a box `lo`..`hi` on the map, before
 /// clipping: [⌈lo.x − ½⌉, ⌈lo.y − ½⌉, ⌊hi.x − ½⌋, ⌊hi.y − ½⌋]. For finite
