@@ -132,7 +132,7 @@ fn ilanes(v: __m256i) -> [i32; 8] {
 
 /// Projects patches `range` with corners `corners`, as the scalar loop of
 /// [`super::project`] does with pixel-centre roulette (`pj.centre_rr`),
-/// and calls `emit` with each projection that covers a pixel centre, in
+/// and pushes each projection that covers a pixel centre onto `out`, in
 /// patch order. The sort key is the centroid's order bits when `painter`,
 /// else 0.
 ///
@@ -147,7 +147,7 @@ pub(super) unsafe fn project_avx2(
     to_map: &ToMap,
     pj: &Projector,
     painter: bool,
-    emit: &mut impl FnMut(Proj),
+    out: &mut Vec<Proj>,
 ) {
     debug_assert!(pj.centre_rr);
     let c = &corners.c;
@@ -299,25 +299,32 @@ pub(super) unsafe fn project_avx2(
                 lanes(cx),
                 lanes(cy),
             );
-            let (za, zb, zc, inv, z1) = (lanes(za), lanes(zb), lanes(zc), lanes(inv), lanes(z1));
+            // a one-pixel projection's depths are all that of its centre
+            let (za, zb, zc) = (
+                lanes(_mm256_blendv_ps(za, z1, single)),
+                lanes(_mm256_blendv_ps(zb, z1, single)),
+                lanes(_mm256_blendv_ps(zc, z1, single)),
+            );
+            let inv = lanes(inv);
             let (x0, x1, y0, y1) = (ilanes(x0), ilanes(x1), ilanes(y0), ilanes(y1));
             let (bits, key) = (ilanes(bits), ilanes(key));
             let single = _mm256_movemask_ps(single) as u32;
+            // written in place (a projection built apart, then pushed, was
+            // copied once more)
+            out.reserve(8);
+            let mut len = out.len();
+            let at = out.as_mut_ptr();
             while mask != 0 {
                 let l = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
                 let one = single >> l & 1 == 1;
-                emit(Proj {
+                let pr = Proj {
                     t: [
                         glam::Vec2::new(ax[l], ay[l]),
                         glam::Vec2::new(bx[l], by[l]),
                         glam::Vec2::new(cx[l], cy[l]),
                     ],
-                    z: if one {
-                        [z1[l]; 3]
-                    } else {
-                        [za[l], zb[l], zc[l]]
-                    },
+                    z: [za[l], zb[l], zc[l]],
                     inv: inv[l],
                     id: (i + l) as u32,
                     key: key[l] as u32,
@@ -327,8 +334,13 @@ pub(super) unsafe fn project_avx2(
                     y1: y1[l],
                     owns: bits[l] as u32,
                     cover: if one { Cover::One } else { Cover::Raster },
-                });
+                };
+                // SAFETY: at most 8 lanes, and 8 places were reserved
+                unsafe { at.add(len).write(pr) };
+                len += 1;
             }
+            // SAFETY: the places up to `len` were written just above
+            unsafe { out.set_len(len) };
         }
         i += 8;
     }
@@ -429,7 +441,7 @@ mod tests {
             }
             let mut got = Vec::new();
             // SAFETY: available() said the CPU has AVX2; range ≤ n
-            unsafe { project_avx2(&corners, range, &to_map, &pj, painter, &mut |p| got.push(p)) };
+            unsafe { project_avx2(&corners, range, &to_map, &pj, painter, &mut got) };
             assert_eq!(got.len(), want.len(), "case {case}");
             for (g, w) in got.iter().zip(&want) {
                 assert_eq!(bits(g), bits(w), "case {case}: {g:?} against {w:?}");

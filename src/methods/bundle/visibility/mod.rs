@@ -381,12 +381,6 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
             ck.by_id.clear();
             ck.start.clear();
             ck.start.resize(ntiles + 1, 0);
-            let mut emit = |pr: Proj| {
-                for t in tiles_of(&pr) {
-                    ck.start[t + 1] += 1;
-                }
-                ck.by_id.push(pr);
-            };
             let first = chunk * chunk_len;
             if eight {
                 // SAFETY: `eight` says the CPU has AVX2, and the chunk's
@@ -399,9 +393,14 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
                         &to_map,
                         &pj,
                         painter,
-                        &mut emit,
+                        &mut ck.by_id,
                     )
                 };
+                for pr in &ck.by_id {
+                    for t in tiles_of(pr) {
+                        ck.start[t + 1] += 1;
+                    }
+                }
             } else {
                 for (j, p) in ps.iter().enumerate() {
                     let id = (first + j) as u32;
@@ -410,7 +409,10 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
                     // z-buffer keeps patch order
                     let key = if painter { order_bits(centroid) } else { 0 };
                     if let Some(pr) = Proj::new(&pj, id, t, z, key) {
-                        emit(pr);
+                        for t in tiles_of(&pr) {
+                            ck.start[t + 1] += 1;
+                        }
+                        ck.by_id.push(pr);
                     }
                 }
             }
