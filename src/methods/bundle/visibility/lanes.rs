@@ -15,7 +15,7 @@
 use std::arch::x86_64::*;
 use std::ops::Range;
 
-use super::raster::{Cover, Proj, Projector, ToMap, BOX_LIMIT};
+use super::raster::{Proj, Projector, ToMap, BOX_LIMIT};
 use crate::methods::bundle::patches::Corners;
 
 /// Whether [`project_avx2`] may run: the CPU has AVX2, and
@@ -110,24 +110,36 @@ fn clamp(v: __m256) -> __m256 {
     )
 }
 
-/// The eight lanes of a vector.
+/// The 8 × 8 transpose: lane l of the result's row k is lane k of row l.
 #[inline]
 #[target_feature(enable = "avx2")]
-fn lanes(v: __m256) -> [f32; 8] {
-    let mut out = [0.0; 8];
-    // SAFETY: `out` holds eight f32 (an unaligned store)
-    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
-    out
-}
-
-/// The eight lanes of an integer vector.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn ilanes(v: __m256i) -> [i32; 8] {
-    let mut out = [0; 8];
-    // SAFETY: `out` holds eight i32 (an unaligned store)
-    unsafe { _mm256_storeu_si256(out.as_mut_ptr().cast(), v) };
-    out
+fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
+    let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+    let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+    let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+    let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+    let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+    let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+    let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+    let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+    let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+    let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+    let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+    let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+    let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+    let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+    let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+    let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+    [
+        _mm256_permute2f128_ps::<0x20>(u0, u4),
+        _mm256_permute2f128_ps::<0x20>(u1, u5),
+        _mm256_permute2f128_ps::<0x20>(u2, u6),
+        _mm256_permute2f128_ps::<0x20>(u3, u7),
+        _mm256_permute2f128_ps::<0x31>(u0, u4),
+        _mm256_permute2f128_ps::<0x31>(u1, u5),
+        _mm256_permute2f128_ps::<0x31>(u2, u6),
+        _mm256_permute2f128_ps::<0x31>(u3, u7),
+    ]
 }
 
 /// Projects patches `range` with corners `corners`, as the scalar loop of
@@ -291,52 +303,68 @@ pub(super) unsafe fn project_avx2(
             mask &= (1 << left) - 1;
         }
         if mask != 0 {
-            let (ax, ay, bx, by, cx, cy) = (
-                lanes(ax),
-                lanes(ay),
-                lanes(bx),
-                lanes(by),
-                lanes(cx),
-                lanes(cy),
+            // The 18 fields of Proj (C layout) as rows of eight lanes,
+            // transposed so that each lane's 72 bytes are three stores
+            let id = _mm256_add_epi32(
+                _mm256_set1_epi32(i as i32),
+                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
             );
-            // a one-pixel projection's depths are all that of its centre
-            let (za, zb, zc) = (
-                lanes(_mm256_blendv_ps(za, z1, single)),
-                lanes(_mm256_blendv_ps(zb, z1, single)),
-                lanes(_mm256_blendv_ps(zc, z1, single)),
+            // a one-pixel projection's depths are all that of its centre;
+            // its cover is Cover::One (1), else Cover::Raster (0)
+            let cover = _mm256_and_si256(_mm256_castps_si256(single), _mm256_set1_epi32(1));
+            let f = _mm256_castsi256_ps;
+            let lo = transpose8([
+                ax,
+                ay,
+                bx,
+                by,
+                cx,
+                cy,
+                _mm256_blendv_ps(za, z1, single),
+                _mm256_blendv_ps(zb, z1, single),
+            ]);
+            let hi = transpose8([
+                _mm256_blendv_ps(zc, z1, single),
+                inv,
+                f(id),
+                f(key),
+                f(x0),
+                f(x1),
+                f(y0),
+                f(y1),
+            ]);
+            // owns and cover, pairs by lane: 0, 1, 4, 5 in `a`, 2, 3, 6, 7 in `b`
+            let (a, b) = (
+                _mm256_unpacklo_ps(f(bits), f(cover)),
+                _mm256_unpackhi_ps(f(bits), f(cover)),
             );
-            let inv = lanes(inv);
-            let (x0, x1, y0, y1) = (ilanes(x0), ilanes(x1), ilanes(y0), ilanes(y1));
-            let (bits, key) = (ilanes(bits), ilanes(key));
-            let single = _mm256_movemask_ps(single) as u32;
-            // written in place (a projection built apart, then pushed, was
-            // copied once more)
+            let mut tail = [0u64; 8];
+            // SAFETY: `tail` holds eight u64 (unaligned stores)
+            unsafe {
+                _mm256_storeu_ps(
+                    tail.as_mut_ptr().cast(),
+                    _mm256_permute2f128_ps::<0x20>(a, b),
+                );
+                _mm256_storeu_ps(
+                    tail.as_mut_ptr().add(4).cast(),
+                    _mm256_permute2f128_ps::<0x31>(a, b),
+                );
+            }
+            // tail now holds lanes 0, 1, 2, 3 and 4, 5, 6, 7 in order
             out.reserve(8);
             let mut len = out.len();
             let at = out.as_mut_ptr();
             while mask != 0 {
                 let l = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let one = single >> l & 1 == 1;
-                let pr = Proj {
-                    t: [
-                        glam::Vec2::new(ax[l], ay[l]),
-                        glam::Vec2::new(bx[l], by[l]),
-                        glam::Vec2::new(cx[l], cy[l]),
-                    ],
-                    z: [za[l], zb[l], zc[l]],
-                    inv: inv[l],
-                    id: (i + l) as u32,
-                    key: key[l] as u32,
-                    x0: x0[l],
-                    x1: x1[l],
-                    y0: y0[l],
-                    y1: y1[l],
-                    owns: bits[l] as u32,
-                    cover: if one { Cover::One } else { Cover::Raster },
-                };
-                // SAFETY: at most 8 lanes, and 8 places were reserved
-                unsafe { at.add(len).write(pr) };
+                // SAFETY: at most 8 lanes, and 8 places were reserved; Proj
+                // is 72 bytes in C layout, its fields as the rows above
+                unsafe {
+                    let p = at.add(len).cast::<f32>();
+                    _mm256_storeu_ps(p, lo[l]);
+                    _mm256_storeu_ps(p.add(8), hi[l]);
+                    p.add(16).cast::<u64>().write_unaligned(tail[l]);
+                }
                 len += 1;
             }
             // SAFETY: the places up to `len` were written just above
@@ -353,6 +381,7 @@ mod tests {
     use super::*;
     use crate::geometry::Frame;
     use crate::methods::bundle::visibility::raster::order_bits;
+    use crate::methods::bundle::visibility::raster::Cover;
     use crate::sampling::Pcg32;
 
     /// Every field of a projection, as bits.
