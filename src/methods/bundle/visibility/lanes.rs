@@ -18,6 +18,18 @@ use std::ops::Range;
 use super::raster::{Proj, Projector, ToMap, BOX_LIMIT};
 use crate::methods::bundle::patches::Corners;
 
+// The write-out stores each projection as eighteen 4-byte rows in the
+// order of `Proj`'s fields (C layout); these pin that layout.
+const _: () = {
+    use std::mem::{offset_of, size_of};
+    assert!(size_of::<Proj>() == 72);
+    assert!(offset_of!(Proj, z) == 24 && offset_of!(Proj, inv) == 36);
+    assert!(offset_of!(Proj, id) == 40 && offset_of!(Proj, key) == 44);
+    assert!(offset_of!(Proj, x0) == 48 && offset_of!(Proj, x1) == 52);
+    assert!(offset_of!(Proj, y0) == 56 && offset_of!(Proj, y1) == 60);
+    assert!(offset_of!(Proj, owns) == 64 && offset_of!(Proj, cover) == 68);
+};
+
 /// Whether [`project_avx2`] may run: the CPU has AVX2, and
 /// `KALOS_DISPATCH=baseline` does not ask for the baseline copies.
 pub(super) fn available() -> bool {
