@@ -414,8 +414,8 @@ impl Bundle {
         self.iter
     }
 
-    /// Bytes of per-patch state (geometry, BRDF, the two radiance values,
-    /// corner ids) and of the transient per-iteration buffers per patch
+    /// Bytes of per-patch state (geometry, BRDF, the corners again by
+    /// coordinate for the projection, the two radiance values, corner ids) and of the transient per-iteration buffers per patch
     /// (incoming radiance, the projection, and the tile entries: a patch
     /// is in every map tile its projection crosses, with a copy of its
     /// projection and its two accumulators, and in the buffers of the
@@ -426,7 +426,11 @@ impl Bundle {
     /// ([`visibility::map_bytes`]).
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
-        let state = size_of::<patches::Patch>() + 2 * size_of::<Rgb>() + size_of::<[u32; 3]>();
+        // the patch, its corners again by coordinate, L(±ω), its vertex ids
+        let state = size_of::<patches::Patch>()
+            + size_of::<[glam::Vec3; 3]>()
+            + 2 * size_of::<Rgb>()
+            + size_of::<[u32; 3]>();
         // projection, the two accumulators, sort key and radix buffer, and
         // the two radiance values and two accumulators of a tile entry
         let tile_entry = visibility::PROJ_BYTES + 2 * size_of::<u64>() + 6 * size_of::<Rgb>();

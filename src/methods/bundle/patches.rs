@@ -188,7 +188,8 @@ impl Layout {
 
 /// All patches with their bookkeeping.
 pub struct Patches {
-    /// The patches.
+    /// The patches. Their corners are copied into [`Patches::corners`] when
+    /// built, so they must not be moved afterwards.
     pub p: Vec<Patch>,
     /// Shared vertex index of each patch corner (for Gouraud smoothing;
     /// where two cells of different k meet, the finer cell's extra corners
@@ -203,6 +204,37 @@ pub struct Patches {
     /// The edge length the tessellation aimed at (the area budget's: it
     /// sets the visibility map's resolution whatever the budget).
     pub edge: f32,
+    /// The corners of `p` again, by coordinate, for the projection.
+    corners: Corners,
+}
+
+/// Lanes past the last patch that [`Corners`] pads with zeros.
+pub const CORNER_PAD: usize = 8;
+
+/// The corners of every patch by coordinate (structure of arrays), made
+/// once with the patches: the projection reads nothing else of a patch,
+/// and this way reads them eight patches at a time instead of 36 bytes of
+/// every 136-byte [`Patch`]. `c[3 * k + axis][i]` is coordinate `axis` of
+/// corner k of patch i; every array holds [`CORNER_PAD`] zeros past the
+/// last patch, so that eight lanes may be loaded from any patch.
+#[derive(Clone, Debug, Default)]
+pub struct Corners {
+    /// The nine coordinate arrays.
+    pub c: [Vec<f32>; 9],
+}
+
+impl Corners {
+    /// Patch i's corners `v(i)`, for i in `0..n`.
+    pub fn new(n: usize, v: impl Fn(usize) -> [Vec3; 3]) -> Self {
+        Corners {
+            c: std::array::from_fn(|j| {
+                let (k, axis) = (j / 3, j % 3);
+                ((0..n).map(|i| v(i)[k][axis]))
+                    .chain(std::iter::repeat_n(0.0, CORNER_PAD))
+                    .collect()
+            }),
+        }
+    }
 }
 
 /// Subdivision of a triangle with longest edge `longest` for target `edge`.
@@ -362,6 +394,7 @@ impl Patches {
         }
         let vertex_count = vmap.len();
         Patches {
+            corners: Corners::new(p.len(), |i| p[i].v),
             p,
             vid,
             vertex_count,
@@ -369,6 +402,11 @@ impl Patches {
             first,
             edge,
         }
+    }
+
+    /// The corners of the patches by coordinate.
+    pub fn corners(&self) -> &Corners {
+        &self.corners
     }
 
     /// The cells and their subdivisions.

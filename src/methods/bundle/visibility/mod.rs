@@ -62,6 +62,8 @@
 //! from a queue, largest first. The projection depends on the direction
 //! only, so [`project`] can run apart from the sweep, ahead of it.
 
+#[cfg(target_arch = "x86_64")]
+mod lanes;
 mod painter;
 mod raster;
 
@@ -357,6 +359,14 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
     let tile_of = &*tile_of;
     let chunks = &mut scratch.chunks;
     chunks.resize_with(CHUNKS, Default::default);
+    // eight patches at once where the CPU can, from the corners kept by
+    // coordinate; single-pixel roulette stays scalar (its random streams
+    // are per patch)
+    #[cfg(target_arch = "x86_64")]
+    let eight = plane.centre_rr && lanes::available();
+    #[cfg(not(target_arch = "x86_64"))]
+    let eight = false;
+    let corners = patches.corners();
     // a projection's rows are inside the map (Proj::new clips them)
     // (an exclusive range: an inclusive one iterates with an extra flag)
     let tiles_of =
@@ -371,17 +381,39 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
             ck.by_id.clear();
             ck.start.clear();
             ck.start.resize(ntiles + 1, 0);
-            for (j, p) in ps.iter().enumerate() {
-                let id = (chunk * chunk_len + j) as u32;
-                let (t, z, centroid) = to_map.patch(&p.v);
-                // the painter's order is the centroid's depth (§6); the
-                // z-buffer keeps patch order
-                let key = if painter { order_bits(centroid) } else { 0 };
-                if let Some(pr) = Proj::new(&pj, id, t, z, key) {
-                    for t in tiles_of(&pr) {
+            let first = chunk * chunk_len;
+            if eight {
+                // SAFETY: `eight` says the CPU has AVX2, and the chunk's
+                // patches are patches of `corners`
+                #[cfg(target_arch = "x86_64")]
+                unsafe {
+                    lanes::project_avx2(
+                        corners,
+                        first..first + ps.len(),
+                        &to_map,
+                        &pj,
+                        painter,
+                        &mut ck.by_id,
+                    )
+                };
+                for pr in &ck.by_id {
+                    for t in tiles_of(pr) {
                         ck.start[t + 1] += 1;
                     }
-                    ck.by_id.push(pr);
+                }
+            } else {
+                for (j, p) in ps.iter().enumerate() {
+                    let id = (first + j) as u32;
+                    let (t, z, centroid) = to_map.patch(&p.v);
+                    // the painter's order is the centroid's depth (§6); the
+                    // z-buffer keeps patch order
+                    let key = if painter { order_bits(centroid) } else { 0 };
+                    if let Some(pr) = Proj::new(&pj, id, t, z, key) {
+                        for t in tiles_of(&pr) {
+                            ck.start[t + 1] += 1;
+                        }
+                        ck.by_id.push(pr);
+                    }
                 }
             }
             // group by tile (a counting sort, which keeps patch order)

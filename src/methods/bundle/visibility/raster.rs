@@ -59,7 +59,7 @@ pub(super) fn ceil_i32(v: f32) -> i32 {
 
 /// Bound of the lanes of [`box_bounds`]: its values, and any larger,
 /// lie beyond every map's last pixel, so they clip the same.
-const BOX_LIMIT: f32 = (1 << 30) as f32;
+pub(super) const BOX_LIMIT: f32 = (1 << 30) as f32;
 
 /// The box of pixel centres of a box `lo`..`hi` on the map, before
 /// clipping: [⌈lo.x − ½⌉, ⌈lo.y − ½⌉, ⌊hi.x − ½⌋, ⌊hi.y − ½⌋]. For finite
@@ -175,19 +175,23 @@ impl ToMap {
 
 /// What a patch covers on the map.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
+#[repr(u8)]
 pub(super) enum Cover {
     /// Scan-convert the triangle.
-    Raster,
+    Raster = 0,
     /// The one pixel (x0, y0) at depth `z[0]`: a sub-pixel patch kept by
     /// single-pixel Russian roulette, or a patch whose box holds one pixel
     /// centre, found covered when projected.
-    One,
+    One = 1,
 }
 
 /// One patch projected onto the map, ready to scan: corners counter-clockwise
 /// on the map, their depths along d, and the pixel rows and columns it can
-/// cover, clipped to the map.
+/// cover, clipped to the map. In C layout: eighteen 4-byte fields in this
+/// order (the cover in the last one's first byte), which the eight-lane
+/// projection writes as such (`lanes::project_avx2`).
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 pub(super) struct Proj {
     /// Corners on the map, counter-clockwise.
     pub t: [Vec2; 3],
