@@ -299,7 +299,8 @@ pub struct Lights {
     /// The emitting triangles for [`LightSelection::Spatial`]: light i of
     /// the tree is entry i.
     tree: LightTree,
-    /// Probability of choosing the environment (its power share).
+    /// Probability of choosing the environment under either selection (its
+    /// power share; zero without one).
     p_env: f32,
     /// The tree's choices do not depend on the shading point (one emitting
     /// quad, as in cbox): [`LightSelection::Spatial`] is then the power
@@ -498,11 +499,7 @@ impl Lights {
     /// environment for u32::MAX) from `p` with normal `n`.
     pub fn selection_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, tri: u32) -> f32 {
         if tri == u32::MAX {
-            return match self.effective(selection) {
-                _ if self.env_entry == u32::MAX => 0.0,
-                LightSelection::Power => self.dist.pmf(self.env_entry as usize) as f32,
-                LightSelection::Spatial => self.p_env,
-            };
+            return self.p_env;
         }
         match self.tri_entry.get(tri as usize) {
             Some(&e) if e != u32::MAX => self.entry_pmf(selection, p, n, e as usize),

@@ -415,8 +415,9 @@ impl Bundle {
     }
 
     /// Bytes of per-patch state (geometry, BRDF, the corners again by
-    /// coordinate for the projection, the two radiance values, corner ids) and of the transient per-iteration buffers per patch
-    /// (incoming radiance, the projection, and the tile entries: a patch
+    /// coordinate for the projection, the two radiance values, corner ids)
+    /// and of the transient per-iteration buffers per patch (incoming
+    /// radiance, the projection, and the tile entries: a patch
     /// is in every map tile its projection crosses, with a copy of its
     /// projection and its two accumulators, and in the buffers of the
     /// thread that scans the tile its sort key twice, its two radiance

@@ -189,7 +189,7 @@ impl Layout {
 /// All patches with their bookkeeping.
 pub struct Patches {
     /// The patches. Their corners are copied into [`Patches::corners`] when
-    /// built, so they must not be moved afterwards.
+    /// built, so they must not be changed afterwards.
     pub p: Vec<Patch>,
     /// Shared vertex index of each patch corner (for Gouraud smoothing;
     /// where two cells of different k meet, the finer cell's extra corners

@@ -203,7 +203,8 @@ pub(super) unsafe fn project_avx2(
         };
 
         // ToMap::patch: the centroid ((v0 + v1) + v2) / 3, its depth (the
-        // centroid lane subtracts 0 there), the corners on the map
+        // scalar lane's subtraction of 0 leaves it as it is), the corners
+        // on the map
         let mut m = [zero; 3];
         for (a, m) in m.iter_mut().enumerate() {
             *m = _mm256_div_ps(
@@ -211,12 +212,7 @@ pub(super) unsafe fn project_avx2(
                 three,
             );
         }
-        let centroid = dot(
-            _mm256_sub_ps(m[0], zero),
-            _mm256_sub_ps(m[1], zero),
-            _mm256_sub_ps(m[2], zero),
-            d,
-        );
+        let centroid = dot(m[0], m[1], m[2], d);
         let mut u = [zero; 3];
         let mut w = [zero; 3];
         let mut z = [zero; 3];
