@@ -329,18 +329,23 @@ impl Accel {
                 .expect("a scene of over a billion triangles exceeds the BVH's index range")
         };
         let cost = |c: &Core| quality::core_stats(c).sah();
-        // True when the top-down tree of `tris` is clearly cheaper
-        let top_down_wins = |tris: &[Triangle], params: BvhBuildParams| match ploc(tris, params) {
-            Some(p) => cost(&top_down(tris, true)) < SWITCH_MARGIN * cost(&p),
-            None => true,
+        // True when the top-down tree of `tris` is clearly cheaper. The two
+        // trees are built at once: each build has long serial stretches
+        // (the collapse into the wide tree), which the other fills
+        let top_down_wins = |tris: &[Triangle], params: BvhBuildParams| match rayon::join(
+            || ploc(tris, params),
+            || top_down(tris, true),
+        ) {
+            (Some(p), t) => cost(&t) < SWITCH_MARGIN * cost(&p),
+            (None, _) => true,
         };
         // Both trees over every triangle, keeping the clearly cheaper
-        let both = |params: BvhBuildParams| {
-            let t = top_down(&tris, true);
-            match ploc(&tris, params) {
-                Some(p) if cost(&t) >= SWITCH_MARGIN * cost(&p) => p,
-                _ => t,
-            }
+        let both = |params: BvhBuildParams| match rayon::join(
+            || top_down(&tris, true),
+            || ploc(&tris, params),
+        ) {
+            (t, Some(p)) if cost(&t) >= SWITCH_MARGIN * cost(&p) => p,
+            (t, _) => t,
         };
         let safe = options
             .builder

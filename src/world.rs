@@ -3,6 +3,8 @@
 
 use std::hash::{DefaultHasher, Hash, Hasher};
 
+use rayon::prelude::*;
+
 use crate::accel::Accel;
 use crate::camera::Camera;
 use crate::emitter::Lights;
@@ -88,13 +90,15 @@ pub fn remove_duplicate_triangles(scene: &mut Scene) -> Option<String> {
         [a[0], a[1], a[2], b[0], b[1], b[2], d[0], d[1], d[2]]
     };
     let mut order: Vec<(u64, u32)> = (0..scene.triangles.len() as u32)
+        .into_par_iter()
         .map(|i| {
             let mut h = DefaultHasher::new();
             key(i).hash(&mut h);
             (h.finish(), i)
         })
         .collect();
-    order.sort_unstable();
+    // the pairs are distinct, so any sort gives the one order
+    order.par_sort_unstable();
     let emission = |s: &Shape| match s.emitter.map(|e| &scene.emitters[e as usize]) {
         Some(EmitterDesc::Area { radiance, .. }) => Some(*radiance),
         _ => None,

@@ -17,8 +17,10 @@
 //! ([`Patches::locate`]).
 
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hash, Hasher};
 
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 
 use crate::bsdf::Bsdf;
 use crate::emitter::Lights;
@@ -129,6 +131,7 @@ impl Layout {
             m: vec![1; nt],
             cell0: (0..nt as u32).collect(),
             k: (0..nt as u32)
+                .into_par_iter()
                 .map(|t| subdivision(longest_edge(scene, t), edge) as u16)
                 .collect(),
         }
@@ -183,6 +186,112 @@ impl Layout {
         let m = self.m[tri as usize] as u32;
         let mf = m as f32;
         grid_triangles(m).map(move |cs| cs.map(|(i, j)| Vec2::new(i as f32, j as f32) / mf))
+    }
+}
+
+/// Scene triangles per parallel run of [`Patches::with_layout`].
+const LAYOUT_CHUNK: usize = 512;
+
+/// Appends the patches of scene triangle `t`, cell by cell, to `p`.
+fn mesh_triangle(scene: &Scene, lights: &Lights, layout: &Layout, t: u32, p: &mut Vec<Patch>) {
+    let [a, b, c] = scene.tri_vertices(t);
+    let shape = scene.tri_shape[t as usize];
+    let material = &scene.materials[scene.shapes[shape as usize].material as usize];
+    let two_sided = material.is_two_sided();
+    let ng = (b - a).cross(c - a).normalize_or(Vec3::Z);
+    let le = lights.le_tri(t, ng, ng);
+    let m = layout.m[t as usize];
+    for (ci, cb) in layout.cell_corners(t).enumerate() {
+        let cell = layout.cell0[t as usize] as usize + ci;
+        // a whole triangle keeps its exact corners, so that the area
+        // budget's patches are those of the uniform mesh bit for bit
+        let [ca, cb_, cc] = if m == 1 {
+            [a, b, c]
+        } else {
+            cb.map(|x| a + (b - a) * x.x + (c - a) * x.y)
+        };
+        let k = layout.k[cell] as u32;
+        let kf = k as f32;
+        let at = |i: u32, j: u32| ca + (cb_ - ca) * (i as f32 / kf) + (cc - ca) * (j as f32 / kf);
+        for cs in grid_triangles(k) {
+            let v = cs.map(|(ii, jj)| at(ii, jj));
+            // the centroid's barycentrics in the cell, then in t
+            let bl: Vec2 = cs
+                .iter()
+                .map(|&(ii, jj)| Vec2::new(ii as f32, jj as f32) / kf)
+                .sum::<Vec2>()
+                / 3.0;
+            let bary = if m == 1 {
+                bl
+            } else {
+                cb[0] + (cb[1] - cb[0]) * bl.x + (cb[2] - cb[0]) * bl.y
+            };
+            let sp = scene.surface_point(t, bary.x, bary.y);
+            let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length();
+            let bsdf = material.bsdf(sp.uv);
+            p.push(Patch {
+                v,
+                ng,
+                ns: sp.frame.n,
+                area: area.max(1e-30),
+                le,
+                glass: super::transfer::is_glass(&bsdf),
+                bsdf,
+                two_sided,
+            });
+        }
+    }
+}
+
+/// A patch corner for sharing: its shape and its position quantised to
+/// steps of q.
+#[derive(Clone, Copy, PartialEq, Eq)]
+struct CornerKey {
+    shape: u32,
+    x: [i64; 3],
+}
+
+impl CornerKey {
+    fn new(shape: u32, x: Vec3, q: f32) -> Self {
+        CornerKey {
+            shape,
+            x: [
+                (x.x / q).round() as i64,
+                (x.y / q).round() as i64,
+                (x.z / q).round() as i64,
+            ],
+        }
+    }
+}
+
+impl Hash for CornerKey {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        // one word: the four integers mixed by odd multipliers
+        let mut h = self.shape as u64;
+        for x in self.x {
+            h = (h.rotate_left(23) ^ x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+        state.write_u64(h);
+    }
+}
+
+/// The hasher of [`CornerKey`]s: the key already mixes its words, and
+/// SipHash's defence against chosen keys is not needed for a scene's own
+/// corners, so this only folds the high bits down.
+#[derive(Default)]
+struct CornerHasher(u64);
+
+impl Hasher for CornerHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+    fn write_u64(&mut self, x: u64) {
+        self.0 = x ^ (x >> 29);
+    }
+    fn finish(&self) -> u64 {
+        self.0
     }
 }
 
@@ -259,11 +368,14 @@ fn subdivision(longest: f32, edge: f32) -> u32 {
 pub fn edge_for_count(scene: &Scene, n: usize) -> f32 {
     let n = n.max(1) as u64;
     let longest: Vec<f32> = (0..scene.triangles.len() as u32)
+        .into_par_iter()
         .map(|t| longest_edge(scene, t))
         .collect();
+    // an integer sum: the same whatever the split across threads
     let count = |h: f32| -> u64 {
         longest
-            .iter()
+            .par_iter()
+            .with_min_len(4096)
             .map(|&l| (subdivision(l, h) as u64).pow(2))
             .sum()
     };
@@ -318,80 +430,74 @@ impl Patches {
 
     /// Tessellates `scene` as `layout` says; `edge` is only recorded.
     pub fn with_layout(scene: &Scene, lights: &Lights, layout: Layout, edge: f32) -> Self {
+        Self::with_layout_in(scene, lights, layout, edge, LAYOUT_CHUNK)
+    }
+
+    /// [`Patches::with_layout`], with the scene's triangles meshed in
+    /// parallel in runs of `chunk` (at least one) triangles. The patches and
+    /// their vertex numbering do not depend on `chunk`: the runs are joined
+    /// in triangle order, and the shared corners are then numbered in patch
+    /// order, as one sequential pass would number them.
+    pub fn with_layout_in(
+        scene: &Scene,
+        lights: &Lights,
+        layout: Layout,
+        edge: f32,
+        chunk: usize,
+    ) -> Self {
         let nt = scene.triangles.len();
-        let mut p = Vec::new();
-        let mut vid = Vec::new();
-        let mut first = Vec::with_capacity(layout.cell_count());
+        let chunk = chunk.max(1);
         // corners are shared between patches of one shape when their positions
         // agree after quantisation to 1e-5 of the scene size
         let (lo, hi) = scene.bounds();
         let q = ((hi - lo).max_element() * 1e-5).max(1e-12);
-        let mut vmap: HashMap<(u32, [i64; 3]), u32> = HashMap::new();
-        let mut vkey = |shape: u32, x: Vec3| -> u32 {
-            let key = (
-                shape,
-                [
-                    (x.x / q).round() as i64,
-                    (x.y / q).round() as i64,
-                    (x.z / q).round() as i64,
-                ],
-            );
-            let n = vmap.len() as u32;
-            *vmap.entry(key).or_insert(n)
-        };
-        for t in 0..nt as u32 {
-            let [a, b, c] = scene.tri_vertices(t);
-            let shape = scene.tri_shape[t as usize];
-            let material = &scene.materials[scene.shapes[shape as usize].material as usize];
-            let two_sided = material.is_two_sided();
-            let ng = (b - a).cross(c - a).normalize_or(Vec3::Z);
-            let le = lights.le_tri(t, ng, ng);
-            let m = layout.m[t as usize];
-            for (ci, cb) in layout.cell_corners(t).enumerate() {
-                let cell = layout.cell0[t as usize] as usize + ci;
-                first.push(p.len() as u32);
-                // a whole triangle keeps its exact corners, so that the area
-                // budget's patches are those of the uniform mesh bit for bit
-                let [ca, cb_, cc] = if m == 1 {
-                    [a, b, c]
-                } else {
-                    cb.map(|x| a + (b - a) * x.x + (c - a) * x.y)
-                };
-                let k = layout.k[cell] as u32;
-                let kf = k as f32;
-                let at = |i: u32, j: u32| {
-                    ca + (cb_ - ca) * (i as f32 / kf) + (cc - ca) * (j as f32 / kf)
-                };
-                for cs in grid_triangles(k) {
-                    let v = cs.map(|(ii, jj)| at(ii, jj));
-                    // the centroid's barycentrics in the cell, then in t
-                    let bl: Vec2 = cs
-                        .iter()
-                        .map(|&(ii, jj)| Vec2::new(ii as f32, jj as f32) / kf)
-                        .sum::<Vec2>()
-                        / 3.0;
-                    let bary = if m == 1 {
-                        bl
-                    } else {
-                        cb[0] + (cb[1] - cb[0]) * bl.x + (cb[2] - cb[0]) * bl.y
-                    };
-                    let sp = scene.surface_point(t, bary.x, bary.y);
-                    let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length();
-                    let bsdf = material.bsdf(sp.uv);
-                    p.push(Patch {
-                        v,
-                        ng,
-                        ns: sp.frame.n,
-                        area: area.max(1e-30),
-                        le,
-                        glass: super::transfer::is_glass(&bsdf),
-                        bsdf,
-                        two_sided,
-                    });
-                    vid.push(v.map(|x| vkey(shape, x)));
+
+        // Mesh the runs of triangles in parallel, each with its corners' keys
+        let runs: Vec<(Vec<Patch>, Vec<[CornerKey; 3]>)> = (0..nt.div_ceil(chunk))
+            .into_par_iter()
+            .map(|r| {
+                let mut p = Vec::new();
+                let mut keys = Vec::new();
+                for t in (r * chunk) as u32..((r + 1) * chunk).min(nt) as u32 {
+                    mesh_triangle(scene, lights, &layout, t, &mut p);
+                    let shape = scene.tri_shape[t as usize];
+                    keys.extend(
+                        p[keys.len()..]
+                            .iter()
+                            .map(|x| x.v.map(|c| CornerKey::new(shape, c, q))),
+                    );
                 }
-            }
+                (p, keys)
+            })
+            .collect();
+
+        // Join them in triangle order; the first patch of each cell follows
+        let total = runs.iter().map(|r| r.0.len()).sum();
+        let mut p = Vec::with_capacity(total);
+        let mut keys = Vec::with_capacity(total);
+        for (rp, rk) in runs {
+            p.extend_from_slice(&rp);
+            keys.extend_from_slice(&rk);
         }
+        let mut first = Vec::with_capacity(layout.cell_count());
+        let mut n = 0u32;
+        for &k in &layout.k {
+            first.push(n);
+            n += (k as u32).pow(2);
+        }
+
+        // Number the shared corners in order of first use
+        let mut vmap: HashMap<CornerKey, u32, BuildHasherDefault<CornerHasher>> =
+            HashMap::with_capacity_and_hasher(total, Default::default());
+        let vid: Vec<[u32; 3]> = keys
+            .iter()
+            .map(|ks| {
+                ks.map(|key| {
+                    let n = vmap.len() as u32;
+                    *vmap.entry(key).or_insert(n)
+                })
+            })
+            .collect();
         let vertex_count = vmap.len();
         Patches {
             corners: Corners::new(p.len(), |i| p[i].v),

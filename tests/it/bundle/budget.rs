@@ -217,3 +217,67 @@ fn area_count_is_at_most_the_target_and_closest() {
     let edge = edge_for_count(&cbox, triangles / 2);
     assert_eq!(Layout::area(&cbox, edge).patch_count(), triangles);
 }
+
+/// The patches meshed in parallel runs of triangles are those of one
+/// sequential pass, bit for bit and in the same order, whatever the run
+/// length; their shared corners are numbered in order of first use, and
+/// two corners share a number only where they coincide. On cbox's area and
+/// projected layouts (cells of several k), and on the corridor's.
+#[test]
+fn layout_in_parallel_runs_is_the_sequential_one() {
+    let cbox = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("cbox");
+    for (name, world) in [
+        ("cbox", World::new(cbox)),
+        ("corridor", World::new(corridor())),
+    ] {
+        let nt = world.scene.triangles.len();
+        let edge = edge_for_count(&world.scene, 5000);
+        let (projected, _) = budget::projected(&world, edge, true);
+        for layout in [Layout::area(&world.scene, edge), projected] {
+            let build = |chunk: usize| {
+                Patches::with_layout_in(&world.scene, &world.lights, layout.clone(), edge, chunk)
+            };
+            // one run of every triangle: the sequential pass
+            let one = build(nt);
+            let size = {
+                let (lo, hi) = world.scene.bounds();
+                (hi - lo).max_element()
+            };
+            for chunk in [1, 3, 64] {
+                let runs = build(chunk);
+                assert_eq!(runs.len(), one.len(), "{name}, runs of {chunk}");
+                for (i, (a, b)) in runs.p.iter().zip(&one.p).enumerate() {
+                    // Debug prints each float's shortest round-trip form:
+                    // equal strings, equal bits
+                    assert_eq!(
+                        format!("{a:?}"),
+                        format!("{b:?}"),
+                        "{name}, runs of {chunk}: patch {i}"
+                    );
+                }
+                assert_eq!(runs.vid, one.vid, "{name}, runs of {chunk}");
+                assert_eq!(runs.vertex_count, one.vertex_count);
+                for c in 0..layout.cell_count() {
+                    assert_eq!(runs.cell_patches(c), one.cell_patches(c));
+                }
+            }
+            // first use order: each corner's number is at most one past the
+            // largest before it; shared numbers are coinciding corners
+            let mut next = 0u32;
+            let mut at = vec![None; one.vertex_count];
+            for (i, ids) in one.vid.iter().enumerate() {
+                for (k, &id) in ids.iter().enumerate() {
+                    assert!(id <= next, "{name}: corner {k} of patch {i} numbered {id}");
+                    next = next.max(id + 1);
+                    let x = one.p[i].v[k];
+                    let first = *at[id as usize].get_or_insert(x);
+                    assert!(
+                        (first - x).length() <= 1e-4 * size,
+                        "{name}: vertex {id} at {first} and at {x}"
+                    );
+                }
+            }
+            assert_eq!(next as usize, one.vertex_count);
+        }
+    }
+}
