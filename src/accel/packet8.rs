@@ -16,7 +16,11 @@
 //! The answers are the single-ray kernel's, bit for bit: every operation a
 //! ray sees is that kernel's, and the closest hit is the least (distance,
 //! triangle) of every triangle the ray meets (`traverse8::better`), which
-//! does not depend on the order of visits.
+//! does not depend on the order of visits. (This rests on the box test
+//! being conservative, as `FAR_SCALE` makes it: a box is never rejected
+//! while it holds a triangle the ray meets no farther than the best so
+//! far. Were a rounding to break that, the two kernels could differ on
+//! that ray; the tests compare them on the rays of recorded scenes.)
 
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
