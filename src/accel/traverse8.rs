@@ -20,8 +20,38 @@ use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 /// so that the box test never rejects a hit the triangle test accepts.
 const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
-/// A ray prepared for the kernels.
-struct Prepared {
+/// True when a hit at `t` on pack slot `slot` replaces `best`, the closest
+/// so far (at `t_best`, the range's end while there is none): when it is
+/// nearer, or as near and on a triangle of lower scene index. The closest
+/// hit is then the least (distance, triangle) over every triangle the ray
+/// meets, whatever the order in which the nodes are visited, so that the
+/// single-ray kernel and the packets of `packet8.rs` (which visit in
+/// another order) answer alike on a shared edge or coincident triangles.
+#[inline(always)]
+pub(super) fn better(
+    t: f32,
+    slot: usize,
+    t_best: f32,
+    best: &Option<SlotHit>,
+    ids: &[u32],
+) -> bool {
+    t < t_best
+        || best
+            .as_ref()
+            .is_some_and(|b| t == t_best && ids[slot] < ids[b.slot])
+}
+
+/// True when a node the ray enters at `entry` may still hold a hit that
+/// [`better`] takes over one at `t_best`: the box test's own bound,
+/// `entry ≤ t_best · FAR_SCALE` (a triangle at `t_best` on the near face
+/// of a box must still be visited, for the tie rule).
+#[inline(always)]
+pub(super) fn visits(entry: f32, t_best: f32) -> bool {
+    entry <= t_best * FAR_SCALE
+}
+
+/// A ray prepared for the kernels (and for the packets of `packet8.rs`).
+pub(super) struct Prepared {
     o: [__m256; 3],
     d: [__m256; 3],
     inv: [__m256; 3],
@@ -34,7 +64,7 @@ struct Prepared {
 impl Prepared {
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn new(o: Vec3, d: Vec3) -> Prepared {
+    pub(super) fn new(o: Vec3, d: Vec3) -> Prepared {
         // 1/±0 is ±∞, whose sign agrees with the choice of planes below; the
         // NaN from 0·∞ (a ray in a slab's plane) is ignored by the box test.
         let inv = d.recip();
@@ -66,6 +96,15 @@ impl Prepared {
     #[inline]
     #[target_feature(enable = "avx2")]
     fn boxes(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (u32, __m256) {
+        let (hit, t0) = self.boxes_v(node, tmin, tmax);
+        (_mm256_movemask_ps(hit) as u32, t0)
+    }
+
+    /// [`Prepared::boxes`] with the lanes as a vector mask (all ones where
+    /// the ray enters the box).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn boxes_v(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (__m256, __m256) {
         // maxps/minps return their second operand when either is NaN: the
         // running bound goes second so that NaN lanes leave it unchanged
         let mut t0 = tmin;
@@ -88,17 +127,23 @@ impl Prepared {
             );
         }
         let far = _mm256_mul_ps(t1, _mm256_set1_ps(FAR_SCALE));
-        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(t0, far);
-        (_mm256_movemask_ps(hit) as u32, t0)
+        (_mm256_cmp_ps::<_CMP_LE_OQ>(t0, far), t0)
     }
 
     /// `traverse.rs`'s Möller–Trumbore on the eight triangles of `pack`,
     /// the same operations in the same order: the lanes hit within
-    /// `[tmin, tmax)`, with their distances and barycentric weights of the
-    /// second and third vertex.
+    /// `[tmin, tmax)`, or `[tmin, tmax]` when `UPTO`, with their distances
+    /// and barycentric weights of the second and third vertex. The closest
+    /// hit asks for `[tmin, t_best]`, so that a triangle at the same
+    /// distance as the best so far can win the tie ([`better`]).
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn triangles(&self, pack: &Pack8, tmin: __m256, tmax: __m256) -> (u32, __m256, __m256, __m256) {
+    pub(super) fn triangles<const UPTO: bool>(
+        &self,
+        pack: &Pack8,
+        tmin: __m256,
+        tmax: __m256,
+    ) -> (u32, __m256, __m256, __m256) {
         // SAFETY: each row is eight f32s, 32-byte aligned (Pack8's repr)
         let ld = |rows: &[[f32; 8]; 3]| unsafe {
             [
@@ -147,7 +192,11 @@ impl Prepared {
             ),
             and(
                 _mm256_cmp_ps::<_CMP_GE_OS>(t, tmin),
-                _mm256_cmp_ps::<_CMP_LT_OS>(t, tmax),
+                if UPTO {
+                    _mm256_cmp_ps::<_CMP_LE_OS>(t, tmax)
+                } else {
+                    _mm256_cmp_ps::<_CMP_LT_OS>(t, tmax)
+                },
             ),
         );
         (_mm256_movemask_ps(hit) as u32, t, u, v)
@@ -298,7 +347,8 @@ fn closest_avx2<C: Count>(
             // Test the leaf's triangles, eight at a time
             for p in leaf_packs(r) {
                 count.pack();
-                let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, _mm256_set1_ps(t_best));
+                let (mask, t, u, v) =
+                    ray.triangles::<true>(&w.packs[p], vmin, _mm256_set1_ps(t_best));
                 if mask != 0 {
                     let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
                     // SAFETY: eight writable f32s each; no alignment needed
@@ -311,7 +361,7 @@ fn closest_avx2<C: Count>(
                     while bits != 0 {
                         let i = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
-                        if ta[i] < t_best {
+                        if better(ta[i], 8 * p + i, t_best, &best, &w.ids) {
                             t_best = ta[i];
                             best = Some(SlotHit {
                                 t: ta[i],
@@ -331,7 +381,7 @@ fn closest_avx2<C: Count>(
             }
             let (cr, cd) = stack.get(stack.len - 1);
             stack.len -= 1;
-            if cd < t_best {
+            if visits(cd, t_best) {
                 r = cr;
                 break;
             }
@@ -364,7 +414,7 @@ fn any_avx2<C: Count>(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32, count: 
         } else {
             for p in leaf_packs(r) {
                 count.pack();
-                if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
+                if ray.triangles::<false>(&w.packs[p], vmin, vmax).0 != 0 {
                     return true;
                 }
             }

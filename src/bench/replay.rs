@@ -84,6 +84,36 @@ impl Tracer for KalosTracer<'_> {
     }
 }
 
+/// kalos's own ray core answering closest-hit rays in packets of eight
+/// neighbours ([`Accel::intersect_packet`]), as Embree's stream does; it is
+/// measured on the coherent camera rays only, as the stream is.
+pub struct KalosPacketTracer<'a>(pub &'a Accel);
+
+impl Tracer for KalosPacketTracer<'_> {
+    fn name(&self) -> &str {
+        "kalos packets"
+    }
+
+    fn closest(&self, rays: &[Ray], out: &mut [Answer]) {
+        let mut hits = vec![None; rays.len()];
+        self.0.intersect_packet(rays, &mut hits);
+        for (h, o) in hits.iter().zip(out) {
+            *o = match h {
+                Some(h) => Answer { tri: h.tri, t: h.t },
+                None => Answer::MISS,
+            };
+        }
+    }
+
+    fn occluded(&self, rays: &[Ray], out: &mut [bool]) {
+        KalosTracer(self.0).occluded(rays, out);
+    }
+
+    fn traces(&self, kind: SetKind) -> bool {
+        kind == SetKind::Camera
+    }
+}
+
 /// The answers of one core to one set.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Answers {

@@ -11,6 +11,7 @@
 use rayon::prelude::*;
 
 use super::{Method, MethodError, StepStats, World};
+use crate::accel::Hit;
 use crate::emitter::LightSelection;
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
@@ -18,8 +19,11 @@ use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
 use crate::transport::dispatch::dispatched;
-use crate::transport::{radiance_from, DepthLimits};
+use crate::transport::{radiance_from_hit, DepthLimits};
 use glam::DVec3;
+
+/// Camera rays traced together, of neighbouring pixels of a row.
+const PACKET: usize = 8;
 
 /// Settings of the path tracer.
 #[derive(Clone, Debug, PartialEq)]
@@ -162,15 +166,26 @@ dispatched! {
     ) -> u64 {
         let w = row.len();
         let mut rays = 0u64;
-        for (x, acc) in row.iter_mut().enumerate() {
-            let pixel = (y * w + x) as u64;
-            let mut rng = Pcg32::keyed(&[seed, pass, pixel]);
-            let jitter = rng.next_2d();
-            let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
-            let (l, r) = radiance(world, settings, ray, &mut rng);
-            rays += r;
-            if l.is_finite() {
-                *acc += l.as_dvec3();
+        // The camera rays of PACKET neighbouring pixels are traced together;
+        // each pixel then continues its path alone, with its own stream
+        for (x0, accs) in (0..w).step_by(PACKET).zip(row.chunks_mut(PACKET)) {
+            let n = accs.len();
+            let mut rngs: [Pcg32; PACKET] = std::array::from_fn(|i| {
+                Pcg32::keyed(&[seed, pass, (y * w + x0 + i.min(n - 1)) as u64])
+            });
+            let mut cam = [Ray::new(glam::Vec3::ZERO, glam::Vec3::Z); PACKET];
+            for (i, (rng, r)) in rngs.iter_mut().zip(&mut cam).take(n).enumerate() {
+                let jitter = rng.next_2d();
+                *r = world.camera.ray((x0 + i) as f32 + jitter.x, y as f32 + jitter.y);
+            }
+            let mut hits = [None; PACKET];
+            world.accel.intersect_packet(&cam[..n], &mut hits[..n]);
+            for (((acc, rng), r), h) in accs.iter_mut().zip(&mut rngs).zip(cam).zip(hits) {
+                let (l, nr) = radiance_hit(world, settings, r, Some(h), rng);
+                rays += nr;
+                if l.is_finite() {
+                    *acc += l.as_dvec3();
+                }
             }
         }
         rays
@@ -204,10 +219,23 @@ pub fn merge_image(states: &[&State], width: u32, height: u32) -> Result<Image, 
 /// it: the transport layer's camera-side estimator from the eye.
 #[inline(always)]
 pub fn radiance(world: &World, settings: &Settings, ray: Ray, rng: &mut Pcg32) -> (Rgb, u64) {
+    radiance_hit(world, settings, ray, None, rng)
+}
+
+/// [`radiance`] with the primary ray's closest hit already found, when
+/// `first` holds it (see [`radiance_from_hit`]).
+#[inline(always)]
+fn radiance_hit(
+    world: &World,
+    settings: &Settings,
+    ray: Ray,
+    first: Option<Option<Hit>>,
+    rng: &mut Pcg32,
+) -> (Rgb, u64) {
     let limits = DepthLimits {
         max_depth: settings.max_depth,
         rr_depth: settings.rr_depth,
         light_selection: settings.light_selection,
     };
-    radiance_from(world, &limits, ray, rng, 1)
+    radiance_from_hit(world, &limits, ray, first, rng, 1)
 }

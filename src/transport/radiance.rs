@@ -6,6 +6,7 @@
 
 use glam::Vec3;
 
+use crate::accel::Hit;
 use crate::bsdf::Mode;
 use crate::emitter::LightSelection;
 use crate::geometry::{offset_point, Ray};
@@ -33,7 +34,23 @@ pub struct DepthLimits {
 pub fn radiance_from(
     world: &World,
     limits: &DepthLimits,
+    ray: Ray,
+    rng: &mut Pcg32,
+    depth: u32,
+) -> (Rgb, u64) {
+    radiance_from_hit(world, limits, ray, None, rng, depth)
+}
+
+/// [`radiance_from`] with `ray`'s closest hit already found, when `first`
+/// holds it (`Some(None)` for a miss): the camera rays of neighbouring
+/// pixels are traced together ([`crate::accel::Accel::intersect_packet`]),
+/// which answers as [`crate::accel::Accel::intersect`] would.
+#[inline(always)]
+pub fn radiance_from_hit(
+    world: &World,
+    limits: &DepthLimits,
     mut ray: Ray,
+    mut first: Option<Option<Hit>>,
     rng: &mut Pcg32,
     depth: u32,
 ) -> (Rgb, u64) {
@@ -53,7 +70,11 @@ pub fn radiance_from(
     let mut depth = depth;
     loop {
         rays += 1;
-        let Some(hit) = accel.intersect(&ray) else {
+        let found = match first.take() {
+            Some(h) => h,
+            None => accel.intersect(&ray),
+        };
+        let Some(hit) = found else {
             // Escaped: the environment, weighted against light sampling.
             let le = lights.le_env(ray.d);
             if le != Rgb::ZERO {

@@ -227,3 +227,40 @@ fn the_brute_force_referee_sides_with_the_right_answer() {
     );
     assert_eq!((v.judged, v.reference_right, v.other_right), (1, 1, 0));
 }
+
+/// `Accel::intersect_packet` answers every recorded ray as
+/// `Accel::intersect` does, bit for bit (triangle, distance, barycentric
+/// weights): the coherent camera rays of cbox and of a generated scene of
+/// spheres, the incoherent bounce and shadow rays (as closest-hit rays),
+/// and the same rays starting one past a packet's boundary, so that
+/// packets straddle rows and the last is partial.
+#[test]
+fn packets_answer_as_single_rays_on_recorded_sets() {
+    let cbox =
+        kalos::scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cbox/cbox.xml"))
+            .expect("cbox");
+    let spheres = kalos::scenegen::bench_scene(100_000);
+    for mut scene in [cbox, spheres] {
+        scene.set_resolution(96, 64);
+        let world = World::new(scene);
+        let sets = rayset::record(&world, 3);
+        let key = |h: Option<kalos::accel::Hit>| {
+            h.map(|h| (h.tri, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()))
+        };
+        let mut hits = 0;
+        for kind in SetKind::ALL {
+            let all = sets.rays(kind);
+            for rays in [all, &all[all.len().min(1)..]] {
+                let mut got = vec![None; rays.len()];
+                world.accel.intersect_packet(rays, &mut got);
+                for (i, (r, g)) in rays.iter().zip(&got).enumerate() {
+                    let want = world.accel.intersect(r);
+                    assert_eq!(key(*g), key(want), "{} ray {i}", kind.name());
+                    hits += usize::from(want.is_some());
+                }
+            }
+        }
+        // most camera and bounce rays hit (both scenes are closed rooms)
+        assert!(hits > sets.rays(SetKind::Camera).len(), "{hits} hits");
+    }
+}

@@ -11,7 +11,7 @@ use clap::Args;
 
 use kalos::accel::{Accel, BuildOptions, Builder, CollapseRule, Visits};
 use kalos::bench::rayset::{self, RaySets, SetKind};
-use kalos::bench::replay::{self, KalosTracer, Timing, Tracer};
+use kalos::bench::replay::{self, KalosPacketTracer, KalosTracer, Timing, Tracer};
 use kalos::scene::Scene;
 use kalos::world::World;
 use rayon::prelude::*;
@@ -216,9 +216,10 @@ pub fn run(a: BenchArgs) -> Result<()> {
         vec![1]
     };
     let kalos_core = KalosTracer(&world.accel);
+    let kalos_packets = KalosPacketTracer(&world.accel);
     let repeat = a.repeat as usize;
     let run_with = |others: &[&dyn Tracer]| -> Result<()> {
-        let mut tracers: Vec<&dyn Tracer> = vec![&kalos_core];
+        let mut tracers: Vec<&dyn Tracer> = vec![&kalos_core, &kalos_packets];
         tracers.extend_from_slice(others);
         report_answers(&world.scene, &sets, &tracers);
         report_visits(&world.accel, &sets);
@@ -409,6 +410,15 @@ fn report_timings(timings: &[Timing], repeat: usize) {
             );
         }
         say!("{line}");
+        // The packets against the others on the same rays
+        if let Some(p) = group[1..].iter().find(|t| t.tracer == "kalos packets") {
+            let pm = p.mrays_per_s();
+            let mut line = format!("{:<23} kalos packets/kalos {:.2}", "", pm / kalos);
+            for t in group[1..].iter().filter(|t| t.tracer != p.tracer) {
+                line += &format!(", kalos packets/{} {:.2}", t.tracer, pm / t.mrays_per_s());
+            }
+            say!("{line}");
+        }
     }
 }
 
