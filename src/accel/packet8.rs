@@ -27,7 +27,7 @@ use std::mem::MaybeUninit;
 
 use super::collapse::leaf_packs;
 use super::traverse::SlotHit;
-use super::traverse8::{better, visits, Prepared};
+use super::traverse8::{take_hits, visits, Prepared};
 use super::wide8::{Wide8, LEAF_BIT, STACK};
 use super::Hit;
 use crate::geometry::Ray;
@@ -172,30 +172,7 @@ fn closest_avx2(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
                     bits &= bits - 1;
                     let (mask, t, u, v) =
                         prep[k].triangles::<true>(pack, vmin[k], _mm256_set1_ps(t_best[k]));
-                    if mask == 0 {
-                        continue;
-                    }
-                    let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
-                    // SAFETY: eight writable f32s each; no alignment needed
-                    unsafe {
-                        _mm256_storeu_ps(ta.as_mut_ptr(), t);
-                        _mm256_storeu_ps(ua.as_mut_ptr(), u);
-                        _mm256_storeu_ps(va.as_mut_ptr(), v);
-                    }
-                    let mut lanes = mask;
-                    while lanes != 0 {
-                        let i = lanes.trailing_zeros() as usize;
-                        lanes &= lanes - 1;
-                        if better(ta[i], 8 * p + i, t_best[k], &best[k], &w.ids) {
-                            t_best[k] = ta[i];
-                            best[k] = Some(SlotHit {
-                                t: ta[i],
-                                slot: 8 * p + i,
-                                b1: ua[i],
-                                b2: va[i],
-                            });
-                        }
-                    }
+                    take_hits(mask, (t, u, v), p, &w.ids, &mut t_best[k], &mut best[k]);
                 }
             }
         }

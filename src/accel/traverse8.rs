@@ -28,13 +28,7 @@ const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32
 /// single-ray kernel and the packets of `packet8.rs` (which visit in
 /// another order) answer alike on a shared edge or coincident triangles.
 #[inline(always)]
-pub(super) fn better(
-    t: f32,
-    slot: usize,
-    t_best: f32,
-    best: &Option<SlotHit>,
-    ids: &[u32],
-) -> bool {
+fn better(t: f32, slot: usize, t_best: f32, best: &Option<SlotHit>, ids: &[u32]) -> bool {
     t < t_best
         || best
             .as_ref()
@@ -48,6 +42,45 @@ pub(super) fn better(
 #[inline(always)]
 pub(super) fn visits(entry: f32, t_best: f32) -> bool {
     entry <= t_best * FAR_SCALE
+}
+
+/// Takes the hits of leaf pack `p` that [`better`] prefers into `best`
+/// and `t_best`: the lanes set in `mask`, at distances `t` with
+/// barycentric weights `u` and `v` (as [`Prepared::triangles`] gives them).
+#[inline]
+#[target_feature(enable = "avx2")]
+pub(super) fn take_hits(
+    mask: u32,
+    (t, u, v): (__m256, __m256, __m256),
+    p: usize,
+    ids: &[u32],
+    t_best: &mut f32,
+    best: &mut Option<SlotHit>,
+) {
+    if mask == 0 {
+        return;
+    }
+    let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
+    // SAFETY: eight writable f32s each; no alignment needed
+    unsafe {
+        _mm256_storeu_ps(ta.as_mut_ptr(), t);
+        _mm256_storeu_ps(ua.as_mut_ptr(), u);
+        _mm256_storeu_ps(va.as_mut_ptr(), v);
+    }
+    let mut bits = mask;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        if better(ta[i], 8 * p + i, *t_best, best, ids) {
+            *t_best = ta[i];
+            *best = Some(SlotHit {
+                t: ta[i],
+                slot: 8 * p + i,
+                b1: ua[i],
+                b2: va[i],
+            });
+        }
+    }
 }
 
 /// A ray prepared for the kernels (and for the packets of `packet8.rs`).
@@ -349,29 +382,7 @@ fn closest_avx2<C: Count>(
                 count.pack();
                 let (mask, t, u, v) =
                     ray.triangles::<true>(&w.packs[p], vmin, _mm256_set1_ps(t_best));
-                if mask != 0 {
-                    let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
-                    // SAFETY: eight writable f32s each; no alignment needed
-                    unsafe {
-                        _mm256_storeu_ps(ta.as_mut_ptr(), t);
-                        _mm256_storeu_ps(ua.as_mut_ptr(), u);
-                        _mm256_storeu_ps(va.as_mut_ptr(), v);
-                    }
-                    let mut bits = mask;
-                    while bits != 0 {
-                        let i = bits.trailing_zeros() as usize;
-                        bits &= bits - 1;
-                        if better(ta[i], 8 * p + i, t_best, &best, &w.ids) {
-                            t_best = ta[i];
-                            best = Some(SlotHit {
-                                t: ta[i],
-                                slot: 8 * p + i,
-                                b1: ua[i],
-                                b2: va[i],
-                            });
-                        }
-                    }
-                }
+                take_hits(mask, (t, u, v), p, &w.ids, &mut t_best, &mut best);
             }
         }
         // Pop the nearest entry that may still hold a closer hit
