@@ -371,7 +371,11 @@ impl LightTree {
 #[derive(Default)]
 struct Walk {
     imp: [f32; 8],
-    /// Lanes of the next node's children in `imp`, if evaluated.
+    /// Where in `imp` the importances of the next node's children are:
+    /// `Some(0)` right after a node's own group was evaluated (its
+    /// children in lanes 0–1, consumed; its grandchildren in 2–5), which
+    /// [`Walk::down`] turns into `Some(2)` or `Some(4)` for the child taken;
+    /// None when the next node must evaluate its own group.
     next: Option<usize>,
 }
 
