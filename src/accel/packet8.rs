@@ -15,7 +15,7 @@
 //!
 //! The answers are the single-ray kernel's, bit for bit: every operation a
 //! ray sees is that kernel's, and the closest hit is the least (distance,
-//! triangle) of every triangle the ray meets (`traverse8::better`), which
+//! triangle) of every triangle the ray meets (`traverse::better`), which
 //! does not depend on the order of visits. (This rests on the box test
 //! being conservative, as `FAR_SCALE` makes it: a box is never rejected
 //! while it holds a triangle the ray meets no farther than the best so
@@ -26,8 +26,9 @@ use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
 use super::collapse::leaf_packs;
+use super::traverse::visits;
 use super::traverse::SlotHit;
-use super::traverse8::{take_hits, visits, Prepared};
+use super::traverse8::{take_hits, Prepared};
 use super::wide8::{Wide8, LEAF_BIT, STACK};
 use super::Hit;
 use crate::geometry::Ray;

@@ -14,7 +14,39 @@ use super::wide::{Node, Pack, Wide, LEAF_BIT, STACK};
 /// before a triangle on its face; the far distance is widened by 1 + 2γ₃
 /// (pbrt-v4, §6.8.2) so that the box test never rejects a hit the triangle
 /// test would accept.
-const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+pub(super) const FAR_SCALE: f32 =
+    1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// True when a hit at `t` on pack slot `slot` replaces `best`, the closest
+/// so far (at `t_best`, the range's end while there is none): when it is
+/// nearer, or as near and on a triangle of lower scene index. The closest
+/// hit is then the least (distance, triangle) over every triangle the ray
+/// meets, whatever the order in which the nodes are visited, so that the
+/// 4-wide and 8-wide kernels and the packets of `packet8.rs` (which all
+/// visit in different orders) answer alike on a shared edge or coincident
+/// triangles.
+#[inline(always)]
+pub(super) fn better(
+    t: f32,
+    slot: usize,
+    t_best: f32,
+    best: &Option<SlotHit>,
+    ids: &[u32],
+) -> bool {
+    t < t_best
+        || best
+            .as_ref()
+            .is_some_and(|b| t == t_best && ids[slot] < ids[b.slot])
+}
+
+/// True when a node the ray enters at `entry` may still hold a hit that
+/// [`better`] takes over one at `t_best`: the box test's own bound,
+/// `entry ≤ t_best · FAR_SCALE` (a triangle at `t_best` on the near face
+/// of a box must still be visited, for the tie rule).
+#[inline(always)]
+pub(super) fn visits(entry: f32, t_best: f32) -> bool {
+    entry <= t_best * FAR_SCALE
+}
 
 /// A ray prepared for the kernels.
 struct Prepared {
@@ -63,10 +95,13 @@ impl Prepared {
     }
 
     /// Möller–Trumbore on the four triangles of `pack` in the form of
-    /// madmann91's `bvh`: the lanes hit within `[tmin, tmax)`, with their
-    /// distances and barycentric weights of the second and third vertex.
+    /// madmann91's `bvh`: the lanes hit within `[tmin, tmax)`, or
+    /// `[tmin, tmax]` when `UPTO`, with their distances and barycentric
+    /// weights of the second and third vertex. The closest hit asks for
+    /// `[tmin, t_best]`, so that a triangle at the same distance as the best
+    /// so far can win the tie ([`better`]).
     #[inline(always)]
-    fn triangles(&self, pack: &Pack, tmin: F4, tmax: F4) -> (u32, F4, F4, F4) {
+    fn triangles<const UPTO: bool>(&self, pack: &Pack, tmin: F4, tmax: F4) -> (u32, F4, F4, F4) {
         let ld =
             |rows: &[[f32; 4]; 3]| [F4::load(&rows[0]), F4::load(&rows[1]), F4::load(&rows[2])];
         let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
@@ -96,7 +131,7 @@ impl Prepared {
             .and(v.ge(zero))
             .and(w.ge(zero))
             .and(t.ge(tmin))
-            .and(t.lt(tmax));
+            .and(if UPTO { t.le(tmax) } else { t.lt(tmax) });
         (hit.bits(), t, u, v)
     }
 }
@@ -256,14 +291,14 @@ pub(super) fn closest(
             // Test the leaf's triangles, four at a time
             for p in leaf_packs(r) {
                 count.pack();
-                let (mask, t, u, v) = ray.triangles(&w.packs[p], vmin, F4::splat(t_best));
+                let (mask, t, u, v) = ray.triangles::<true>(&w.packs[p], vmin, F4::splat(t_best));
                 if mask != 0 {
                     let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
                     let mut bits = mask;
                     while bits != 0 {
                         let i = bits.trailing_zeros() as usize;
                         bits &= bits - 1;
-                        if t[i] < t_best {
+                        if better(t[i], 4 * p + i, t_best, &best, &w.ids) {
                             t_best = t[i];
                             best = Some(SlotHit {
                                 t: t[i],
@@ -283,7 +318,7 @@ pub(super) fn closest(
             }
             let (cr, cd) = stack.get(stack.len - 1);
             stack.len -= 1;
-            if cd < t_best {
+            if visits(cd, t_best) {
                 r = cr;
                 break;
             }
@@ -324,7 +359,7 @@ pub(super) fn any(
         } else {
             for p in leaf_packs(r) {
                 count.pack();
-                if ray.triangles(&w.packs[p], vmin, vmax).0 != 0 {
+                if ray.triangles::<false>(&w.packs[p], vmin, vmax).0 != 0 {
                     return true;
                 }
             }

@@ -13,36 +13,8 @@ use std::arch::x86_64::*;
 use glam::Vec3;
 
 use super::collapse::leaf_packs;
-use super::traverse::{Count, SlotHit, Stack};
+use super::traverse::{better, visits, Count, SlotHit, Stack, FAR_SCALE};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
-
-/// The far distance's widening of `traverse.rs` (pbrt-v4's 1 + 2γ₃, §6.8.2),
-/// so that the box test never rejects a hit the triangle test accepts.
-const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
-
-/// True when a hit at `t` on pack slot `slot` replaces `best`, the closest
-/// so far (at `t_best`, the range's end while there is none): when it is
-/// nearer, or as near and on a triangle of lower scene index. The closest
-/// hit is then the least (distance, triangle) over every triangle the ray
-/// meets, whatever the order in which the nodes are visited, so that the
-/// single-ray kernel and the packets of `packet8.rs` (which visit in
-/// another order) answer alike on a shared edge or coincident triangles.
-#[inline(always)]
-fn better(t: f32, slot: usize, t_best: f32, best: &Option<SlotHit>, ids: &[u32]) -> bool {
-    t < t_best
-        || best
-            .as_ref()
-            .is_some_and(|b| t == t_best && ids[slot] < ids[b.slot])
-}
-
-/// True when a node the ray enters at `entry` may still hold a hit that
-/// [`better`] takes over one at `t_best`: the box test's own bound,
-/// `entry ≤ t_best · FAR_SCALE` (a triangle at `t_best` on the near face
-/// of a box must still be visited, for the tie rule).
-#[inline(always)]
-pub(super) fn visits(entry: f32, t_best: f32) -> bool {
-    entry <= t_best * FAR_SCALE
-}
 
 /// Takes the hits of leaf pack `p` that [`better`] prefers into `best`
 /// and `t_best`: the lanes set in `mask`, at distances `t` with
