@@ -1,11 +1,12 @@
-//! The paper's form's short cuts give the general code's bits: the transfer
-//! fused into the tiles' sum, and its skip of dark patches that received
-//! nothing.
+//! The paper's form's short cuts give the general code's bits: the image
+//! estimate's quiet pixels, the transfer fused into the tiles' sum, and the
+//! transfer's skip of dark patches that received nothing.
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use kalos::emitter::Lights;
+use kalos::methods::bundle::image::{ImageMode, Positions, View};
 use kalos::methods::bundle::patches::Patches;
-use kalos::methods::bundle::transfer::reflect_onto;
+use kalos::methods::bundle::transfer::{brdf, reflect_onto};
 use kalos::methods::bundle::visibility::{
     scan_into, sum_into, sweep, Incoming, Plane, SweepInput, Visibility,
 };
@@ -28,6 +29,67 @@ fn sparse(n: usize, rng: &mut Pcg32) -> Vec<Rgb> {
             _ => Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 3.0,
         })
         .collect()
+}
+
+/// `View::accumulate` in the paper's form (fixed positions, no first
+/// shot, no gather, Phong) against the general line written out: l = Le +
+/// 0, plus thr · Σ_± f̃(±d → wo) E_± · 2π/A where E_± ≠ 0, added when finite.
+/// The sums must agree bit for bit in every pixel; the short cut reads only
+/// the pixels whose patch received something.
+#[test]
+fn quiet_pixels_match_the_general_line() {
+    let world = cbox();
+    let patches = Patches::build(&world.scene, &world.lights, 40.0);
+    let view = View::new(&world, &patches, 5, Positions::Fixed, false, false);
+    let npix = (world.camera.width * world.camera.height) as usize;
+    let mut rng = Pcg32::keyed(&[11, 0]);
+    for iter in 0..6u64 {
+        let d = uniform_sphere(rng.next_2d());
+        let e_plus = sparse(patches.len(), &mut rng);
+        let e_minus = sparse(patches.len(), &mut rng);
+        let mut got = vec![DVec3::ZERO; npix];
+        view.accumulate(
+            &world,
+            &patches,
+            ImageMode::Phong,
+            d,
+            &e_plus,
+            &e_minus,
+            iter,
+            &mut got,
+        );
+        let block = &view.samples[(iter as usize % 4) * npix..][..npix];
+        let mut reflecting = 0;
+        for (pix, s) in block.iter().enumerate() {
+            let mut l = s.le + Rgb::ZERO;
+            if s.patch != u32::MAX {
+                let i = s.patch as usize;
+                let p = &patches.p[i];
+                let k = 2.0 * std::f32::consts::PI / p.area;
+                let mut r = Rgb::ZERO;
+                if e_plus[i] != Rgb::ZERO {
+                    r += brdf(p, s.ns, d, s.wo) * e_plus[i];
+                }
+                if e_minus[i] != Rgb::ZERO {
+                    r += brdf(p, s.ns, -d, s.wo) * e_minus[i];
+                }
+                reflecting += usize::from(r != Rgb::ZERO);
+                l += s.thr * r * k;
+            }
+            let want = if l.is_finite() {
+                l.as_dvec3()
+            } else {
+                DVec3::ZERO
+            };
+            assert_eq!(
+                got[pix].to_array().map(f64::to_bits),
+                want.to_array().map(f64::to_bits),
+                "iteration {iter}, pixel {pix}"
+            );
+        }
+        // both kinds of pixel occur
+        assert!(reflecting > 0 && reflecting < npix / 2, "{reflecting}");
+    }
 }
 
 /// `sum_into` hands each chunk of patches its own incoming radiance and
