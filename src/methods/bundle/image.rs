@@ -115,6 +115,10 @@ struct Quiet {
     patch: u32,
 }
 
+/// Bytes of a sample's quiet part, kept beside it in the paper's form (for
+/// the memory estimate before a render).
+pub const QUIET_BYTES: usize = std::mem::size_of::<Quiet>();
+
 /// The view: with [`Positions::Fixed`], [`SAMPLES`] samples per pixel
 /// traced once, sample-major; with [`Positions::Jittered`], none stored.
 pub struct View {
