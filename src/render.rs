@@ -382,7 +382,14 @@ pub fn memory_estimate(method: &MethodConfig, width: u32, height: u32) -> Vec<Me
                 // are collected from
                 let sample = size_of::<bundle::image::PixelSample>()
                     + size_of::<(bundle::image::PixelSample, u64)>();
-                (bundle::image::SAMPLES * sample) as u64
+                // and, in the paper's form, each sample's quiet part
+                let quiet =
+                    if s.direct == bundle::Direct::Bundles && s.gather == bundle::Gather::Off {
+                        bundle::image::QUIET_BYTES
+                    } else {
+                        0
+                    };
+                (bundle::image::SAMPLES * (sample + quiet)) as u64
             } else {
                 0
             };

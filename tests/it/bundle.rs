@@ -26,6 +26,7 @@ use kalos::sampling::{uniform_sphere, Pcg32};
 use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
 
 mod budget;
+mod fused;
 mod transfer;
 
 fn root() -> PathBuf {

@@ -101,11 +101,32 @@ pub struct PixelSample {
     pub b: Vec2,
 }
 
+/// What the paper's form reads of a stored sample every iteration: its
+/// patch, and the pixel's value when that patch received nothing along
+/// ±ω_m. Most patches receive nothing in an iteration, so most pixels need
+/// no more than these 16 bytes of their 80-byte sample.
+#[derive(Clone, Copy, Debug)]
+struct Quiet {
+    /// `le` + 0 (the zero direct light of this form), or NaN when the
+    /// zero reflection `thr` · 0 · 2π/A is not finite, since the general
+    /// path then drops the pixel.
+    l: Rgb,
+    /// The sample's patch, or [`NO_PATCH`].
+    patch: u32,
+}
+
+/// Bytes of a sample's quiet part, kept beside it in the paper's form (for
+/// the memory estimate before a render).
+pub const QUIET_BYTES: usize = std::mem::size_of::<Quiet>();
+
 /// The view: with [`Positions::Fixed`], [`SAMPLES`] samples per pixel
 /// traced once, sample-major; with [`Positions::Jittered`], none stored.
 pub struct View {
     /// Samples, `SAMPLES` blocks of width × height (fixed positions only).
     pub samples: Vec<PixelSample>,
+    /// The samples' [`Quiet`] parts, in the same order, for the paper's form
+    /// (fixed positions, no first shot, no gather); empty otherwise.
+    quiet: Vec<Quiet>,
     positions: Positions,
     /// Add one light sample per pixel at the visible point (the first shot).
     nee: bool,
@@ -155,7 +176,25 @@ impl View {
             })
             .collect();
         let rays = results.iter().map(|r| r.1).sum();
-        let samples = results.into_iter().map(|r| r.0).collect();
+        let samples: Vec<PixelSample> = results.into_iter().map(|r| r.0).collect();
+        let quiet = if !nee && !gather {
+            samples
+                .par_iter()
+                .map(|s| {
+                    let mut l = s.le + Rgb::ZERO;
+                    if s.patch != NO_PATCH {
+                        // reflected()'s product when both E are zero
+                        let k = 2.0 * std::f32::consts::PI / patches.p[s.patch as usize].area;
+                        if !(s.thr * Rgb::ZERO * k).is_finite() {
+                            l = Rgb::NAN;
+                        }
+                    }
+                    Quiet { l, patch: s.patch }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         // vertex → patches
         let mut count = vec![0u32; patches.vertex_count + 1];
         for v in &patches.vid {
@@ -177,6 +216,7 @@ impl View {
         }
         View {
             samples,
+            quiet,
             positions,
             nee,
             gather,
@@ -341,7 +381,34 @@ impl View {
             // iteration's block of samples is walked in chunks. The sums
             // are the general path's, operation for operation.
             let n = sum.len();
-            let block = &self.samples[(iter as usize % SAMPLES) * n..][..n];
+            let at = (iter as usize % SAMPLES) * n;
+            let block = &self.samples[at..][..n];
+            if vert.is_none() {
+                // Phong: a pixel whose patch received nothing along ±ω_m
+                // adds its Quiet value (the general line's l, as the zero
+                // reflection leaves it unchanged: l is never −0 after the
+                // + 0, and ±0 added keeps it); the others take that line
+                let quiet = &self.quiet[at..][..n];
+                sum.par_chunks_mut(PIXEL_CHUNK)
+                    .zip(quiet.par_chunks(PIXEL_CHUNK))
+                    .zip(block.par_chunks(PIXEL_CHUNK))
+                    .for_each(|((acc, qs), ss)| {
+                        for ((acc, q), s) in acc.iter_mut().zip(qs).zip(ss) {
+                            let mut l = q.l;
+                            if q.patch != NO_PATCH {
+                                let i = q.patch as usize;
+                                if e_plus[i] != Rgb::ZERO || e_minus[i] != Rgb::ZERO {
+                                    l = s.le + Rgb::ZERO;
+                                    l += reflected(patches, None, s, d, e_plus, e_minus);
+                                }
+                            }
+                            if l.is_finite() {
+                                *acc += l.as_dvec3();
+                            }
+                        }
+                    });
+                return 0;
+            }
             sum.par_chunks_mut(PIXEL_CHUNK)
                 .zip(block.par_chunks(PIXEL_CHUNK))
                 .for_each(|(acc, ss)| {

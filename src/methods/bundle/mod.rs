@@ -282,17 +282,18 @@ impl Default for Settings {
 pub const MAX_AUTO_MAP_RES: u32 = 4096;
 
 /// Seconds spent in each phase, summed over the iterations. The image
-/// estimate, the transfer and the next direction's projection run at once,
-/// so their times overlap.
+/// estimate and the next direction's projection run at once, so their
+/// times overlap.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Timings {
     /// Building the patches and the view (once).
     pub setup: f64,
     /// Projecting the patches into the map tiles' bins.
     pub project: f64,
-    /// Sorting each tile by depth along ω, scan conversion and the tiles' sum.
+    /// Sorting each tile by depth along ω and scan conversion.
     pub raster: f64,
-    /// The transfer into ω_{m+1}.
+    /// The tiles' sum into each patch and, fused with it, the transfer into
+    /// ω_{m+1}.
     pub transfer: f64,
     /// The image estimate.
     pub image: f64,
@@ -304,6 +305,9 @@ struct Setup {
     patches: Patches,
     view: View,
     res: u32,
+    /// Per patch: it emits nothing (its L^e is +0 in every channel), so in
+    /// the paper's operator it sends nothing unless it received something.
+    dark: Vec<bool>,
 }
 
 /// The iteration's state.
@@ -389,7 +393,17 @@ impl Bundle {
         let n = patches.len();
         self.l_plus = vec![Rgb::ZERO; n];
         self.l_minus = vec![Rgb::ZERO; n];
-        self.setup = Some(Setup { patches, view, res });
+        let dark = patches
+            .p
+            .iter()
+            .map(|p| p.le.to_array().iter().all(|c| c.to_bits() == 0))
+            .collect();
+        self.setup = Some(Setup {
+            patches,
+            view,
+            res,
+            dark,
+        });
         self.timings.setup = t0.elapsed().as_secs_f64();
         rays
     }
@@ -415,8 +429,8 @@ impl Bundle {
     }
 
     /// Bytes of per-patch state (geometry, BRDF, the corners again by
-    /// coordinate for the projection, the two radiance values, corner ids)
-    /// and of the transient per-iteration buffers per patch (incoming
+    /// coordinate for the projection, the two radiance values, corner ids,
+    /// whether it emits) and of the transient per-iteration buffers per patch (incoming
     /// radiance, the projection, and the tile entries: a patch
     /// is in every map tile its projection crosses, with a copy of its
     /// projection and its two accumulators, and in the buffers of the
@@ -427,11 +441,13 @@ impl Bundle {
     /// ([`visibility::map_bytes`]).
     pub fn bytes_per_patch() -> (usize, usize) {
         use std::mem::size_of;
-        // the patch, its corners again by coordinate, L(±ω), its vertex ids
+        // the patch, its corners again by coordinate, L(±ω), its vertex ids,
+        // whether it is dark
         let state = size_of::<patches::Patch>()
             + size_of::<[glam::Vec3; 3]>()
             + 2 * size_of::<Rgb>()
-            + size_of::<[u32; 3]>();
+            + size_of::<[u32; 3]>()
+            + size_of::<bool>();
         // projection, the two accumulators, sort key and radix buffer, and
         // the two radiance values and two accumulators of a tile entry
         let tile_entry = visibility::PROJ_BYTES + 2 * size_of::<u64>() + 6 * size_of::<Rgb>();
@@ -520,28 +536,63 @@ impl Method for Bundle {
             sky_minus: sky(d),
         };
         let inc = &mut self.incoming;
-        visibility::sweep_into(patches, &inp, &mut self.scratch, inc);
-        self.timings.project += inc.t_project;
-        self.timings.raster += inc.t_raster;
-        rays += inc.fragments;
-        let inc = &*inc;
+        visibility::scan_into(patches, &inp, &mut self.scratch, inc);
+        let t_scan = inc.t_raster;
 
-        // Three tasks that need only what this sweep brought, run at once so
-        // that each fills the other's idle core: the image estimate, the
-        // transfer into the new direction ω_{m+1}, and the projection of the
-        // patches for ω_{m+1}, which depends on the direction, not on the
-        // radiance. Their timings overlap.
+        // Reflect what arrived into ±ω_{m+1}, on top of the emission (the
+        // paper) or of the first shot: fused into the tiles' sum, each chunk
+        // of patches right after its incoming radiance is summed, while that
+        // is still in cache
         let dn = self.dirs.next_dir();
         let next = self.iter + 1;
-        let (iter, discard, mode) = (self.iter, self.settings.discard, self.settings.image);
-        let (sum, l_plus, l_minus, scratch) = (
-            &mut self.sum,
+        let dark = &setup.dark;
+        let t = Instant::now();
+        let transfer_rays = visibility::sum_into(
+            patches,
+            &self.scratch,
+            inc,
             &mut self.l_plus,
             &mut self.l_minus,
-            &mut self.scratch,
+            |first, e_plus, e_minus, l_plus, l_minus| {
+                let mut r = 0;
+                for (k, ((lp, lm), (&ep, &em))) in l_plus
+                    .iter_mut()
+                    .zip(l_minus.iter_mut())
+                    .zip(e_plus.iter().zip(e_minus))
+                    .enumerate()
+                {
+                    let i = first + k;
+                    // With the paper's operator a dark patch that received
+                    // nothing sends L^e = +0 and reflects nothing: skip
+                    // reading it (the bits are those of the general line)
+                    if !nee && dark[i] && ep == Rgb::ZERO && em == Rgb::ZERO {
+                        (*lp, *lm) = (Rgb::ZERO, Rgb::ZERO);
+                        continue;
+                    }
+                    let p = &patches.p[i];
+                    let (sp, sm, rays) = source(i, p, dn, next);
+                    *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
+                    *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
+                    r += rays;
+                }
+                r
+            },
         );
+        let t_sum = t.elapsed().as_secs_f64();
+        self.timings.project += inc.t_project;
+        self.timings.raster += t_scan;
+        self.timings.transfer += t_sum;
+        rays += inc.fragments + transfer_rays;
+        let inc = &*inc;
+
+        // Two tasks that need only what this sweep brought, run at once so
+        // that each fills the other's idle core: the image estimate, and the
+        // projection of the patches for ω_{m+1}, which depends on the
+        // direction, not on the radiance. Their timings overlap.
+        let (iter, discard, mode) = (self.iter, self.settings.discard, self.settings.image);
+        let (sum, scratch) = (&mut self.sum, &mut self.scratch);
         let next_plane = plane(dn, next);
-        let ((t_image, image_rays), ((t_transfer, transfer_rays), t_project)) = rayon::join(
+        let ((t_image, image_rays), t_project) = rayon::join(
             // Image estimate, averaged over the kept iterations
             || {
                 let t = Instant::now();
@@ -562,40 +613,16 @@ impl Method for Bundle {
                 (t.elapsed().as_secs_f64(), r)
             },
             || {
-                rayon::join(
-                    // Reflect what arrived into ±ω_{m+1}, on top of the
-                    // emission (the paper) or of the first shot
-                    || {
-                        let t = Instant::now();
-                        let r = l_plus
-                            .par_iter_mut()
-                            .zip(l_minus.par_iter_mut())
-                            .zip(patches.p.par_iter())
-                            .enumerate()
-                            .map(|(i, ((lp, lm), p))| {
-                                let (ep, em) = (inc.e_plus[i], inc.e_minus[i]);
-                                let (sp, sm, r) = source(i, p, dn, next);
-                                *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
-                                *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
-                                r
-                            })
-                            .sum::<u64>();
-                        (t.elapsed().as_secs_f64(), r)
-                    },
-                    || {
-                        let t = Instant::now();
-                        visibility::project(patches, &next_plane, scratch);
-                        t.elapsed().as_secs_f64()
-                    },
-                )
+                let t = Instant::now();
+                visibility::project(patches, &next_plane, scratch);
+                t.elapsed().as_secs_f64()
             },
         );
         if iter >= discard {
             self.counted += 1;
         }
-        rays += image_rays + transfer_rays;
+        rays += image_rays;
         self.timings.image += t_image;
-        self.timings.transfer += t_transfer;
         self.timings.project += t_project;
         self.d = dn;
         self.iter += 1;

@@ -448,15 +448,23 @@ pub fn project(patches: &Patches, plane: &Plane, scratch: &mut Scratch) {
 /// [`sweep`] into `out`, whose buffers are reused. The projection is the
 /// one [`project`] left in `scratch` for this plane, or made now.
 pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out: &mut Incoming) {
+    scan_into(patches, inp, scratch, out);
+    sum_into(patches, scratch, out, &mut [], &mut [], |_, _, _, _, _| 0);
+}
+
+/// The first half of [`sweep_into`]: projects (unless done ahead), sorts
+/// and scans every tile, leaving each tile entry's share of the incoming
+/// radiance in `scratch` for [`sum_into`]. Sets `out`'s fragment count and
+/// timings (the scan's; [`sum_into`] adds its own).
+pub fn scan_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out: &mut Incoming) {
     let n = patches.len();
     let plane = inp.plane;
     let Layout {
         w,
         h,
-        delta,
         rows_per_tile,
         ntiles,
-        chunk_len,
+        ..
     } = plane.layout(n);
 
     // Project every patch onto the plane, unless done ahead
@@ -571,6 +579,52 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
             frags
         })
         .sum();
+    out.fragments = fragments;
+    out.t_project = t_project;
+    out.t_raster = t1.elapsed().as_secs_f64();
+}
+
+/// The second half of [`sweep_into`], after [`scan_into`]: sums the tiles'
+/// entries into each patch's incoming radiance `out.e_plus`, `out.e_minus`,
+/// then runs `then` on each chunk of patches while the chunk's sums are
+/// still in cache: `then(first, e_plus, e_minus, a, b)` gets the chunk's
+/// first patch id, the chunk's incoming radiance and its ranges of `a` and
+/// `b` (per-patch buffers of the caller, such as the transfer's
+/// L(±ω_{m+1}); empty slices when `a` and `b` are empty). Returns the sum
+/// of what `then` returned; adds the time to `out.t_raster`.
+pub fn sum_into<F>(
+    patches: &Patches,
+    scratch: &Scratch,
+    out: &mut Incoming,
+    a: &mut [Rgb],
+    b: &mut [Rgb],
+    then: F,
+) -> u64
+where
+    F: Fn(usize, &[Rgb], &[Rgb], &mut [Rgb], &mut [Rgb]) -> u64 + Sync,
+{
+    let t0 = Instant::now();
+    let n = patches.len();
+    assert!(
+        a.len() == b.len() && (a.is_empty() || a.len() == n),
+        "sum_into: the caller's buffers hold one value per patch, or none"
+    );
+    let Some((plane, _)) = scratch.projected else {
+        return 0;
+    };
+    let Layout {
+        delta,
+        ntiles,
+        chunk_len,
+        ..
+    } = plane.layout(n);
+    let Scratch {
+        chunks,
+        ep,
+        em,
+        start,
+        ..
+    } = scratch;
 
     // Sum the tiles in a fixed order: each patch's entries, tile after
     // tile. A chunk's patches are a range of ids and its bins give their
@@ -578,7 +632,6 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
     // patch still adds its tiles' terms in tile order, to zero, as a
     // serial pass over the tiles would
     let da = delta * delta;
-    let (start, ep, em) = (&*start, &*ep, &*em);
     let sum_chunk = |c: usize, e_plus: &mut [Rgb], e_minus: &mut [Rgb]| {
         let first = c * chunk_len;
         e_plus.fill(Rgb::ZERO);
@@ -607,14 +660,26 @@ pub fn sweep_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, ou
     out.e_minus.resize(n, Rgb::ZERO);
     out.e_plus.truncate(n);
     out.e_minus.truncate(n);
-    out.e_plus
+    // the caller's buffers cut into the same chunks (empty ones when the
+    // buffers are empty)
+    let nchunks = n.div_ceil(chunk_len);
+    let mut a: Vec<&mut [Rgb]> = a.chunks_mut(chunk_len).collect();
+    let mut b: Vec<&mut [Rgb]> = b.chunks_mut(chunk_len).collect();
+    a.resize_with(nchunks, Default::default);
+    b.resize_with(nchunks, Default::default);
+    let r = out
+        .e_plus
         .par_chunks_mut(chunk_len)
         .zip(out.e_minus.par_chunks_mut(chunk_len))
+        .zip(a.into_par_iter().zip(b))
         .enumerate()
-        .for_each(|(c, (p, m))| sum_chunk(c, p, m));
-    out.fragments = fragments;
-    out.t_project = t_project;
-    out.t_raster = t1.elapsed().as_secs_f64();
+        .map(|(c, ((p, m), (a, b)))| {
+            sum_chunk(c, p, m);
+            then(c * chunk_len, p, m, a, b)
+        })
+        .sum();
+    out.t_raster += t0.elapsed().as_secs_f64();
+    r
 }
 
 /// What one band of the map gathers. Its patches are numbered by their
