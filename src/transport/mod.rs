@@ -41,7 +41,7 @@ mod walk;
 
 pub use connect::{connect_emission, connect_to_camera, splat_to_camera};
 pub use direct::{direct_light, shadow_clear};
-pub use radiance::{radiance_from, radiance_from_hit, DepthLimits};
+pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};
 pub use walk::{
     follow_delta_chain, light_walk, Landing, LightVertex, Spectrum, DELTA_CHAIN_DEPTH_LIMIT,
