@@ -18,6 +18,9 @@
 //!   light sample, no MIS), for bundle's first shot.
 //! - [`radiance_from`]: the camera-side estimator (next-event estimation
 //!   with MIS), which `path` is and the camera pass uses.
+//! - [`lanes`]: that estimator for eight of `path`'s camera paths at a
+//!   time, bounce by bounce, the common vertex shaded in AVX lanes and the
+//!   rest by the same step ([`CameraPath::scatter`]) lane by lane.
 //! - [`camera_pass`]: the part of path space that light paths cannot reach,
 //!   estimated from the camera for `light` and `plb`.
 //!
@@ -35,6 +38,7 @@ pub mod camera_pass;
 mod connect;
 mod direct;
 pub mod dispatch;
+pub mod lanes;
 mod radiance;
 mod vertex;
 mod walk;
