@@ -13,8 +13,10 @@
 //! never contracts to FMA), draws its numbers from its own stream in the
 //! scalar order, and takes the sines and cosines from the scalar
 //! functions, so a pixel's radiance is the same bits as
-//! [`radiance_from_hit`]'s. A lane whose path ends takes the row's next
-//! pixel, so that the lanes stay full until the row runs out.
+//! [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
+//! traced first, in packets of eight neighbours; a lane whose path ends
+//! takes the next of those pixels, so that the lanes stay full until the
+//! row runs out.
 
 use crate::geometry::Ray;
 use crate::sampling::Pcg32;

@@ -365,10 +365,8 @@ fn lerp(a: V, b: V, c: V, b0: V, b1: V, b2: V) -> V {
     a * b0 + b * b1 + c * b2
 }
 
-/// The fewest camera rays traced as a packet; fewer go one at a time
-/// (the packet kernel costs more per ray than the single-ray kernel,
-/// and gains only from rays that share nodes).
-const PACKET_MIN: usize = 4;
+/// Pixels whose camera rays are traced together before their paths run.
+const CHUNK: usize = 8 * LANES;
 
 /// [`super::radiance_row`] with the common case in AVX lanes.
 #[target_feature(enable = "avx2")]
@@ -396,41 +394,46 @@ pub(super) fn radiance_row(
     let mut pixel = [0usize; LANES];
     let mut found = [None; LANES];
     let mut alive = 0u32;
+    // The camera rays of CHUNK pixels at a time are traced up front, in
+    // packets of neighbouring pixels; a lane whose path ended takes the
+    // next pixel of the chunk
+    let mut chunk_rngs: [Pcg32; CHUNK] = std::array::from_fn(|_| Pcg32::new(0, 0));
+    let mut chunk_rays = [Ray::new(Vec3::ZERO, Vec3::Z); CHUNK];
+    let mut chunk_hits = [None; CHUNK];
+    let (mut chunk0, mut chunk_n) = (0, 0);
     let mut next = 0;
     loop {
-        // Lanes whose path ended take the next pixels; their camera rays
-        // are traced together
-        let free = !alive & ((1 << LANES) - 1);
-        if free != 0 && next < w {
-            let mut cam = [Ray::new(Vec3::ZERO, Vec3::Z); LANES];
-            let mut to = [0usize; LANES];
-            let mut k = 0;
-            for i in lanes(free) {
-                if next == w {
-                    break;
-                }
-                let (rng, ray) = start(next);
-                rngs[i] = rng;
-                pixel[i] = next;
-                next += 1;
-                let mut p = CameraPath::new(ray, 1);
-                p.rays = 1;
-                paths.set(i, &p);
-                (cam[k], to[k]) = (ray, i);
-                k += 1;
-                alive |= 1 << i;
+        if next == chunk0 + chunk_n && next < w {
+            chunk0 = next;
+            chunk_n = CHUNK.min(w - next);
+            for (k, (rng, ray)) in chunk_rngs
+                .iter_mut()
+                .zip(&mut chunk_rays)
+                .take(chunk_n)
+                .enumerate()
+            {
+                (*rng, *ray) = start(chunk0 + k);
             }
-            if k >= PACKET_MIN {
-                let mut hits = [None; LANES];
-                world.accel.intersect_packet(&cam[..k], &mut hits[..k]);
-                for (&i, h) in to.iter().zip(hits).take(k) {
-                    found[i] = h;
-                }
-            } else {
-                for (&i, r) in to.iter().zip(&cam).take(k) {
-                    found[i] = world.accel.intersect(r);
-                }
+            for (rays, hits) in chunk_rays[..chunk_n]
+                .chunks(LANES)
+                .zip(chunk_hits[..chunk_n].chunks_mut(LANES))
+            {
+                world.accel.intersect_packet(rays, hits);
             }
+        }
+        for i in lanes(!alive & ((1 << LANES) - 1)) {
+            if next == chunk0 + chunk_n {
+                break;
+            }
+            let k = next - chunk0;
+            rngs[i] = chunk_rngs[k].clone();
+            pixel[i] = next;
+            next += 1;
+            let mut p = CameraPath::new(chunk_rays[k], 1);
+            p.rays = 1;
+            paths.set(i, &p);
+            found[i] = chunk_hits[k];
+            alive |= 1 << i;
         }
         if alive == 0 {
             return;
