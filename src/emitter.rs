@@ -306,6 +306,9 @@ pub struct Lights {
     /// quad, as in cbox): [`LightSelection::Spatial`] is then the power
     /// selection, and takes its cheaper path.
     tree_static: bool,
+    /// Each entry's triangle, for [`Lights::select_tri`] (a
+    /// zero one for the environment).
+    tri_lights: Vec<TriLight>,
     /// Entry index of each triangle (u32::MAX when it does not emit).
     tri_entry: Vec<u32>,
     /// Per shape: whether any of its triangles has an entry. Small enough to
@@ -319,6 +322,22 @@ pub struct Lights {
     pub center: Vec3,
     /// Radius of the scene's bounding sphere.
     pub radius: f32,
+}
+
+/// An emitting triangle as [`Lights::select_tri`] gives it: one
+/// 64-byte line of sixteen f32, so that eight of them transpose into
+/// eight AVX registers of one field each.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+pub(crate) struct TriLight {
+    /// The three corners.
+    pub corners: [Vec3; 3],
+    /// Unit normal (the emitting side).
+    pub n: Vec3,
+    /// Emitted radiance.
+    pub le: Rgb,
+    /// Area.
+    pub area: f32,
 }
 
 impl Lights {
@@ -387,6 +406,24 @@ impl Lights {
                 weights.push(w);
             }
         }
+        let tri_lights = entries
+            .iter()
+            .map(|e| match *e {
+                Entry::Tri {
+                    le,
+                    area,
+                    corners,
+                    n,
+                    ..
+                } => TriLight {
+                    corners,
+                    n,
+                    le,
+                    area,
+                },
+                Entry::Env => TriLight::default(),
+            })
+            .collect();
         let dist = Distribution1D::new(&weights);
         let p_env = if env_entry == u32::MAX {
             0.0
@@ -399,6 +436,7 @@ impl Lights {
             tree_static: tree.is_static(),
             tree,
             p_env,
+            tri_lights,
             tri_entry,
             shape_emits,
             env,
@@ -516,6 +554,29 @@ impl Lights {
         } else {
             selection
         }
+    }
+
+    /// True when every light [`Lights::sample_li_from`] can choose is an
+    /// emitting triangle (there is no environment to choose):
+    /// [`Lights::select_tri`] then makes its choices.
+    pub(crate) fn triangles_only(&self) -> bool {
+        self.env_entry == u32::MAX
+    }
+
+    /// The emitting triangle [`Lights::sample_li_from`] chooses for `u_sel`
+    /// from `p` with normal `n` under `selection`, when
+    /// [`Lights::triangles_only`], and the probability of the choice; None
+    /// when no light can be chosen.
+    #[inline(always)]
+    pub(crate) fn select_tri(
+        &self,
+        selection: LightSelection,
+        p: Vec3,
+        n: Vec3,
+        u_sel: f32,
+    ) -> Option<(&TriLight, f32)> {
+        let (i, pmf) = self.select_entry(selection, p, n, u_sel)?;
+        Some((&self.tri_lights[i], pmf))
     }
 
     /// Probability of choosing entry `e`, a triangle.

@@ -19,11 +19,9 @@ use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
 use crate::transport::dispatch::dispatched;
+use crate::transport::lanes::radiance_row;
 use crate::transport::{radiance_from_hit, DepthLimits};
 use glam::DVec3;
-
-/// Camera rays traced together, of neighbouring pixels of a row.
-const PACKET: usize = 8;
 
 /// Settings of the path tracer.
 #[derive(Clone, Debug, PartialEq)]
@@ -166,28 +164,20 @@ dispatched! {
     ) -> u64 {
         let w = row.len();
         let mut rays = 0u64;
-        // The camera rays of PACKET neighbouring pixels are traced together;
-        // each pixel then continues its path alone, with its own stream
-        for (x0, accs) in (0..w).step_by(PACKET).zip(row.chunks_mut(PACKET)) {
-            let n = accs.len();
-            let mut rngs: [Pcg32; PACKET] = std::array::from_fn(|i| {
-                Pcg32::keyed(&[seed, pass, (y * w + x0 + i.min(n - 1)) as u64])
-            });
-            let mut cam = [Ray::new(glam::Vec3::ZERO, glam::Vec3::Z); PACKET];
-            for (i, (rng, r)) in rngs.iter_mut().zip(&mut cam).take(n).enumerate() {
-                let jitter = rng.next_2d();
-                *r = world.camera.ray((x0 + i) as f32 + jitter.x, y as f32 + jitter.y);
+        let limits = limits(settings);
+        // Each pixel with its own stream, keyed by (seed, pass, pixel)
+        let start = |x: usize| {
+            let mut rng = Pcg32::keyed(&[seed, pass, (y * w + x) as u64]);
+            let jitter = rng.next_2d();
+            let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
+            (rng, ray)
+        };
+        radiance_row(world, &limits, w, start, |x, l, n| {
+            rays += n;
+            if l.is_finite() {
+                row[x] += l.as_dvec3();
             }
-            let mut hits = [None; PACKET];
-            world.accel.intersect_packet(&cam[..n], &mut hits[..n]);
-            for (((acc, rng), r), h) in accs.iter_mut().zip(&mut rngs).zip(cam).zip(hits) {
-                let (l, nr) = radiance_hit(world, settings, r, Some(h), rng);
-                rays += nr;
-                if l.is_finite() {
-                    *acc += l.as_dvec3();
-                }
-            }
-        }
+        });
         rays
     }
 }
@@ -232,10 +222,15 @@ fn radiance_hit(
     first: Option<Option<Hit>>,
     rng: &mut Pcg32,
 ) -> (Rgb, u64) {
-    let limits = DepthLimits {
+    radiance_from_hit(world, &limits(settings), ray, first, rng, 1)
+}
+
+/// The transport layer's limits for `settings`.
+#[inline(always)]
+fn limits(settings: &Settings) -> DepthLimits {
+    DepthLimits {
         max_depth: settings.max_depth,
         rr_depth: settings.rr_depth,
         light_selection: settings.light_selection,
-    };
-    radiance_from_hit(world, &limits, ray, first, rng, 1)
+    }
 }

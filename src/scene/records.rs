@@ -53,6 +53,12 @@ impl TriRecords {
         TriRecords { recs }
     }
 
+    /// The records, in triangle order.
+    #[inline(always)]
+    pub fn records(&self) -> &[TriRecord] {
+        &self.recs
+    }
+
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         self.recs.len() * std::mem::size_of::<TriRecord>()

@@ -18,6 +18,9 @@
 //!   light sample, no MIS), for bundle's first shot.
 //! - [`radiance_from`]: the camera-side estimator (next-event estimation
 //!   with MIS), which `path` is and the camera pass uses.
+//! - [`lanes`]: that estimator for eight of `path`'s camera paths at a
+//!   time, bounce by bounce, the common vertex shaded in AVX lanes and the
+//!   rest by the same step ([`CameraPath::scatter`]) lane by lane.
 //! - [`camera_pass`]: the part of path space that light paths cannot reach,
 //!   estimated from the camera for `light` and `plb`.
 //!
@@ -35,13 +38,14 @@ pub mod camera_pass;
 mod connect;
 mod direct;
 pub mod dispatch;
+pub mod lanes;
 mod radiance;
 mod vertex;
 mod walk;
 
 pub use connect::{connect_emission, connect_to_camera, splat_to_camera};
 pub use direct::{direct_light, shadow_clear};
-pub use radiance::{radiance_from, radiance_from_hit, DepthLimits};
+pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};
 pub use walk::{
     follow_delta_chain, light_walk, Landing, LightVertex, Spectrum, DELTA_CHAIN_DEPTH_LIMIT,

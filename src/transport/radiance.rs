@@ -11,7 +11,7 @@ use crate::bsdf::Mode;
 use crate::emitter::LightSelection;
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::{power_heuristic, Pcg32};
-use crate::scene::Rgb;
+use crate::scene::{Rgb, SurfacePoint};
 use crate::world::World;
 
 /// How deep a camera path may go, and how it chooses lights.
@@ -49,79 +49,149 @@ pub fn radiance_from(
 pub fn radiance_from_hit(
     world: &World,
     limits: &DepthLimits,
-    mut ray: Ray,
+    ray: Ray,
     mut first: Option<Option<Hit>>,
     rng: &mut Pcg32,
     depth: u32,
 ) -> (Rgb, u64) {
-    let (accel, lights) = (&world.accel, &world.lights);
-    let selection = limits.light_selection;
-    let max_depth = limits.max_depth.unwrap_or(u32::MAX);
-    let mut l = Rgb::ZERO;
-    let mut beta = Rgb::ONE;
-    let mut rays = 0u64;
-    // pdf of the direction that led here, and whether it was a delta lobe
-    let mut prev_pdf = 0.0f32;
-    let mut specular = true;
-    let mut prev_p = ray.o;
-    // the previous vertex's geometric normal, for the light selection's pdf
-    let mut prev_n = Vec3::ZERO;
-    let mut eta_scale = 1.0f32;
-    let mut depth = depth;
+    let mut path = CameraPath::new(ray, depth);
     loop {
-        rays += 1;
+        path.rays += 1;
         let found = match first.take() {
             Some(h) => h,
-            None => accel.intersect(&ray),
+            None => world.accel.intersect(&path.ray),
         };
-        let Some(hit) = found else {
-            // Escaped: the environment, weighted against light sampling.
-            let le = lights.le_env(ray.d);
-            if le != Rgb::ZERO {
-                let w = if specular {
-                    1.0
-                } else {
-                    power_heuristic(prev_pdf, lights.pdf_li_env(ray.d))
-                };
-                l += beta * le * w;
-            }
+        let alive = match found {
+            Some(hit) => path.scatter(world, limits, &world.surface_point(&hit), rng),
+            None => path.escape(world),
+        };
+        if !alive {
             break;
-        };
-        let sp = world.surface_point(&hit);
-        let wo_world = -ray.d;
+        }
+    }
+    (path.l, path.rays)
+}
+
+/// A camera path between two of its vertices: the ray it continues along
+/// and what the estimator of [`radiance_from`] carries from one vertex to
+/// the next. [`radiance_from_hit`] advances one path at a time; `path`
+/// advances eight together, bounce by bounce, through the same steps.
+#[derive(Clone, Copy, Debug)]
+pub struct CameraPath {
+    /// The segment the path continues along.
+    pub ray: Ray,
+    /// Radiance gathered so far, L.
+    pub l: Rgb,
+    /// Throughput β of the path up to `ray`.
+    pub beta: Rgb,
+    /// Rays traced so far.
+    pub rays: u64,
+    /// pdf of the direction that led here.
+    pub(super) prev_pdf: f32,
+    /// Whether that direction came from a delta lobe.
+    pub(super) specular: bool,
+    /// The previous vertex, where `ray` starts.
+    pub(super) prev_p: Vec3,
+    /// The previous vertex's geometric normal, for the light selection's pdf.
+    pub(super) prev_n: Vec3,
+    /// Product of η² over the refractions so far, for Russian roulette.
+    pub(super) eta_scale: f32,
+    /// Segments of the path so far, `ray` included.
+    pub depth: u32,
+}
+
+impl CameraPath {
+    /// A path whose `depth`-th segment is `ray`, after a delta lobe (or the
+    /// eye), so that emission found by `ray` takes full weight.
+    #[inline(always)]
+    pub fn new(ray: Ray, depth: u32) -> Self {
+        CameraPath {
+            ray,
+            l: Rgb::ZERO,
+            beta: Rgb::ONE,
+            rays: 0,
+            prev_pdf: 0.0,
+            specular: true,
+            prev_p: ray.o,
+            prev_n: Vec3::ZERO,
+            eta_scale: 1.0,
+            depth,
+        }
+    }
+
+    /// `ray` escaped the scene: adds the environment, weighted against light
+    /// sampling. The path ends (returns false).
+    #[inline(always)]
+    pub fn escape(&mut self, world: &World) -> bool {
+        let lights = &world.lights;
+        let le = lights.le_env(self.ray.d);
+        if le != Rgb::ZERO {
+            let w = if self.specular {
+                1.0
+            } else {
+                power_heuristic(self.prev_pdf, lights.pdf_li_env(self.ray.d))
+            };
+            self.l += self.beta * le * w;
+        }
+        false
+    }
+
+    /// `ray` met the surface at `sp` ([`World::surface_point`] of its closest
+    /// hit): adds the emission found there and the light sampled from it,
+    /// then samples the BSDF for the next segment. Returns whether the path
+    /// continues (along the new `ray`; the caller traces it and counts it).
+    #[inline(always)]
+    pub fn scatter(
+        &mut self,
+        world: &World,
+        limits: &DepthLimits,
+        sp: &SurfacePoint,
+        rng: &mut Pcg32,
+    ) -> bool {
+        let (accel, lights) = (&world.accel, &world.lights);
+        let selection = limits.light_selection;
+        let max_depth = limits.max_depth.unwrap_or(u32::MAX);
+        let wo_world = -self.ray.d;
 
         // Emission of a hit light, weighted against light sampling
-        if lights.is_emitter_of(hit.tri, sp.shape) {
-            let le = lights.le_tri(hit.tri, sp.frame.n, wo_world);
+        if lights.is_emitter_of(sp.tri, sp.shape) {
+            let le = lights.le_tri(sp.tri, sp.frame.n, wo_world);
             if le != Rgb::ZERO {
-                let w = if specular {
+                let w = if self.specular {
                     1.0
                 } else {
                     power_heuristic(
-                        prev_pdf,
-                        lights.pdf_li_tri_from(selection, prev_p, prev_n, sp.p, sp.ng, hit.tri),
+                        self.prev_pdf,
+                        lights.pdf_li_tri_from(
+                            selection,
+                            self.prev_p,
+                            self.prev_n,
+                            sp.p,
+                            sp.ng,
+                            sp.tri,
+                        ),
                     )
                 };
-                l += beta * le * w;
+                self.l += self.beta * le * w;
             }
         }
-        if depth >= max_depth {
-            break;
+        if self.depth >= max_depth {
+            return false;
         }
 
         // The BSDF in the shading frame; two-sided materials face the viewer
-        let v = super::Shading::at(world, &sp, wo_world);
+        let v = super::Shading::at(world, sp, wo_world);
         let (bsdf, frame, ng, wo) = (&v.bsdf, &v.frame, v.ng, v.wo_local);
 
         // Next-event estimation with MIS
-        if bsdf.has_smooth() && depth < max_depth {
+        if bsdf.has_smooth() && self.depth < max_depth {
             let u_sel = rng.next_f32();
             let u_l = rng.next_2d();
             if let Some(ls) = lights.sample_li_from(selection, sp.p, ng, u_sel, u_l) {
                 let wi = frame.to_local(ls.wi);
                 let f = bsdf.eval(wo, wi, Mode::Radiance) * wi.z.abs();
                 if f != Rgb::ZERO && ls.wi.dot(ng) * wi.z > 0.0 {
-                    rays += 1;
+                    self.rays += 1;
                     let origin = offset_point(sp.p, ng, ls.wi);
                     let blocked = if ls.is_env {
                         accel.occluded_ray(&Ray::new(origin, ls.wi))
@@ -130,7 +200,7 @@ pub fn radiance_from_hit(
                     };
                     if !blocked {
                         let w = power_heuristic(ls.pdf, bsdf.pdf(wo, wi));
-                        l += beta * f * ls.le * (w / ls.pdf);
+                        self.l += self.beta * f * ls.le * (w / ls.pdf);
                     }
                 }
             }
@@ -144,34 +214,34 @@ pub fn radiance_from_hit(
         let uc = rng.next_f32();
         let u = rng.next_2d();
         let Some(s) = bsdf.sample(wo, uc, u, Mode::Radiance) else {
-            break;
+            return false;
         };
         let wi_world = frame.to_world(s.wi);
         if wi_world.dot(ng) * s.wi.z <= 0.0 || s.pdf <= 0.0 {
-            break;
+            return false;
         }
-        beta *= s.f * (s.wi.z.abs() / s.pdf);
-        if !beta.is_finite() || beta == Rgb::ZERO {
-            break;
+        self.beta *= s.f * (s.wi.z.abs() / s.pdf);
+        if !self.beta.is_finite() || self.beta == Rgb::ZERO {
+            return false;
         }
-        specular = s.delta;
-        prev_pdf = s.pdf;
-        prev_p = sp.p;
-        prev_n = ng;
+        self.specular = s.delta;
+        self.prev_pdf = s.pdf;
+        self.prev_p = sp.p;
+        self.prev_n = ng;
         if s.eta != 1.0 {
-            eta_scale *= s.eta * s.eta;
+            self.eta_scale *= s.eta * s.eta;
         }
-        ray = Ray::new(offset_point(sp.p, sp.ng, wi_world), wi_world);
-        depth += 1;
+        self.ray = Ray::new(offset_point(sp.p, sp.ng, wi_world), wi_world);
+        self.depth += 1;
 
         // Terminate the walk with Russian roulette on the throughput
-        if depth > limits.rr_depth {
-            let q = (beta.max_element() * eta_scale).min(0.95);
+        if self.depth > limits.rr_depth {
+            let q = (self.beta.max_element() * self.eta_scale).min(0.95);
             if rng.next_f32() >= q {
-                break;
+                return false;
             }
-            beta /= q;
+            self.beta /= q;
         }
+        true
     }
-    (l, rays)
 }

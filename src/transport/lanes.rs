@@ -1,0 +1,69 @@
+//! `path`'s camera paths eight at a time, bounce by bounce, with the
+//! common case shaded in eight AVX lanes (issue #15, item 4).
+//!
+//! Each round traces the closest hit of every live path (one ray at a
+//! time), computes the surface points of all of them in lanes, and then
+//! takes one vertex of each path. A vertex is shaded in lanes when it is
+//! the common case: a diffuse BSDF on a surface that does not emit, below
+//! the depth limit, in a scene whose lights are all triangles
+//! (`Lights::triangles_only`; the light is chosen lane by
+//! lane, by power or down the light tree). Every other vertex goes through
+//! [`super::CameraPath::scatter`], the step [`radiance_from_hit`] runs,
+//! lane by lane. A lane runs the scalar operations in their order (Rust
+//! never contracts to FMA), draws its numbers from its own stream in the
+//! scalar order, and takes the sines and cosines from the scalar
+//! functions, so a pixel's radiance is the same bits as
+//! [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
+//! traced first, in packets of eight neighbours; a lane whose path ends
+//! takes the next of those pixels, so that the lanes stay full until the
+//! row runs out.
+
+use crate::geometry::Ray;
+use crate::sampling::Pcg32;
+use crate::scene::Rgb;
+use crate::world::World;
+
+use super::{radiance_from_hit, DepthLimits};
+
+/// Paths advanced together.
+pub const LANES: usize = 8;
+
+/// Runs one camera path per pixel x of a row of `w`: `start(x)` gives the
+/// pixel's stream (after it has drawn the camera ray's numbers) and its
+/// camera ray; `finish(x, L, rays)` takes the path's radiance and the rays
+/// it traced, [`radiance_from_hit`]'s answer at depth 1. Where the CPU has
+/// AVX2, eight paths run at a time in lanes, and a lane whose path ends
+/// takes the next pixel; elsewhere the camera rays of eight neighbouring
+/// pixels are traced together and each path then runs alone.
+#[inline(always)]
+pub fn radiance_row(
+    world: &World,
+    limits: &DepthLimits,
+    w: usize,
+    mut start: impl FnMut(usize) -> (Pcg32, Ray),
+    mut finish: impl FnMut(usize, Rgb, u64),
+) {
+    #[cfg(target_arch = "x86_64")]
+    if super::dispatch::has_v3() && world.lights.triangles_only() {
+        // SAFETY: the CPU has AVX2 (checked by has_v3)
+        unsafe { avx::radiance_row(world, limits, w, start, finish) };
+        return;
+    }
+    for x0 in (0..w).step_by(LANES) {
+        let n = LANES.min(w - x0);
+        let mut rngs: [Pcg32; LANES] = std::array::from_fn(|_| Pcg32::new(0, 0));
+        let mut cam = [Ray::new(glam::Vec3::ZERO, glam::Vec3::Z); LANES];
+        for (i, (rng, r)) in rngs.iter_mut().zip(&mut cam).take(n).enumerate() {
+            (*rng, *r) = start(x0 + i);
+        }
+        let mut hits = [None; LANES];
+        world.accel.intersect_packet(&cam[..n], &mut hits[..n]);
+        for (i, (rng, h)) in rngs.iter_mut().zip(hits).take(n).enumerate() {
+            let (l, rays) = radiance_from_hit(world, limits, cam[i], Some(h), rng, 1);
+            finish(x0 + i, l, rays);
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx;

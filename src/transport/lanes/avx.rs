@@ -1,0 +1,788 @@
+//! The lanes of [`super::radiance_row`] in AVX registers. Every
+//! `unsafe` block calls an intrinsic on register values or on an array of
+//! eight f32 it names; the functions run only inlined into
+//! [`radiance_row`], which is compiled for AVX2 and called where the CPU
+//! has it.
+
+use std::arch::x86_64::*;
+use std::f32::consts::{FRAC_1_PI, PI};
+use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+use glam::{Vec2, Vec3};
+
+use super::LANES;
+use crate::accel::Hit;
+use crate::bsdf::Bsdf;
+use crate::emitter::TriLight;
+use crate::geometry::Ray;
+use crate::sampling::Pcg32;
+use crate::scene::records::TriRecord;
+use crate::scene::Rgb;
+use crate::transport::{CameraPath, DepthLimits};
+use crate::world::World;
+
+// The records are read as sixteen f32 in field order: p (3 × 3), uv
+// (3 × 2), shape; corners (3 × 3), n, Le, area.
+const _: () = {
+    use std::mem::{align_of, offset_of, size_of};
+    assert!(size_of::<TriRecord>() == 64 && align_of::<TriRecord>() == 64);
+    assert!(offset_of!(TriRecord, uv) == 36 && offset_of!(TriRecord, shape) == 60);
+    assert!(size_of::<TriLight>() == 64 && align_of::<TriLight>() == 64);
+    assert!(offset_of!(TriLight, n) == 36 && offset_of!(TriLight, le) == 48);
+    assert!(offset_of!(TriLight, area) == 60);
+};
+
+/// Eight f32 lanes; a comparison gives a mask (all bits set where true).
+#[derive(Clone, Copy)]
+struct V(__m256);
+
+impl V {
+    #[inline(always)]
+    fn splat(x: f32) -> V {
+        V(unsafe { _mm256_set1_ps(x) })
+    }
+    #[inline(always)]
+    fn load(a: &[f32; LANES]) -> V {
+        V(unsafe { _mm256_loadu_ps(a.as_ptr()) })
+    }
+    #[inline(always)]
+    fn store(self) -> [f32; LANES] {
+        let mut out = [0.0; LANES];
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), self.0) };
+        out
+    }
+    #[inline(always)]
+    fn sqrt(self) -> V {
+        V(unsafe { _mm256_sqrt_ps(self.0) })
+    }
+    #[inline(always)]
+    fn abs(self) -> V {
+        V(unsafe { _mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0) })
+    }
+    /// `f32::max(self, 0.0)`: 0 for NaN, as `maxps` gives its second
+    /// operand then.
+    #[inline(always)]
+    fn max0(self) -> V {
+        V(unsafe { _mm256_max_ps(self.0, _mm256_setzero_ps()) })
+    }
+    #[inline(always)]
+    fn lt(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, b.0) })
+    }
+    #[inline(always)]
+    fn gt(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, b.0) })
+    }
+    #[inline(always)]
+    fn le(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, b.0) })
+    }
+    #[inline(always)]
+    fn ge(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, b.0) })
+    }
+    #[inline(always)]
+    fn eq(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, b.0) })
+    }
+    /// `!=`, true for NaN as in Rust.
+    #[inline(always)]
+    fn ne(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_NEQ_UQ>(self.0, b.0) })
+    }
+    /// `!(self <= b)`, true for NaN.
+    #[inline(always)]
+    fn nle(self, b: V) -> V {
+        V(unsafe { _mm256_cmp_ps::<_CMP_NLE_UQ>(self.0, b.0) })
+    }
+    /// `f32::is_finite`.
+    #[inline(always)]
+    fn finite(self) -> V {
+        self.abs().lt(V::splat(f32::INFINITY))
+    }
+    /// `if self { a } else { b }` for a mask.
+    #[inline(always)]
+    fn select(self, a: V, b: V) -> V {
+        V(unsafe { _mm256_blendv_ps(b.0, a.0, self.0) })
+    }
+    /// The lanes set in a mask, as bits.
+    #[inline(always)]
+    fn bits(self) -> u32 {
+        (unsafe { _mm256_movemask_ps(self.0) }) as u32
+    }
+    /// The mask of the lanes in `bits`.
+    #[inline(always)]
+    fn mask(bits: u32) -> V {
+        let lane = unsafe { _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128) };
+        let set = unsafe {
+            _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits as i32), lane), lane)
+        };
+        V(unsafe { _mm256_castsi256_ps(set) })
+    }
+}
+
+macro_rules! binop {
+    ($tr:ident, $f:ident, $op:ident) => {
+        impl $tr for V {
+            type Output = V;
+            #[inline(always)]
+            fn $f(self, b: V) -> V {
+                V(unsafe { $op(self.0, b.0) })
+            }
+        }
+    };
+}
+binop!(Add, add, _mm256_add_ps);
+binop!(Sub, sub, _mm256_sub_ps);
+binop!(Mul, mul, _mm256_mul_ps);
+binop!(Div, div, _mm256_div_ps);
+binop!(BitAnd, bitand, _mm256_and_ps);
+binop!(BitOr, bitor, _mm256_or_ps);
+
+impl Neg for V {
+    type Output = V;
+    #[inline(always)]
+    fn neg(self) -> V {
+        V(unsafe { _mm256_xor_ps(self.0, _mm256_set1_ps(-0.0)) })
+    }
+}
+
+/// Three lanes of vectors, by component.
+#[derive(Clone, Copy)]
+struct V3 {
+    x: V,
+    y: V,
+    z: V,
+}
+
+impl V3 {
+    #[inline(always)]
+    fn new(x: V, y: V, z: V) -> V3 {
+        V3 { x, y, z }
+    }
+    #[inline(always)]
+    fn splat(v: Vec3) -> V3 {
+        V3::new(V::splat(v.x), V::splat(v.y), V::splat(v.z))
+    }
+    #[inline(always)]
+    fn load(a: &[[f32; LANES]; 3]) -> V3 {
+        V3::new(V::load(&a[0]), V::load(&a[1]), V::load(&a[2]))
+    }
+    #[inline(always)]
+    fn store(self) -> [[f32; LANES]; 3] {
+        [self.x.store(), self.y.store(), self.z.store()]
+    }
+    /// glam's `Vec3::dot`: (x x' + y y') + z z'.
+    #[inline(always)]
+    fn dot(self, b: V3) -> V {
+        self.x * b.x + self.y * b.y + self.z * b.z
+    }
+    #[inline(always)]
+    fn neg(self) -> V3 {
+        V3::new(-self.x, -self.y, -self.z)
+    }
+    #[inline(always)]
+    fn scale(self, k: V) -> V3 {
+        V3::new(self.x * k, self.y * k, self.z * k)
+    }
+    #[inline(always)]
+    fn select(m: V, a: V3, b: V3) -> V3 {
+        V3::new(m.select(a.x, b.x), m.select(a.y, b.y), m.select(a.z, b.z))
+    }
+    /// Lane `i` as a `Vec3`.
+    #[inline(always)]
+    fn lane(a: &[[f32; LANES]; 3], i: usize) -> Vec3 {
+        Vec3::new(a[0][i], a[1][i], a[2][i])
+    }
+    /// Sets lane `i` of `a` to `v`.
+    #[inline(always)]
+    fn set(a: &mut [[f32; LANES]; 3], i: usize, v: Vec3) {
+        (a[0][i], a[1][i], a[2][i]) = (v.x, v.y, v.z);
+    }
+}
+
+/// Transposes eight rows of eight f32 (`r[i]` is lane i's row) into
+/// eight columns (`r[j]` then holds field j of every lane).
+#[inline(always)]
+fn transpose(r: [__m256; 8]) -> [V; 8] {
+    unsafe {
+        let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+        let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+        let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+        let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+        let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+        let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+        let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+        let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+        let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+        let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+        let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+        let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+        let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+        let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+        let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+        let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+        [
+            V(_mm256_permute2f128_ps::<0x20>(u0, u4)),
+            V(_mm256_permute2f128_ps::<0x20>(u1, u5)),
+            V(_mm256_permute2f128_ps::<0x20>(u2, u6)),
+            V(_mm256_permute2f128_ps::<0x20>(u3, u7)),
+            V(_mm256_permute2f128_ps::<0x31>(u0, u4)),
+            V(_mm256_permute2f128_ps::<0x31>(u1, u5)),
+            V(_mm256_permute2f128_ps::<0x31>(u2, u6)),
+            V(_mm256_permute2f128_ps::<0x31>(u3, u7)),
+        ]
+    }
+}
+
+/// The light of lanes that chose none.
+static NO_LIGHT: TriLight = TriLight {
+    corners: [Vec3::ZERO; 3],
+    n: Vec3::ZERO,
+    le: Vec3::ZERO,
+    area: 0.0,
+};
+
+/// The state of eight [`CameraPath`]s, by field.
+struct Paths {
+    o: [[f32; LANES]; 3],
+    d: [[f32; LANES]; 3],
+    l: [[f32; LANES]; 3],
+    beta: [[f32; LANES]; 3],
+    prev_pdf: [f32; LANES],
+    specular: u32,
+    prev_p: [[f32; LANES]; 3],
+    prev_n: [[f32; LANES]; 3],
+    eta_scale: [f32; LANES],
+    depth: [u32; LANES],
+    rays: [u64; LANES],
+}
+
+impl Paths {
+    /// Path `i`.
+    #[inline(always)]
+    fn get(&self, i: usize) -> CameraPath {
+        let mut p = CameraPath::new(Ray::new(V3::lane(&self.o, i), V3::lane(&self.d, i)), 1);
+        p.l = V3::lane(&self.l, i);
+        p.beta = V3::lane(&self.beta, i);
+        p.rays = self.rays[i];
+        p.prev_pdf = self.prev_pdf[i];
+        p.specular = self.specular & (1 << i) != 0;
+        p.prev_p = V3::lane(&self.prev_p, i);
+        p.prev_n = V3::lane(&self.prev_n, i);
+        p.eta_scale = self.eta_scale[i];
+        p.depth = self.depth[i];
+        p
+    }
+
+    /// Sets path `i` to `p`.
+    #[inline(always)]
+    fn set(&mut self, i: usize, p: &CameraPath) {
+        V3::set(&mut self.o, i, p.ray.o);
+        V3::set(&mut self.d, i, p.ray.d);
+        V3::set(&mut self.l, i, p.l);
+        V3::set(&mut self.beta, i, p.beta);
+        self.rays[i] = p.rays;
+        self.prev_pdf[i] = p.prev_pdf;
+        self.specular = (self.specular & !(1 << i)) | (u32::from(p.specular) << i);
+        V3::set(&mut self.prev_p, i, p.prev_p);
+        V3::set(&mut self.prev_n, i, p.prev_n);
+        self.eta_scale[i] = p.eta_scale;
+        self.depth[i] = p.depth;
+    }
+}
+
+/// The lanes of `mask`, lowest first.
+#[inline(always)]
+fn lanes(mask: u32) -> Bits {
+    Bits(mask)
+}
+
+/// The iterator of [`lanes`].
+struct Bits(u32);
+
+impl Iterator for Bits {
+    type Item = usize;
+    #[inline(always)]
+    fn next(&mut self) -> Option<usize> {
+        if self.0 == 0 {
+            return None;
+        }
+        let i = self.0.trailing_zeros() as usize;
+        self.0 &= self.0 - 1;
+        Some(i)
+    }
+}
+
+/// [`crate::geometry::offset_point`] in lanes, as its SSE2 form computes it: `p` moved off
+/// the surface with geometric normal `ng` to the side `dir` points into.
+#[inline(always)]
+fn offset(p: V3, ng: V3, dir: V3) -> V3 {
+    let n = V3::select(ng.dot(dir).lt(V::splat(0.0)), ng.neg(), ng);
+    V3::new(offset_c(p.x, n.x), offset_c(p.y, n.y), offset_c(p.z, n.z))
+}
+
+/// One coordinate of [`offset`], `n` facing the side to move to.
+#[inline(always)]
+fn offset_c(p: V, n: V) -> V {
+    unsafe {
+        // (256 n) as i32, saturating as Rust casts
+        let sn = _mm256_mul_ps(_mm256_set1_ps(256.0), n.0);
+        let mut oi = _mm256_cvttps_epi32(sn);
+        oi = _mm256_xor_si256(
+            oi,
+            _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(
+                sn,
+                _mm256_set1_ps(2_147_483_648.0),
+            )),
+        );
+        oi = _mm256_and_si256(oi, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_ORD_Q>(sn, sn)));
+        let neg = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(p.0, _mm256_setzero_ps()));
+        let signed = _mm256_sub_epi32(_mm256_xor_si256(oi, neg), neg);
+        let pi = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(p.0), signed));
+        let pf = _mm256_add_ps(p.0, _mm256_mul_ps(_mm256_set1_ps(1.0 / 65536.0), n.0));
+        let small = _mm256_cmp_ps::<_CMP_LT_OQ>(p.abs().0, _mm256_set1_ps(1.0 / 32.0));
+        V(_mm256_blendv_ps(pi, pf, small))
+    }
+}
+
+/// Stores the lanes of `m` of `v` into `dst`.
+#[inline(always)]
+fn put(dst: &mut [[f32; LANES]; 3], m: V, v: V3) {
+    let old = V3::load(dst);
+    *dst = V3::select(m, v, old).store();
+}
+
+/// Stores the lanes of `m` of `v` into `dst`.
+#[inline(always)]
+fn put1(dst: &mut [f32; LANES], m: V, v: V) {
+    *dst = m.select(v, V::load(dst)).store();
+}
+
+/// a b0 + b b1 + c b2, as glam computes it.
+#[inline(always)]
+fn lerp(a: V, b: V, c: V, b0: V, b1: V, b2: V) -> V {
+    a * b0 + b * b1 + c * b2
+}
+
+/// Pixels whose camera rays are traced together before their paths run.
+const CHUNK: usize = 8 * LANES;
+
+/// [`super::radiance_row`] with the common case in AVX lanes.
+#[target_feature(enable = "avx2")]
+pub(super) fn radiance_row(
+    world: &World,
+    limits: &DepthLimits,
+    w: usize,
+    mut start: impl FnMut(usize) -> (Pcg32, Ray),
+    mut finish: impl FnMut(usize, Rgb, u64),
+) {
+    let mut paths = Paths {
+        o: [[0.0; LANES]; 3],
+        d: [[0.0; LANES]; 3],
+        l: [[0.0; LANES]; 3],
+        beta: [[0.0; LANES]; 3],
+        prev_pdf: [0.0; LANES],
+        specular: 0,
+        prev_p: [[0.0; LANES]; 3],
+        prev_n: [[0.0; LANES]; 3],
+        eta_scale: [0.0; LANES],
+        depth: [0; LANES],
+        rays: [0; LANES],
+    };
+    let mut rngs: [Pcg32; LANES] = std::array::from_fn(|_| Pcg32::new(0, 0));
+    let mut pixel = [0usize; LANES];
+    let mut found = [None; LANES];
+    let mut alive = 0u32;
+    // The camera rays of CHUNK pixels at a time are traced up front, in
+    // packets of neighbouring pixels; a lane whose path ended takes the
+    // next pixel of the chunk
+    let mut chunk_rngs: [Pcg32; CHUNK] = std::array::from_fn(|_| Pcg32::new(0, 0));
+    let mut chunk_rays = [Ray::new(Vec3::ZERO, Vec3::Z); CHUNK];
+    let mut chunk_hits = [None; CHUNK];
+    let (mut chunk0, mut chunk_n) = (0, 0);
+    let mut next = 0;
+    loop {
+        if next == chunk0 + chunk_n && next < w {
+            chunk0 = next;
+            chunk_n = CHUNK.min(w - next);
+            for (k, (rng, ray)) in chunk_rngs
+                .iter_mut()
+                .zip(&mut chunk_rays)
+                .take(chunk_n)
+                .enumerate()
+            {
+                (*rng, *ray) = start(chunk0 + k);
+            }
+            for (rays, hits) in chunk_rays[..chunk_n]
+                .chunks(LANES)
+                .zip(chunk_hits[..chunk_n].chunks_mut(LANES))
+            {
+                world.accel.intersect_packet(rays, hits);
+            }
+        }
+        for i in lanes(!alive & ((1 << LANES) - 1)) {
+            if next == chunk0 + chunk_n {
+                break;
+            }
+            let k = next - chunk0;
+            rngs[i] = chunk_rngs[k].clone();
+            pixel[i] = next;
+            next += 1;
+            let mut p = CameraPath::new(chunk_rays[k], 1);
+            p.rays = 1;
+            paths.set(i, &p);
+            found[i] = chunk_hits[k];
+            alive |= 1 << i;
+        }
+        if alive == 0 {
+            return;
+        }
+        let mut hit = 0u32;
+        for i in lanes(alive) {
+            hit |= u32::from(found[i].is_some()) << i;
+        }
+        // Paths that escaped end with the environment
+        for i in lanes(alive & !hit) {
+            let mut p = paths.get(i);
+            p.escape(world);
+            paths.set(i, &p);
+        }
+        let was = alive;
+        alive &= hit;
+        if alive != 0 {
+            alive = vertices(world, limits, &mut paths, &found, &mut rngs, alive);
+        }
+        for i in lanes(was & !alive) {
+            finish(pixel[i], V3::lane(&paths.l, i), paths.rays[i]);
+        }
+        // The next segment of each path that goes on
+        for i in lanes(alive) {
+            paths.rays[i] += 1;
+            let ray = Ray::new(V3::lane(&paths.o, i), V3::lane(&paths.d, i));
+            found[i] = world.accel.intersect(&ray);
+        }
+    }
+}
+
+/// One vertex of each path of `mask`, whose rays hit at `hits`; returns the
+/// paths that go on.
+#[inline(always)]
+fn vertices(
+    world: &World,
+    limits: &DepthLimits,
+    paths: &mut Paths,
+    hits: &[Option<Hit>; LANES],
+    rngs: &mut [Pcg32; LANES],
+    mask: u32,
+) -> u32 {
+    let (scene, recs, lights) = (&world.scene, world.tris.records(), &world.lights);
+    let max_depth = limits.max_depth.unwrap_or(u32::MAX);
+    // Each lane's hit (lanes outside the mask repeat the first lane's, and
+    // are not written back)
+    let first = mask.trailing_zeros() as usize;
+    let lh: [Hit; LANES] = std::array::from_fn(|i| {
+        let h = hits[if mask & (1 << i) != 0 { i } else { first }];
+        h.unwrap_or(Hit {
+            t: 0.0,
+            tri: 0,
+            b1: 0.0,
+            b2: 0.0,
+        })
+    });
+
+    // The surface points, as `records::interpolate` computes them
+    let mut lo = [unsafe { _mm256_setzero_ps() }; 8];
+    let mut hi = lo;
+    let mut shape = [0u32; LANES];
+    for (i, h) in lh.iter().enumerate() {
+        let r: &TriRecord = &recs[h.tri as usize];
+        shape[i] = r.shape;
+        let ptr = (r as *const TriRecord).cast::<f32>();
+        // SAFETY: a record is 64 bytes of f32-sized fields, 64-aligned
+        unsafe {
+            lo[i] = _mm256_load_ps(ptr);
+            hi[i] = _mm256_load_ps(ptr.add(8));
+        }
+    }
+    // fields: p0 p1 p2 (xyz each), uv0 uv1 uv2 (xy each), shape
+    let [ax, ay, az, bx, by, bz, cx, cy] = transpose(lo);
+    let [cz, u0x, u0y, u1x, u1y, u2x, u2y, _] = transpose(hi);
+    let b1 = V::load(&lh.map(|h| h.b1));
+    let b2 = V::load(&lh.map(|h| h.b2));
+    let b0 = V::splat(1.0) - b1 - b2;
+    let p = V3::new(
+        lerp(ax, bx, cx, b0, b1, b2),
+        lerp(ay, by, cy, b0, b1, b2),
+        lerp(az, bz, cz, b0, b1, b2),
+    );
+    let uv = [
+        lerp(u0x, u1x, u2x, b0, b1, b2).store(),
+        lerp(u0y, u1y, u2y, b0, b1, b2).store(),
+    ];
+    let e1 = V3::new(bx - ax, by - ay, bz - az);
+    let e2 = V3::new(cx - ax, cy - ay, cz - az);
+    let cross = V3::new(
+        e1.y * e2.z - e2.y * e1.z,
+        e1.z * e2.x - e2.z * e1.x,
+        e1.x * e2.y - e2.x * e1.y,
+    );
+    // normalize_or(+z)
+    let rcp = V::splat(1.0) / cross.dot(cross).sqrt();
+    let unit = rcp.finite() & rcp.gt(V::splat(0.0));
+    let ng = V3::select(unit, cross.scale(rcp), V3::splat(Vec3::Z));
+    let ng_a = ng.store();
+    // Which vertices the lanes shade; the rest take the scalar step. A
+    // lane's shading normal (interpolated for smooth shapes, lane by lane),
+    // its reflectance, and the numbers it draws, in the scalar order: the
+    // light's choice and point, then the BSDF's lobe and direction
+    let mut alive = mask;
+    let mut vec = 0u32;
+    let mut two_sided = 0u32;
+    let mut r = [[0.0f32; LANES]; 3];
+    let mut ns_a = ng_a;
+    let b0_a = b0.store();
+    let mut u = [[0.0f32; LANES]; 6];
+    let mut light: [&TriLight; LANES] = [&NO_LIGHT; LANES];
+    let mut pmf = [0.0f32; LANES];
+    let mut chosen = 0u32;
+    for i in lanes(mask) {
+        let s = &scene.shapes[shape[i] as usize];
+        let material = &scene.materials[s.material as usize];
+        let common = paths.depth[i] < max_depth && !lights.is_emitter_of(lh[i].tri, shape[i]);
+        let diffuse = match common.then(|| material.bsdf(Vec2::new(uv[0][i], uv[1][i]))) {
+            Some(Bsdf::Diffuse { r }) => Some(r),
+            _ => None,
+        };
+        let Some(ri) = diffuse else {
+            let mut path = paths.get(i);
+            let sp = world.surface_point(&lh[i]);
+            if !path.scatter(world, limits, &sp, &mut rngs[i]) {
+                alive &= !(1 << i);
+            }
+            paths.set(i, &path);
+            continue;
+        };
+        vec |= 1 << i;
+        two_sided |= u32::from(material.is_two_sided()) << i;
+        V3::set(&mut r, i, ri);
+        if s.smooth {
+            let ng = V3::lane(&ng_a, i);
+            let [i0, i1, i2] = scene.triangles[lh[i].tri as usize].map(|i| i as usize);
+            let n = scene.normals[i0] * b0_a[i]
+                + scene.normals[i1] * lh[i].b1
+                + scene.normals[i2] * lh[i].b2;
+            let n = n.normalize_or(ng);
+            V3::set(&mut ns_a, i, if n.dot(ng) < 0.0 { -n } else { n });
+        }
+        let rng = &mut rngs[i];
+        for uk in u.iter_mut() {
+            uk[i] = rng.next_f32();
+        }
+    }
+    if vec == 0 {
+        return alive;
+    }
+    // Frame::from_normal
+    let nn = V3::load(&ns_a);
+    let sign = V(unsafe {
+        _mm256_or_ps(
+            _mm256_and_ps(nn.z.0, _mm256_set1_ps(-0.0)),
+            _mm256_set1_ps(1.0),
+        )
+    });
+    let a = V::splat(-1.0) / (sign + nn.z);
+    let b = nn.x * nn.y * a;
+    let fs = V3::new(
+        V::splat(1.0) + sign * nn.x * nn.x * a,
+        sign * b,
+        -sign * nn.x,
+    );
+    let ft = V3::new(b, sign + nn.y * nn.y * a, -nn.y);
+    // orient: two-sided materials face the viewer
+    let wo = V3::load(&paths.d).neg();
+    let flip = V::mask(two_sided) & ng.dot(wo).lt(V::splat(0.0));
+    let ng_o = V3::select(flip, ng.neg(), ng);
+    let ft = V3::select(flip, ft.neg(), ft);
+    let fn_ = V3::select(flip, nn.neg(), nn);
+    // The light each lane chooses, as seen from its point and normal
+    let (p_a, ngo_a) = (p.store(), ng_o.store());
+    for i in lanes(vec) {
+        let (pi, ni) = (V3::lane(&p_a, i), V3::lane(&ngo_a, i));
+        if let Some((tl, pm)) = lights.select_tri(limits.light_selection, pi, ni, u[0][i]) {
+            chosen |= 1 << i;
+            (light[i], pmf[i]) = (tl, pm);
+        }
+    }
+    // The lights chosen, by field: corners, normal, Le, area
+    let mut lo = [unsafe { _mm256_setzero_ps() }; 8];
+    let mut hi = lo;
+    for (i, tl) in light.iter().enumerate() {
+        let ptr = (*tl as *const TriLight).cast::<f32>();
+        // SAFETY: a TriLight is 64 bytes of f32, 64-aligned
+        unsafe {
+            lo[i] = _mm256_load_ps(ptr);
+            hi[i] = _mm256_load_ps(ptr.add(8));
+        }
+    }
+    let [qax, qay, qaz, qbx, qby, qbz, qcx, qcy] = transpose(lo);
+    let [qcz, lnx, lny, lnz, lex, ley, lez, larea] = transpose(hi);
+    let (qa, qb, qc) = (
+        V3::new(qax, qay, qaz),
+        V3::new(qbx, qby, qbz),
+        V3::new(qcx, qcy, qcz),
+    );
+    let lnv = V3::new(lnx, lny, lnz);
+    let lle = V3::new(lex, ley, lez);
+
+    let zero = V::splat(0.0);
+    let one = V::splat(1.0);
+
+    let wol = V3::new(wo.dot(fs), wo.dot(ft), wo.dot(fn_));
+    let rr = V3::load(&r);
+    let beta = V3::load(&paths.beta);
+    let l = V3::load(&paths.l);
+
+    // Next-event estimation with MIS (Lights::sample_entry, Bsdf::eval and
+    // Bsdf::pdf of Diffuse, power_heuristic)
+    let (ux, uy) = (V::load(&u[1]), V::load(&u[2]));
+    let su = ux.sqrt();
+    let (tb_x, tb_y) = (one - su, uy * su);
+    let w0 = one - tb_x - tb_y;
+    let q = V3::new(
+        lerp(qa.x, qb.x, qc.x, w0, tb_x, tb_y),
+        lerp(qa.y, qb.y, qc.y, w0, tb_x, tb_y),
+        lerp(qa.z, qb.z, qc.z, w0, tb_x, tb_y),
+    );
+    let dq = V3::new(q.x - p.x, q.y - p.y, q.z - p.z);
+    let dist2 = dq.dot(dq);
+    let len = dist2.sqrt();
+    let wi_l = V3::new(dq.x / len, dq.y / len, dq.z / len);
+    let cos_l = -lnv.dot(wi_l);
+    let lpdf = V::load(&pmf) / larea * dist2 / cos_l;
+    let sampled = V::mask(chosen) & dist2.nle(zero) & cos_l.nle(zero);
+    let wi = V3::new(wi_l.dot(fs), wi_l.dot(ft), wi_l.dot(fn_));
+    let up = wol.z.nle(zero) & wi.z.nle(zero);
+    let fr = rr.scale(V::splat(FRAC_1_PI));
+    let cos_i = wi.z.abs();
+    let f = V3::new(
+        up.select(fr.x, zero) * cos_i,
+        up.select(fr.y, zero) * cos_i,
+        up.select(fr.z, zero) * cos_i,
+    );
+    let nonzero = f.x.ne(zero) | f.y.ne(zero) | f.z.ne(zero);
+    let shadow = sampled & nonzero & (wi_l.dot(ng_o) * wi.z).gt(zero);
+    let bpdf = wol.z.le(zero).select(zero, wi.z.max0() / V::splat(PI));
+    let (pa, pb) = (lpdf * lpdf, bpdf * bpdf);
+    let mis = (pa + pb).eq(zero).select(
+        zero,
+        pa.abs()
+            .eq(V::splat(f32::INFINITY))
+            .select(one, pa / (pa + pb)),
+    );
+    let k = mis / lpdf;
+    let contrib = V3::new(
+        beta.x * f.x * lle.x * k,
+        beta.y * f.y * lle.y * k,
+        beta.z * f.z * lle.z * k,
+    );
+
+    // Sample the BSDF (Diffuse: cosine_hemisphere), the sines and cosines
+    // lane by lane from the scalar functions
+    let (ox, oy) = (
+        V::splat(2.0) * V::load(&u[4]) - one,
+        V::splat(2.0) * V::load(&u[5]) - one,
+    );
+    let centre = ox.eq(zero) & oy.eq(zero);
+    let wide = ox.abs().gt(oy.abs());
+    let rad = wide.select(ox, oy);
+    let theta = wide.select(
+        V::splat(PI / 4.0) * (oy / ox),
+        V::splat(PI / 2.0) - V::splat(PI / 4.0) * (ox / oy),
+    );
+    let theta_a = theta.store();
+    let (mut cos_a, mut sin_a) = ([0.0f32; LANES], [0.0f32; LANES]);
+    for i in lanes(vec & !centre.bits()) {
+        (cos_a[i], sin_a[i]) = (theta_a[i].cos(), theta_a[i].sin());
+    }
+    let dx = centre.select(zero, rad * V::load(&cos_a));
+    let dy = centre.select(zero, rad * V::load(&sin_a));
+    let z = (one - (dx * dx + dy * dy)).max0().sqrt();
+    let spdf = z.max0() / V::splat(PI);
+    let swi = V3::new(dx, dy, z);
+    let wiw = V3::new(
+        fs.x * swi.x + ft.x * swi.y + fn_.x * swi.z,
+        fs.y * swi.x + ft.y * swi.y + fn_.y * swi.z,
+        fs.z * swi.x + ft.z * swi.y + fn_.z * swi.z,
+    );
+    let kb = z.abs() / spdf;
+    let nbeta = V3::new(
+        beta.x * (fr.x * kb),
+        beta.y * (fr.y * kb),
+        beta.z * (fr.z * kb),
+    );
+    let finite = nbeta.x.finite() & nbeta.y.finite() & nbeta.z.finite();
+    let zero_beta = nbeta.x.eq(zero) & nbeta.y.eq(zero) & nbeta.z.eq(zero);
+    let goes_on =
+        wol.z.nle(zero) & spdf.nle(zero) & (wiw.dot(ng_o) * z).nle(zero) & finite & !zero_beta;
+    // Russian roulette's threshold, for lanes past rr_depth
+    let m = nbeta.y.gt(nbeta.z).select(nbeta.y, nbeta.z);
+    let m = nbeta.x.gt(m).select(nbeta.x, m);
+    let qrr = V(unsafe { _mm256_min_ps((m * V::load(&paths.eta_scale)).0, _mm256_set1_ps(0.95)) });
+
+    // Shadow rays, lane by lane
+    let on = goes_on.bits() & vec;
+    let shadow_bits = shadow.bits() & vec;
+    let origin = offset(p, ng_o, wi_l).store();
+    let target = offset(q, lnv, wi_l.neg()).store();
+    let mut clear = 0u32;
+    for i in lanes(shadow_bits) {
+        paths.rays[i] += 1;
+        let blocked = world
+            .accel
+            .occluded(V3::lane(&origin, i), V3::lane(&target, i));
+        clear |= u32::from(!blocked) << i;
+    }
+    let lc = V3::new(l.x + contrib.x, l.y + contrib.y, l.z + contrib.z);
+    put(&mut paths.l, V::mask(clear), lc);
+
+    // The next segment, and Russian roulette's draws
+    let mut u_rr = [0.0f32; LANES];
+    let mut rr_lanes = 0u32;
+    for i in lanes(vec) {
+        if on & (1 << i) == 0 {
+            alive &= !(1 << i);
+            continue;
+        }
+        paths.depth[i] += 1;
+        if paths.depth[i] > limits.rr_depth {
+            rr_lanes |= 1 << i;
+            u_rr[i] = rngs[i].next_f32();
+        }
+    }
+    let rr_m = V::mask(rr_lanes);
+    let stop = (rr_m & V::load(&u_rr).ge(qrr)).bits();
+    alive &= !stop;
+    let nbeta = V3::select(
+        rr_m,
+        V3::new(nbeta.x / qrr, nbeta.y / qrr, nbeta.z / qrr),
+        nbeta,
+    );
+    let m = V::mask(on & !stop);
+    paths.specular &= !on;
+    put1(&mut paths.prev_pdf, m, spdf);
+    put(&mut paths.prev_p, m, p);
+    put(&mut paths.prev_n, m, ng_o);
+    put(&mut paths.o, m, offset(p, ng, wiw));
+    put(&mut paths.d, m, wiw);
+    put(&mut paths.beta, m, nbeta);
+    alive
+}
+
+impl Not for V {
+    type Output = V;
+    #[inline(always)]
+    fn not(self) -> V {
+        V(unsafe { _mm256_xor_ps(self.0, _mm256_castsi256_ps(_mm256_set1_epi32(-1))) })
+    }
+}
