@@ -205,34 +205,9 @@ impl V3 {
 /// eight columns (`r[j]` then holds field j of every lane).
 #[inline(always)]
 fn transpose(r: [__m256; 8]) -> [V; 8] {
-    unsafe {
-        let t0 = _mm256_unpacklo_ps(r[0], r[1]);
-        let t1 = _mm256_unpackhi_ps(r[0], r[1]);
-        let t2 = _mm256_unpacklo_ps(r[2], r[3]);
-        let t3 = _mm256_unpackhi_ps(r[2], r[3]);
-        let t4 = _mm256_unpacklo_ps(r[4], r[5]);
-        let t5 = _mm256_unpackhi_ps(r[4], r[5]);
-        let t6 = _mm256_unpacklo_ps(r[6], r[7]);
-        let t7 = _mm256_unpackhi_ps(r[6], r[7]);
-        let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
-        let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
-        let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
-        let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
-        let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
-        let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
-        let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
-        let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
-        [
-            V(_mm256_permute2f128_ps::<0x20>(u0, u4)),
-            V(_mm256_permute2f128_ps::<0x20>(u1, u5)),
-            V(_mm256_permute2f128_ps::<0x20>(u2, u6)),
-            V(_mm256_permute2f128_ps::<0x20>(u3, u7)),
-            V(_mm256_permute2f128_ps::<0x31>(u0, u4)),
-            V(_mm256_permute2f128_ps::<0x31>(u1, u5)),
-            V(_mm256_permute2f128_ps::<0x31>(u2, u6)),
-            V(_mm256_permute2f128_ps::<0x31>(u3, u7)),
-        ]
-    }
+    // SAFETY: only inlined into `radiance_row`, which runs where the CPU
+    // has AVX2
+    unsafe { super::transpose8(r) }.map(V)
 }
 
 /// The light of lanes that chose none.
