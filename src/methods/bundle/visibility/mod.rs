@@ -590,8 +590,9 @@ pub fn scan_into(patches: &Patches, inp: &SweepInput, scratch: &mut Scratch, out
 /// still in cache: `then(first, e_plus, e_minus, a, b)` gets the chunk's
 /// first patch id, the chunk's incoming radiance and its ranges of `a` and
 /// `b` (per-patch buffers of the caller, such as the transfer's
-/// L(±ω_{m+1}); empty slices when `a` and `b` are empty). Returns the sum
-/// of what `then` returned; adds the time to `out.t_raster`.
+/// L(±ω_{m+1})); when `a` and `b` are empty it only sums, without calling
+/// `then`. Returns the sum of what `then` returned; adds the time to
+/// `out.t_raster`.
 pub fn sum_into<F>(
     patches: &Patches,
     scratch: &Scratch,
@@ -660,24 +661,23 @@ where
     out.e_minus.resize(n, Rgb::ZERO);
     out.e_plus.truncate(n);
     out.e_minus.truncate(n);
-    // the caller's buffers cut into the same chunks (empty ones when the
-    // buffers are empty)
-    let nchunks = n.div_ceil(chunk_len);
-    let mut a: Vec<&mut [Rgb]> = a.chunks_mut(chunk_len).collect();
-    let mut b: Vec<&mut [Rgb]> = b.chunks_mut(chunk_len).collect();
-    a.resize_with(nchunks, Default::default);
-    b.resize_with(nchunks, Default::default);
-    let r = out
+    let sums = out
         .e_plus
         .par_chunks_mut(chunk_len)
         .zip(out.e_minus.par_chunks_mut(chunk_len))
-        .zip(a.into_par_iter().zip(b))
-        .enumerate()
-        .map(|(c, ((p, m), (a, b)))| {
-            sum_chunk(c, p, m);
-            then(c * chunk_len, p, m, a, b)
-        })
-        .sum();
+        .enumerate();
+    // the caller's buffers, when given, cut into the same chunks
+    let r = if a.is_empty() {
+        sums.for_each(|(c, (p, m))| sum_chunk(c, p, m));
+        0
+    } else {
+        sums.zip(a.par_chunks_mut(chunk_len).zip(b.par_chunks_mut(chunk_len)))
+            .map(|((c, (p, m)), (a, b))| {
+                sum_chunk(c, p, m);
+                then(c * chunk_len, p, m, a, b)
+            })
+            .sum()
+    };
     out.t_raster += t0.elapsed().as_secs_f64();
     r
 }
