@@ -21,7 +21,7 @@ use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 /// barycentric weights `u` and `v` (as [`Prepared::triangles`] gives them).
 #[inline]
 #[target_feature(enable = "avx2")]
-pub(super) fn take_hits(
+fn take_hits(
     mask: u32,
     (t, u, v): (__m256, __m256, __m256),
     p: usize,
@@ -55,8 +55,8 @@ pub(super) fn take_hits(
     }
 }
 
-/// A ray prepared for the kernels (and for the packets of `packet8.rs`).
-pub(super) struct Prepared {
+/// A ray prepared for the kernels.
+struct Prepared {
     o: [__m256; 3],
     d: [__m256; 3],
     inv: [__m256; 3],
@@ -69,7 +69,7 @@ pub(super) struct Prepared {
 impl Prepared {
     #[inline]
     #[target_feature(enable = "avx2")]
-    pub(super) fn new(o: Vec3, d: Vec3) -> Prepared {
+    fn new(o: Vec3, d: Vec3) -> Prepared {
         // 1/±0 is ±∞, whose sign agrees with the choice of planes below; the
         // NaN from 0·∞ (a ray in a slab's plane) is ignored by the box test.
         let inv = d.recip();
@@ -109,7 +109,7 @@ impl Prepared {
     /// the ray enters the box).
     #[inline]
     #[target_feature(enable = "avx2")]
-    pub(super) fn boxes_v(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (__m256, __m256) {
+    fn boxes_v(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (__m256, __m256) {
         // maxps/minps return their second operand when either is NaN: the
         // running bound goes second so that NaN lanes leave it unchanged
         let mut t0 = tmin;
@@ -143,7 +143,7 @@ impl Prepared {
     /// distance as the best so far can win the tie ([`better`]).
     #[inline]
     #[target_feature(enable = "avx2")]
-    pub(super) fn triangles<const UPTO: bool>(
+    fn triangles<const UPTO: bool>(
         &self,
         pack: &Pack8,
         tmin: __m256,
