@@ -27,6 +27,14 @@
 //! `traverse::visits` holds for the least entry distance of the node's
 //! rays, which is never above its own.
 //!
+//! Rays in the lanes pay for every lane, whether its ray takes part or not,
+//! and the single-ray form for every child slot and triangle slot. Where a
+//! packet's rays diverge (deep in a large scene's tree, a node or leaf
+//! sees few of them), a node with more valid children than taking-part
+//! rays, or a pack with more triangles than those rays, is tested ray by
+//! ray with the single-ray kernel's own tests (`Prepared::lane`), the
+//! same operations either way.
+//!
 //! Rays need not share an octant: each lane picks its near plane along an
 //! axis by its direction's sign bit, as the single-ray kernel does. Where
 //! they do share one (camera rays of neighbouring pixels, but at the
@@ -38,6 +46,7 @@ use std::mem::MaybeUninit;
 
 use super::collapse::leaf_packs;
 use super::traverse::FAR_SCALE;
+use super::traverse8::Prepared;
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 use super::Hit;
 use crate::geometry::Ray;
@@ -109,6 +118,13 @@ impl Lanes {
             rays: (1 << n) - 1,
             octant,
         }
+    }
+
+    /// Lane `k`'s `tmin` in every lane.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn tmin_of(&self, k: usize) -> __m256 {
+        _mm256_permutevar8x32_ps(self.tmin, _mm256_set1_epi32(k as i32))
     }
 
     /// The lanes whose ray enters box `i` of `node` within
@@ -308,6 +324,59 @@ impl Best {
     }
 }
 
+impl Best {
+    /// Tests each ray of `active` against the eight triangles of `pack`
+    /// (scene triangles `ids`, `u32::MAX` for none) at once, with
+    /// `Prepared::triangles::<true>` as the single-ray kernel does, and
+    /// takes the hits `traverse::better` would, in the order of the slots.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn rays_against(&mut self, p: &Lanes, pack: &Pack8, ids: &[u32], active: u32) {
+        let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
+        // SAFETY: eight writable f32s or i32s each; no alignment needed
+        unsafe {
+            _mm256_storeu_ps(t.as_mut_ptr(), self.t);
+            _mm256_storeu_ps(u.as_mut_ptr(), self.u);
+            _mm256_storeu_ps(v.as_mut_ptr(), self.v);
+            _mm256_storeu_si256(tri.as_mut_ptr().cast(), self.tri);
+        }
+        let mut bits = active;
+        while bits != 0 {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let ray = Prepared::lane(&p.o, &p.d, &p.inv, k);
+            let (mut mask, th, uh, vh) =
+                ray.triangles::<true>(pack, p.tmin_of(k), _mm256_set1_ps(t[k]));
+            if mask == 0 {
+                continue;
+            }
+            let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
+            // SAFETY: eight writable f32s each; no alignment needed
+            unsafe {
+                _mm256_storeu_ps(ta.as_mut_ptr(), th);
+                _mm256_storeu_ps(ua.as_mut_ptr(), uh);
+                _mm256_storeu_ps(va.as_mut_ptr(), vh);
+            }
+            while mask != 0 {
+                let i = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                // `better`, with −1 for no best
+                let id = ids[i] as i32;
+                if ta[i] < t[k] || (ta[i] == t[k] && tri[k] > id) {
+                    (t[k], u[k], v[k], tri[k]) = (ta[i], ua[i], va[i], id);
+                }
+            }
+        }
+        // SAFETY: eight readable f32s or i32s each; no alignment needed
+        unsafe {
+            self.t = _mm256_loadu_ps(t.as_ptr());
+            self.u = _mm256_loadu_ps(u.as_ptr());
+            self.v = _mm256_loadu_ps(v.as_ptr());
+            self.tri = _mm256_loadu_si256(tri.as_ptr().cast());
+        }
+    }
+}
+
 #[target_feature(enable = "avx2")]
 fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
     let mut best = Best {
@@ -323,8 +392,8 @@ fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]
     let mut active = p.rays;
     loop {
         if r & LEAF_BIT == 0 {
-            // Each valid child against the active rays in the lanes: its
-            // rays are those that enter it, its distance the least of theirs
+            // Each valid child against the active rays: its rays are those
+            // that enter it, its distance the least of theirs
             let node = &w.nodes[r as usize];
             // SAFETY: eight readable u32s; no alignment needed
             let unused = unsafe {
@@ -334,20 +403,56 @@ fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]
                     _mm256_set1_epi32(-1),
                 ))) as u32
             };
-            let av = lane_mask(active);
             let (mut near, mut who) = ([0f32; 8], [0u8; 8]);
             let mut hit_children = 0u32;
-            let mut valid = !unused & 0xff;
-            while valid != 0 {
-                let i = valid.trailing_zeros() as usize;
-                valid &= valid - 1;
-                let (hit, t0) = p.enters::<MIXED>(node, i, best.t);
-                let hit = _mm256_and_ps(hit, av);
-                let m = _mm256_movemask_ps(hit) as u32;
-                if m != 0 {
-                    near[i] = least(_mm256_blendv_ps(inf, t0, hit));
-                    who[i] = m as u8;
-                    hit_children |= 1 << i;
+            let valid = !unused & 0xff;
+            if active.count_ones() < valid.count_ones() {
+                // Fewer rays than children: each ray against the eight
+                // boxes at once, as the single-ray kernel tests them
+                let mut tb = [0f32; 8];
+                // SAFETY: eight writable f32s; no alignment needed
+                unsafe { _mm256_storeu_ps(tb.as_mut_ptr(), best.t) };
+                let mut nv = inf;
+                let mut wv = _mm256_setzero_si256();
+                let mut bits = active;
+                while bits != 0 {
+                    let k = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let ray = Prepared::lane(&p.o, &p.d, &p.inv, k);
+                    let (hit, t0) = ray.boxes_v(node, p.tmin_of(k), _mm256_set1_ps(tb[k]));
+                    nv = _mm256_min_ps(_mm256_blendv_ps(inf, t0, hit), nv);
+                    wv = _mm256_or_si256(
+                        wv,
+                        _mm256_and_si256(_mm256_castps_si256(hit), _mm256_set1_epi32(1 << k)),
+                    );
+                }
+                // SAFETY: eight writable f32s and u32s; no alignment needed
+                let mut wa = [0u32; 8];
+                unsafe {
+                    _mm256_storeu_ps(near.as_mut_ptr(), nv);
+                    _mm256_storeu_si256(wa.as_mut_ptr().cast(), wv);
+                }
+                who = wa.map(|m| m as u8);
+                hit_children = !_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                    wv,
+                    _mm256_setzero_si256(),
+                ))) as u32
+                    & 0xff;
+            } else {
+                // Each valid child against the active rays in the lanes
+                let av = lane_mask(active);
+                let mut bits = valid;
+                while bits != 0 {
+                    let i = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let (hit, t0) = p.enters::<MIXED>(node, i, best.t);
+                    let hit = _mm256_and_ps(hit, av);
+                    let m = _mm256_movemask_ps(hit) as u32;
+                    if m != 0 {
+                        near[i] = least(_mm256_blendv_ps(inf, t0, hit));
+                        who[i] = m as u8;
+                        hit_children |= 1 << i;
+                    }
                 }
             }
             if hit_children != 0 {
@@ -383,14 +488,30 @@ fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]
                 continue;
             }
         } else {
-            // Each triangle of the leaf against the active rays in the lanes
+            // Each triangle of the leaf against the active rays in the
+            // lanes, or, where the rays are fewer than the triangles, each
+            // ray against a pack's triangles at once
             let av = lane_mask(active);
             for pk in leaf_packs(r) {
                 let pack = &w.packs[pk];
                 let ids = &w.ids[8 * pk..8 * pk + 8];
-                for (j, &id) in ids.iter().enumerate() {
-                    if id != u32::MAX {
-                        best.triangle(p, pack, j, id, av);
+                // SAFETY: eight readable u32s; no alignment needed
+                let unused = unsafe {
+                    let c = _mm256_loadu_si256(ids.as_ptr().cast());
+                    _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                        c,
+                        _mm256_set1_epi32(-1),
+                    ))) as u32
+                };
+                let valid = !unused & 0xff;
+                if active.count_ones() < valid.count_ones() {
+                    best.rays_against(p, pack, ids, active);
+                } else {
+                    let mut bits = valid;
+                    while bits != 0 {
+                        let j = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        best.triangle(p, pack, j, ids[j], av);
                     }
                 }
             }

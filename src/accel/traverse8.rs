@@ -55,8 +55,9 @@ fn take_hits(
     }
 }
 
-/// A ray prepared for the kernels.
-struct Prepared {
+/// A ray prepared for the kernels (and for the packets of `packet8.rs`,
+/// where few of their rays take part in a node).
+pub(super) struct Prepared {
     o: [__m256; 3],
     d: [__m256; 3],
     inv: [__m256; 3],
@@ -96,6 +97,25 @@ impl Prepared {
         }
     }
 
+    /// Lane `k`'s ray of a packet whose origins, directions and their
+    /// reciprocals are `o`, `d` and `inv`, one ray a lane (`inv` computed
+    /// as [`Prepared::new`] does: a correctly rounded division either way).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn lane(o: &[__m256; 3], d: &[__m256; 3], inv: &[__m256; 3], k: usize) -> Prepared {
+        let idx = _mm256_set1_epi32(k as i32);
+        let pick = |v: &[__m256; 3]| v.map(|v| _mm256_permutevar8x32_ps(v, idx));
+        let signs = d.map(|d| (_mm256_movemask_ps(d) as usize >> k) & 1);
+        let near = [signs[0], 2 + signs[1], 4 + signs[2]];
+        Prepared {
+            o: pick(o),
+            d: pick(d),
+            inv: pick(inv),
+            near,
+            far: near.map(|r| r ^ 1),
+        }
+    }
+
     /// The lanes of `node` whose box the ray enters within `[tmin, tmax]`,
     /// and the distance at which it enters each.
     #[inline]
@@ -109,7 +129,7 @@ impl Prepared {
     /// the ray enters the box).
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn boxes_v(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (__m256, __m256) {
+    pub(super) fn boxes_v(&self, node: &Node8, tmin: __m256, tmax: __m256) -> (__m256, __m256) {
         // maxps/minps return their second operand when either is NaN: the
         // running bound goes second so that NaN lanes leave it unchanged
         let mut t0 = tmin;
@@ -143,7 +163,7 @@ impl Prepared {
     /// distance as the best so far can win the tie ([`better`]).
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn triangles<const UPTO: bool>(
+    pub(super) fn triangles<const UPTO: bool>(
         &self,
         pack: &Pack8,
         tmin: __m256,
