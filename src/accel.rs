@@ -435,12 +435,13 @@ impl Accel {
 
     /// The closest hit of each ray of `rays` into `out` (of the same
     /// length), each the one [`Accel::intersect`] gives, bit for bit. On
-    /// the 8-wide tree the rays go down it in packets of eight
-    /// (`accel/packet8.rs`), which is faster where neighbours in `rays`
-    /// start close together and point alike (camera rays of neighbouring
-    /// pixels); elsewhere, and for rays that are not alike, it is
-    /// [`Accel::intersect`] ray by ray, or the packets walk nodes that
-    /// only some of their rays enter.
+    /// the 8-wide tree the rays go down it in packets of eight, one ray in
+    /// each lane of the AVX2 registers (`accel/packet8.rs`), which is
+    /// faster where neighbours in `rays` start close together and point
+    /// alike (camera rays of neighbouring pixels); elsewhere it is
+    /// [`Accel::intersect`] ray by ray. Rays that are not alike get the
+    /// same answers, more slowly: the packets walk nodes that only some of
+    /// their rays enter, and test triangles in every lane.
     ///
     /// # Panics
     /// When `out` and `rays` differ in length.

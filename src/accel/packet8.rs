@@ -1,49 +1,175 @@
 //! Packets of up to eight rays walked together through the 8-wide BVH of
-//! `wide8.rs` (the AVX2 kernels of `traverse8.rs`, for rays that start
-//! close together and point alike, such as the camera rays of neighbouring
-//! pixels).
+//! `wide8.rs`, for rays that start close together and point alike (the
+//! camera rays of neighbouring pixels). The rays are in the lanes: one AVX2
+//! register holds a quantity of all eight rays, and each child box of a
+//! node, and each triangle of a leaf, is tested against the eight rays at
+//! once (the form of Embree's stream and packet kernels; Wald et al.'s
+//! packets, 2001), rather than each ray against eight boxes or triangles
+//! in turn as the single-ray kernel of `traverse8.rs` does.
 //!
-//! The packet shares one walk: one stack, one order of visits, one fetch of
-//! each node, and the sorting of a node's children once for all its rays.
-//! Each ray still tests each node it takes part in with the single-ray box
-//! test (`Prepared::boxes_v`: eight boxes against one ray, in its own
-//! direction's octant), so that rays of a packet need not share an octant,
-//! and each leaf's triangles with the single-ray triangle test. A child is
-//! visited by the rays that enter its box, nearest first by the least entry
-//! distance among them (Wald et al.'s packets, 2001, over Embree's BVH8
-//! layout, with the rays in the outer loop instead of SIMD lanes).
+//! The packet shares one walk over the 8-wide BVH of `wide8.rs`: one stack,
+//! one order of visits (each child by the least entry distance of the rays
+//! that enter it), and for every ray the set of nodes it takes part in. A
+//! child's rays are those that take part in its parent and enter its box.
 //!
-//! The answers are the single-ray kernel's, bit for bit: every operation a
-//! ray sees is that kernel's, and the closest hit is the least (distance,
-//! triangle) of every triangle the ray meets (`traverse::better`), which
-//! does not depend on the order of visits. (This rests on the box test
-//! being conservative, as `FAR_SCALE` makes it: a box is never rejected
-//! while it holds a triangle the ray meets no farther than the best so
-//! far. Were a rounding to break that, the two kernels could differ on
-//! that ray; the tests compare them on the rays of recorded scenes.)
+//! The answers are the single-ray kernel's (`traverse8.rs`), bit for bit:
+//! each lane does that kernel's operations on its ray in the same order
+//! (the slab test of `Prepared::boxes_v` with the ray's own near and far
+//! planes, and the Möller–Trumbore test of `Prepared::triangles`; Rust
+//! never contracts them into fused multiply-adds), and a lane keeps the
+//! least (distance, triangle) of the triangles it meets, as
+//! `traverse::better` does, which does not depend on the order of visits.
+//! (This rests on the box test being conservative, as `FAR_SCALE` makes
+//! it: a box is never rejected while it holds a triangle the ray meets no
+//! farther than the best so far. Were a rounding to break that, the two
+//! kernels could differ on that ray; the tests compare them on the rays of
+//! recorded scenes.) A ray takes part in a popped node while its own
+//! `traverse::visits` holds for the least entry distance of the node's
+//! rays, which is never above its own.
+//!
+//! Rays in the lanes pay for every lane, whether its ray takes part or not,
+//! and the single-ray form for every child slot and triangle slot. Where a
+//! packet's rays diverge (deep in a large scene's tree, a node or leaf
+//! sees few of them), a node with more valid children than taking-part
+//! rays, or a pack with more triangles than those rays, is tested ray by
+//! ray with the single-ray kernel's own tests (`Prepared::lane`), the
+//! same operations either way.
+//!
+//! Rays need not share an octant: each lane picks its near plane along an
+//! axis by its direction's sign bit, as the single-ray kernel does. Where
+//! they do share one (camera rays of neighbouring pixels, but at the
+//! image's middle row and column), the choice is one for all lanes and the
+//! selection costs nothing.
 
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
 use super::collapse::leaf_packs;
-use super::traverse::visits;
-use super::traverse::SlotHit;
-use super::traverse8::{take_hits, Prepared};
-use super::wide8::{Wide8, LEAF_BIT, STACK};
+use super::traverse::FAR_SCALE;
+use super::traverse8::Prepared;
+use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 use super::Hit;
 use crate::geometry::Ray;
 
-/// Rays in a packet.
+/// Rays in a packet (one per lane).
 pub(super) const PACKET: usize = 8;
 
 /// The closest hit of each of `rays` (1 to [`PACKET`] of them) into `out`
-/// (as long).
+/// (as long), each the one `traverse8::closest` finds, bit for bit.
 #[inline]
 pub(super) fn closest(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
     let _ = w.avx2;
     assert!(!rays.is_empty() && rays.len() <= PACKET && out.len() == rays.len());
     // SAFETY: a Wide8 holds an Avx2 token, made only where AVX2 was detected
-    unsafe { closest_avx2(w, rays, out) }
+    unsafe {
+        let p = Lanes::new(rays);
+        if p.octant.is_some() {
+            closest_avx2::<false>(w, &p, out);
+        } else {
+            closest_avx2::<true>(w, &p, out);
+        }
+    }
+}
+
+/// The packet's rays, one per lane; lanes past the packet's rays repeat
+/// its first ray, and take no part.
+struct Lanes {
+    o: [__m256; 3],
+    d: [__m256; 3],
+    /// `1/d`, as `Prepared::new` computes it (a correctly rounded division
+    /// either way).
+    inv: [__m256; 3],
+    tmin: __m256,
+    tmax: __m256,
+    /// The rays in the packet (bit k for lane k).
+    rays: u32,
+    /// When all eight lanes' directions have the same sign bit along each
+    /// axis: bit `axis` set where that sign is negative.
+    octant: Option<u32>,
+}
+
+impl Lanes {
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn new(rays: &[Ray]) -> Lanes {
+        let n = rays.len();
+        let ray = |k: usize| &rays[if k < n { k } else { 0 }];
+        let lanes = |f: &dyn Fn(&Ray) -> f32| {
+            let a: [f32; PACKET] = std::array::from_fn(|k| f(ray(k)));
+            // SAFETY: eight readable f32s; no alignment needed
+            unsafe { _mm256_loadu_ps(a.as_ptr()) }
+        };
+        let o = [lanes(&|r| r.o.x), lanes(&|r| r.o.y), lanes(&|r| r.o.z)];
+        let d = [lanes(&|r| r.d.x), lanes(&|r| r.d.y), lanes(&|r| r.d.z)];
+        let one = _mm256_set1_ps(1.0);
+        let inv = d.map(|d| _mm256_div_ps(one, d));
+        // The sign bits of each axis's eight directions
+        let signs = d.map(|d| _mm256_movemask_ps(d) as u32);
+        let octant = signs
+            .iter()
+            .all(|&s| s == 0 || s == 0xff)
+            .then(|| (0..3).map(|a| u32::from(signs[a] != 0) << a).sum());
+        Lanes {
+            o,
+            d,
+            inv,
+            tmin: lanes(&|r| r.tmin),
+            tmax: lanes(&|r| r.tmax),
+            rays: (1 << n) - 1,
+            octant,
+        }
+    }
+
+    /// Lane `k`'s `tmin` in every lane.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn tmin_of(&self, k: usize) -> __m256 {
+        _mm256_permutevar8x32_ps(self.tmin, _mm256_set1_epi32(k as i32))
+    }
+
+    /// The lanes whose ray enters box `i` of `node` within
+    /// `[tmin, t_best]`, as a vector mask, and the distance at which each
+    /// enters: `Prepared::boxes_v`'s operations, in its order, on each
+    /// lane's ray. With `MIXED` each lane takes its near plane by its own
+    /// direction's sign bit; without, the planes of `self.octant`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn enters<const MIXED: bool>(
+        &self,
+        node: &Node8,
+        i: usize,
+        t_best: __m256,
+    ) -> (__m256, __m256) {
+        // maxps/minps return their second operand when either is NaN: the
+        // running bound goes second so that NaN lanes leave it unchanged
+        let mut t0 = self.tmin;
+        let mut t1 = t_best;
+        let octant = self.octant.unwrap_or(0);
+        for axis in 0..3 {
+            let lo = _mm256_set1_ps(node.b[2 * axis][i]);
+            let hi = _mm256_set1_ps(node.b[2 * axis + 1][i]);
+            let (n, f) = if MIXED {
+                (
+                    _mm256_blendv_ps(lo, hi, self.d[axis]),
+                    _mm256_blendv_ps(hi, lo, self.d[axis]),
+                )
+            } else if octant & (1 << axis) != 0 {
+                (hi, lo)
+            } else {
+                (lo, hi)
+            };
+            t0 = _mm256_max_ps(
+                _mm256_mul_ps(_mm256_sub_ps(n, self.o[axis]), self.inv[axis]),
+                t0,
+            );
+            t1 = _mm256_min_ps(
+                _mm256_mul_ps(_mm256_sub_ps(f, self.o[axis]), self.inv[axis]),
+                t1,
+            );
+        }
+        let far = _mm256_mul_ps(t1, _mm256_set1_ps(FAR_SCALE));
+        (_mm256_cmp_ps::<_CMP_LE_OQ>(t0, far), t0)
+    }
 }
 
 /// The packet's stack: child references, the least entry distance of the
@@ -93,68 +219,266 @@ impl PacketStack {
     }
 }
 
+/// The lanes set in `bits` (bit k for lane k) as a vector mask.
+#[inline]
 #[target_feature(enable = "avx2")]
-fn closest_avx2(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
-    let n = rays.len();
-    // Lanes past the packet's rays repeat its first ray, and take no part
-    let ray = |k: usize| &rays[if k < n { k } else { 0 }];
-    let prep: [Prepared; PACKET] = std::array::from_fn(|k| Prepared::new(ray(k).o, ray(k).d));
-    let vmin: [__m256; PACKET] = std::array::from_fn(|k| _mm256_set1_ps(ray(k).tmin));
-    let mut t_best: [f32; PACKET] = std::array::from_fn(|k| ray(k).tmax);
-    let mut best: [Option<SlotHit>; PACKET] = Default::default();
+fn lane_mask(bits: u32) -> __m256 {
+    let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane);
+    _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, lane))
+}
+
+/// The least of the eight lanes of `x`.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn least(x: __m256) -> f32 {
+    let m = _mm_min_ps(_mm256_castps256_ps128(x), _mm256_extractf128_ps::<1>(x));
+    let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+    let m = _mm_min_ss(m, _mm_shuffle_ps::<0b01>(m, m));
+    _mm_cvtss_f32(m)
+}
+
+/// The best hit of each lane so far: distance, barycentric weights and
+/// scene triangle (−1 for none; scene triangle indices are below 2³¹,
+/// as the build checks).
+struct Best {
+    t: __m256,
+    u: __m256,
+    v: __m256,
+    tri: __m256i,
+}
+
+impl Best {
+    /// Tests triangle `j` of `pack`, scene triangle `id`, against the
+    /// lanes in `active`, and takes its hits where `traverse::better`
+    /// would: `Prepared::triangles::<true>`'s operations, in its order,
+    /// with the triangle's values in every lane.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn triangle(&mut self, p: &Lanes, pack: &Pack8, j: usize, id: u32, active: __m256) {
+        let ld = |rows: &[[f32; 8]; 3]| {
+            [
+                _mm256_set1_ps(rows[0][j]),
+                _mm256_set1_ps(rows[1][j]),
+                _mm256_set1_ps(rows[2][j]),
+            ]
+        };
+        let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
+        let (add, sub, mul) = (
+            |a, b| _mm256_add_ps(a, b),
+            |a, b| _mm256_sub_ps(a, b),
+            |a, b| _mm256_mul_ps(a, b),
+        );
+        let dot = |a: &[__m256; 3], b: &[__m256; 3]| {
+            add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
+        };
+        let o = &p.o;
+        let c = [sub(v0[0], o[0]), sub(v0[1], o[1]), sub(v0[2], o[2])];
+        let d = &p.d;
+        let r = [
+            sub(mul(d[1], c[2]), mul(d[2], c[1])),
+            sub(mul(d[2], c[0]), mul(d[0], c[2])),
+            sub(mul(d[0], c[1]), mul(d[1], c[0])),
+        ];
+        let det = dot(&ng, d);
+        let one = _mm256_set1_ps(1.0);
+        let inv_det = _mm256_div_ps(one, det);
+        let u = mul(dot(&r, &e2), inv_det);
+        let v = mul(dot(&r, &e1), inv_det);
+        let w = sub(sub(one, u), v);
+        let t = mul(dot(&ng, &c), inv_det);
+        let zero = _mm256_setzero_ps();
+        let and = |a, b| _mm256_and_ps(a, b);
+        let hit = and(
+            and(
+                and(
+                    _mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OS>(u, zero),
+                ),
+                and(
+                    _mm256_cmp_ps::<_CMP_GE_OS>(v, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OS>(w, zero),
+                ),
+            ),
+            and(
+                _mm256_cmp_ps::<_CMP_GE_OS>(t, p.tmin),
+                _mm256_cmp_ps::<_CMP_LE_OS>(t, self.t),
+            ),
+        );
+        // `better`: nearer, or as near and of lower scene index than a
+        // best there is (a lane without one holds −1, below every index)
+        let nearer = _mm256_cmp_ps::<_CMP_LT_OS>(t, self.t);
+        let lower = _mm256_castsi256_ps(_mm256_cmpgt_epi32(self.tri, _mm256_set1_epi32(id as i32)));
+        let tie = and(_mm256_cmp_ps::<_CMP_EQ_OQ>(t, self.t), lower);
+        let take = and(and(hit, active), _mm256_or_ps(nearer, tie));
+        if _mm256_testz_ps(take, take) == 0 {
+            self.t = _mm256_blendv_ps(self.t, t, take);
+            self.u = _mm256_blendv_ps(self.u, u, take);
+            self.v = _mm256_blendv_ps(self.v, v, take);
+            self.tri = _mm256_castps_si256(_mm256_blendv_ps(
+                _mm256_castsi256_ps(self.tri),
+                _mm256_castsi256_ps(_mm256_set1_epi32(id as i32)),
+                take,
+            ));
+        }
+    }
+}
+
+impl Best {
+    /// Tests each ray of `active` against the eight triangles of `pack`
+    /// (scene triangles `ids`, `u32::MAX` for none) at once, with
+    /// `Prepared::triangles::<true>` as the single-ray kernel does, and
+    /// takes the hits `traverse::better` would, in the order of the slots.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn rays_against(&mut self, p: &Lanes, pack: &Pack8, ids: &[u32], active: u32) {
+        let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
+        // SAFETY: eight writable f32s or i32s each; no alignment needed
+        unsafe {
+            _mm256_storeu_ps(t.as_mut_ptr(), self.t);
+            _mm256_storeu_ps(u.as_mut_ptr(), self.u);
+            _mm256_storeu_ps(v.as_mut_ptr(), self.v);
+            _mm256_storeu_si256(tri.as_mut_ptr().cast(), self.tri);
+        }
+        let mut bits = active;
+        while bits != 0 {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let ray = Prepared::lane(&p.o, &p.d, &p.inv, k);
+            let (mut mask, th, uh, vh) =
+                ray.triangles::<true>(pack, p.tmin_of(k), _mm256_set1_ps(t[k]));
+            if mask == 0 {
+                continue;
+            }
+            let (mut ta, mut ua, mut va) = ([0f32; 8], [0f32; 8], [0f32; 8]);
+            // SAFETY: eight writable f32s each; no alignment needed
+            unsafe {
+                _mm256_storeu_ps(ta.as_mut_ptr(), th);
+                _mm256_storeu_ps(ua.as_mut_ptr(), uh);
+                _mm256_storeu_ps(va.as_mut_ptr(), vh);
+            }
+            while mask != 0 {
+                let i = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                // `better`, with −1 for no best
+                let id = ids[i] as i32;
+                if ta[i] < t[k] || (ta[i] == t[k] && tri[k] > id) {
+                    (t[k], u[k], v[k], tri[k]) = (ta[i], ua[i], va[i], id);
+                }
+            }
+        }
+        // SAFETY: eight readable f32s or i32s each; no alignment needed
+        unsafe {
+            self.t = _mm256_loadu_ps(t.as_ptr());
+            self.u = _mm256_loadu_ps(u.as_ptr());
+            self.v = _mm256_loadu_ps(v.as_ptr());
+            self.tri = _mm256_loadu_si256(tri.as_ptr().cast());
+        }
+    }
+}
+
+#[target_feature(enable = "avx2")]
+fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
+    let mut best = Best {
+        t: p.tmax,
+        u: _mm256_setzero_ps(),
+        v: _mm256_setzero_ps(),
+        tri: _mm256_set1_epi32(-1),
+    };
     let inf = _mm256_set1_ps(f32::INFINITY);
+    let far_scale = _mm256_set1_ps(FAR_SCALE);
     let mut stack = PacketStack::new();
     let mut r = w.root;
-    let mut active: u32 = (1 << n) - 1;
+    let mut active = p.rays;
     loop {
         if r & LEAF_BIT == 0 {
-            // Each active ray tests the eight children; a child's rays are
-            // those that enter it, its distance the least of theirs
+            // Each valid child against the active rays: its rays are those
+            // that enter it, its distance the least of theirs
             let node = &w.nodes[r as usize];
-            let mut near = inf;
-            let mut who = _mm256_setzero_si256();
-            let mut bits = active;
-            while bits != 0 {
-                let k = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                let (hit, t0) = prep[k].boxes_v(node, vmin[k], _mm256_set1_ps(t_best[k]));
-                near = _mm256_min_ps(_mm256_blendv_ps(inf, t0, hit), near);
-                who = _mm256_or_si256(
-                    who,
-                    _mm256_and_si256(_mm256_castps_si256(hit), _mm256_set1_epi32(1 << k)),
-                );
-            }
-            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(near, inf)) as u32;
-            if mask != 0 {
-                let (mut na, mut wa) = ([0f32; 8], [0u32; 8]);
-                // SAFETY: eight writable f32s and u32s; no alignment needed
-                unsafe {
-                    _mm256_storeu_ps(na.as_mut_ptr(), near);
-                    _mm256_storeu_si256(wa.as_mut_ptr().cast(), who);
+            // SAFETY: eight readable u32s; no alignment needed
+            let unused = unsafe {
+                let c = _mm256_loadu_si256(node.child.as_ptr().cast());
+                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                    c,
+                    _mm256_set1_epi32(-1),
+                ))) as u32
+            };
+            let (mut near, mut who) = ([0f32; 8], [0u8; 8]);
+            let mut hit_children = 0u32;
+            let valid = !unused & 0xff;
+            if active.count_ones() < valid.count_ones() {
+                // Fewer rays than children: each ray against the eight
+                // boxes at once, as the single-ray kernel tests them
+                let mut tb = [0f32; 8];
+                // SAFETY: eight writable f32s; no alignment needed
+                unsafe { _mm256_storeu_ps(tb.as_mut_ptr(), best.t) };
+                let mut nv = inf;
+                let mut wv = _mm256_setzero_si256();
+                let mut bits = active;
+                while bits != 0 {
+                    let k = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let ray = Prepared::lane(&p.o, &p.d, &p.inv, k);
+                    let (hit, t0) = ray.boxes_v(node, p.tmin_of(k), _mm256_set1_ps(tb[k]));
+                    nv = _mm256_min_ps(_mm256_blendv_ps(inf, t0, hit), nv);
+                    wv = _mm256_or_si256(
+                        wv,
+                        _mm256_and_si256(_mm256_castps_si256(hit), _mm256_set1_epi32(1 << k)),
+                    );
                 }
-                if mask & (mask - 1) == 0 {
-                    let i = mask.trailing_zeros() as usize;
+                // SAFETY: eight writable f32s and u32s; no alignment needed
+                let mut wa = [0u32; 8];
+                unsafe {
+                    _mm256_storeu_ps(near.as_mut_ptr(), nv);
+                    _mm256_storeu_si256(wa.as_mut_ptr().cast(), wv);
+                }
+                who = wa.map(|m| m as u8);
+                hit_children = !_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                    wv,
+                    _mm256_setzero_si256(),
+                ))) as u32
+                    & 0xff;
+            } else {
+                // Each valid child against the active rays in the lanes
+                let av = lane_mask(active);
+                let mut bits = valid;
+                while bits != 0 {
+                    let i = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let (hit, t0) = p.enters::<MIXED>(node, i, best.t);
+                    let hit = _mm256_and_ps(hit, av);
+                    let m = _mm256_movemask_ps(hit) as u32;
+                    if m != 0 {
+                        near[i] = least(_mm256_blendv_ps(inf, t0, hit));
+                        who[i] = m as u8;
+                        hit_children |= 1 << i;
+                    }
+                }
+            }
+            if hit_children != 0 {
+                if hit_children & (hit_children - 1) == 0 {
+                    let i = hit_children.trailing_zeros() as usize;
                     r = node.child[i];
-                    active = wa[i];
+                    active = u32::from(who[i]);
                     continue;
                 }
                 // Push the children sorted farthest first; descend into the
                 // nearest
                 let base = stack.len;
-                let mut bits = mask;
+                let mut bits = hit_children;
                 while bits != 0 {
                     let i = bits.trailing_zeros() as usize;
                     bits &= bits - 1;
                     let mut j = stack.len;
                     while j > base {
                         let (rj, dj, mj) = stack.get(j - 1);
-                        if dj >= na[i] {
+                        if dj >= near[i] {
                             break;
                         }
                         stack.set(j, rj, dj, mj);
                         j -= 1;
                     }
-                    stack.set(j, node.child[i], na[i], wa[i] as u8);
+                    stack.set(j, node.child[i], near[i], who[i]);
                     stack.len += 1;
                 }
                 stack.len -= 1;
@@ -164,44 +488,61 @@ fn closest_avx2(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
                 continue;
             }
         } else {
-            // Each active ray tests the leaf's triangles, eight at a time
-            for p in leaf_packs(r) {
-                let pack = &w.packs[p];
-                let mut bits = active;
-                while bits != 0 {
-                    let k = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    let (mask, t, u, v) =
-                        prep[k].triangles::<true>(pack, vmin[k], _mm256_set1_ps(t_best[k]));
-                    take_hits(mask, (t, u, v), p, &w.ids, &mut t_best[k], &mut best[k]);
+            // Each triangle of the leaf against the active rays in the
+            // lanes, or, where the rays are fewer than the triangles, each
+            // ray against a pack's triangles at once
+            let av = lane_mask(active);
+            for pk in leaf_packs(r) {
+                let pack = &w.packs[pk];
+                let ids = &w.ids[8 * pk..8 * pk + 8];
+                // SAFETY: eight readable u32s; no alignment needed
+                let unused = unsafe {
+                    let c = _mm256_loadu_si256(ids.as_ptr().cast());
+                    _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                        c,
+                        _mm256_set1_epi32(-1),
+                    ))) as u32
+                };
+                let valid = !unused & 0xff;
+                if active.count_ones() < valid.count_ones() {
+                    best.rays_against(p, pack, ids, active);
+                } else {
+                    let mut bits = valid;
+                    while bits != 0 {
+                        let j = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        best.triangle(p, pack, j, ids[j], av);
+                    }
                 }
             }
         }
         // Pop the nearest entry that may still hold a closer hit for one of
-        // its rays, with those rays
+        // its rays (`traverse::visits` in the lanes), with those rays
         loop {
             if stack.len == 0 {
-                for (o, b) in out.iter_mut().zip(&best) {
-                    *o = b.as_ref().map(|h| Hit {
-                        t: h.t,
-                        tri: w.ids[h.slot],
-                        b1: h.b1,
-                        b2: h.b2,
+                let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
+                // SAFETY: eight writable f32s or i32s each; no alignment needed
+                unsafe {
+                    _mm256_storeu_ps(t.as_mut_ptr(), best.t);
+                    _mm256_storeu_ps(u.as_mut_ptr(), best.u);
+                    _mm256_storeu_ps(v.as_mut_ptr(), best.v);
+                    _mm256_storeu_si256(tri.as_mut_ptr().cast(), best.tri);
+                }
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = (tri[k] >= 0).then(|| Hit {
+                        t: t[k],
+                        tri: tri[k] as u32,
+                        b1: u[k],
+                        b2: v[k],
                     });
                 }
                 return;
             }
             let (cr, cd, cm) = stack.get(stack.len - 1);
             stack.len -= 1;
-            let mut m = u32::from(cm);
-            let mut bits = m;
-            while bits != 0 {
-                let k = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                if !visits(cd, t_best[k]) {
-                    m &= !(1 << k);
-                }
-            }
+            let still =
+                _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_set1_ps(cd), _mm256_mul_ps(best.t, far_scale));
+            let m = u32::from(cm) & _mm256_movemask_ps(still) as u32;
             if m != 0 {
                 r = cr;
                 active = m;

@@ -21,7 +21,7 @@ use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 /// barycentric weights `u` and `v` (as [`Prepared::triangles`] gives them).
 #[inline]
 #[target_feature(enable = "avx2")]
-pub(super) fn take_hits(
+fn take_hits(
     mask: u32,
     (t, u, v): (__m256, __m256, __m256),
     p: usize,
@@ -55,7 +55,8 @@ pub(super) fn take_hits(
     }
 }
 
-/// A ray prepared for the kernels (and for the packets of `packet8.rs`).
+/// A ray prepared for the kernels (and for the packets of `packet8.rs`,
+/// where few of their rays take part in a node).
 pub(super) struct Prepared {
     o: [__m256; 3],
     d: [__m256; 3],
@@ -69,7 +70,7 @@ pub(super) struct Prepared {
 impl Prepared {
     #[inline]
     #[target_feature(enable = "avx2")]
-    pub(super) fn new(o: Vec3, d: Vec3) -> Prepared {
+    fn new(o: Vec3, d: Vec3) -> Prepared {
         // 1/±0 is ±∞, whose sign agrees with the choice of planes below; the
         // NaN from 0·∞ (a ray in a slab's plane) is ignored by the box test.
         let inv = d.recip();
@@ -91,6 +92,25 @@ impl Prepared {
                 _mm256_set1_ps(inv.y),
                 _mm256_set1_ps(inv.z),
             ],
+            near,
+            far: near.map(|r| r ^ 1),
+        }
+    }
+
+    /// Lane `k`'s ray of a packet whose origins, directions and their
+    /// reciprocals are `o`, `d` and `inv`, one ray a lane (`inv` computed
+    /// as [`Prepared::new`] does: a correctly rounded division either way).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn lane(o: &[__m256; 3], d: &[__m256; 3], inv: &[__m256; 3], k: usize) -> Prepared {
+        let idx = _mm256_set1_epi32(k as i32);
+        let pick = |v: &[__m256; 3]| v.map(|v| _mm256_permutevar8x32_ps(v, idx));
+        let signs = d.map(|d| (_mm256_movemask_ps(d) as usize >> k) & 1);
+        let near = [signs[0], 2 + signs[1], 4 + signs[2]];
+        Prepared {
+            o: pick(o),
+            d: pick(d),
+            inv: pick(inv),
             near,
             far: near.map(|r| r ^ 1),
         }

@@ -61,13 +61,19 @@ pub(super) struct Wide8 {
 impl Wide8 {
     /// Collapses `bvh2` (over `tris`, not empty) into an 8-wide BVH, or
     /// `None` when the result would be too deep for the fixed traversal
-    /// stack, or too large for a child reference's bits.
+    /// stack, or too large for a child reference's bits or for i32
+    /// triangle indices.
     pub fn from_bvh2(
         bvh2: &Bvh2,
         tris: &[Triangle],
         options: &Collapse,
         avx2: Avx2,
     ) -> Option<Wide8> {
+        // The packets of `packet8.rs` hold scene triangle indices in i32
+        // lanes, −1 for none
+        if tris.len() > i32::MAX as usize {
+            return None;
+        }
         let c = collapse::<8>(bvh2, tris, options, STACK)?;
         Some(Wide8 {
             nodes: (c.boxes.into_iter().zip(c.child))
