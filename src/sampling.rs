@@ -14,7 +14,8 @@ pub struct Pcg32 {
     inc: u64,
 }
 
-const PCG_MULT: u64 = 6364136223846793005;
+/// PCG32's LCG multiplier.
+pub(crate) const PCG_MULT: u64 = 6364136223846793005;
 
 impl Pcg32 {
     /// A generator for the given seed and stream.
@@ -60,6 +61,19 @@ impl Pcg32 {
     #[inline]
     pub fn next_2d(&mut self) -> Vec2 {
         Vec2::new(self.next_f32(), self.next_f32())
+    }
+
+    /// The state and the increment (the stream), for generators advanced
+    /// together in lanes (`transport::lanes`).
+    #[inline(always)]
+    pub(crate) fn parts(&self) -> (u64, u64) {
+        (self.state, self.inc)
+    }
+
+    /// The generator of [`Pcg32::parts`] `(state, inc)`.
+    #[inline(always)]
+    pub(crate) fn from_parts(state: u64, inc: u64) -> Self {
+        Pcg32 { state, inc }
     }
 
     /// A uniform f64 in [0, 1).
