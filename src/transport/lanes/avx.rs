@@ -15,7 +15,7 @@ use crate::accel::Hit;
 use crate::bsdf::Bsdf;
 use crate::emitter::TriLight;
 use crate::geometry::Ray;
-use crate::sampling::{Pcg32, PCG_MULT};
+use crate::sampling::{sin_cos_quarter, Pcg32, PCG_MULT};
 use crate::scene::records::TriRecord;
 use crate::scene::Rgb;
 use crate::transport::{CameraPath, DepthLimits};
@@ -762,23 +762,16 @@ fn vertices(
         beta.z * f.z * lle.z * k,
     );
 
-    // Sample the BSDF (Diffuse: cosine_hemisphere), the sines and cosines
-    // lane by lane from the scalar functions
+    // Sample the BSDF (Diffuse: cosine_hemisphere, concentric_disk's
+    // polynomial in lanes)
     let (ox, oy) = (V::splat(2.0) * u[4] - one, V::splat(2.0) * u[5] - one);
     let centre = ox.eq(zero) & oy.eq(zero);
     let wide = ox.abs().gt(oy.abs());
     let rad = wide.select(ox, oy);
-    let theta = wide.select(
-        V::splat(PI / 4.0) * (oy / ox),
-        V::splat(PI / 2.0) - V::splat(PI / 4.0) * (ox / oy),
-    );
-    let theta_a = theta.store();
-    let (mut cos_a, mut sin_a) = ([0.0f32; LANES], [0.0f32; LANES]);
-    for i in lanes(vec & !centre.bits()) {
-        (cos_a[i], sin_a[i]) = (theta_a[i].cos(), theta_a[i].sin());
-    }
-    let dx = centre.select(zero, rad * V::load(&cos_a));
-    let dy = centre.select(zero, rad * V::load(&sin_a));
+    let phi = V::splat(PI / 4.0) * wide.select(oy / ox, ox / oy);
+    let (sin, cos) = sin_cos_quarter(phi, V::splat);
+    let dx = centre.select(zero, rad * wide.select(cos, sin));
+    let dy = centre.select(zero, rad * wide.select(sin, cos));
     let z = (one - (dx * dx + dy * dy)).max0().sqrt();
     let spdf = z.max0() / V::splat(PI);
     let swi = V3::new(dx, dy, z);
