@@ -418,17 +418,19 @@ fn offset_c(p: V, n: V) -> V {
     }
 }
 
-/// Stores the lanes of `m` of `v` into `dst`.
+/// Stores the lanes of `m` of `v` into `dst`. The old values pass through
+/// `black_box` so that LLVM does not fuse the load, the blend and the store
+/// into a masked store (`vmaskmovps`), which is slow on AMD's cores.
 #[inline(always)]
 fn put(dst: &mut [[f32; LANES]; 3], m: V, v: V3) {
-    let old = V3::load(dst);
+    let old = std::hint::black_box(V3::load(dst));
     *dst = V3::select(m, v, old).store();
 }
 
-/// Stores the lanes of `m` of `v` into `dst`.
+/// Stores the lanes of `m` of `v` into `dst`, as [`put`] does.
 #[inline(always)]
 fn put1(dst: &mut [f32; LANES], m: V, v: V) {
-    *dst = m.select(v, V::load(dst)).store();
+    *dst = m.select(v, std::hint::black_box(V::load(dst))).store();
 }
 
 /// a b0 + b b1 + c b2, as glam computes it.
