@@ -11,9 +11,10 @@
 //! [`super::CameraPath::scatter`], the step [`radiance_from_hit`] runs,
 //! lane by lane. A lane runs the scalar operations in their order (Rust
 //! never contracts to FMA), draws its numbers from its own stream in the
-//! scalar order, and takes the sines and cosines from the scalar
-//! functions, so a pixel's radiance is the same bits as
-//! [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
+//! scalar order (the eight generators advance together where all the
+//! lanes draw), and computes the concentric map's sine and cosine with the
+//! scalar polynomial's operations, so a pixel's radiance is the same bits
+//! as [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
 //! traced first, in packets of eight neighbours; a lane whose path ends
 //! takes the next of those pixels, so that the lanes stay full until the
 //! row runs out.

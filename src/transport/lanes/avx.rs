@@ -15,7 +15,7 @@ use crate::accel::Hit;
 use crate::bsdf::Bsdf;
 use crate::emitter::TriLight;
 use crate::geometry::Ray;
-use crate::sampling::Pcg32;
+use crate::sampling::{sin_cos_quarter, Pcg32, PCG_MULT};
 use crate::scene::records::TriRecord;
 use crate::scene::Rgb;
 use crate::transport::{CameraPath, DepthLimits};
@@ -267,6 +267,103 @@ impl Paths {
     }
 }
 
+/// The [`Pcg32`] of each lane, by field, so that the lanes that all draw
+/// advance together ([`Rngs::draw`]); a lane that takes the scalar step
+/// takes its generator out ([`Rngs::get`]) and puts it back.
+#[repr(C, align(32))]
+struct Rngs {
+    state: [u64; LANES],
+    inc: [u64; LANES],
+}
+
+impl Rngs {
+    /// Lane `i`'s generator.
+    #[inline(always)]
+    fn get(&self, i: usize) -> Pcg32 {
+        Pcg32::from_parts(self.state[i], self.inc[i])
+    }
+
+    /// Sets lane `i`'s generator to `r`.
+    #[inline(always)]
+    fn set(&mut self, i: usize, r: &Pcg32) {
+        (self.state[i], self.inc[i]) = r.parts();
+    }
+
+    /// `N` numbers of each lane of `mask`, each drawn as
+    /// [`Pcg32::next_f32`] draws it (in lanes outside `mask` the numbers
+    /// are meaningless and the generators stay as they were).
+    #[inline(always)]
+    fn draw<const N: usize>(&mut self, mask: u32) -> [V; N] {
+        // SAFETY: the arrays hold eight u64 each, 32-byte aligned
+        unsafe {
+            let sp = self.state.as_mut_ptr().cast::<__m256i>();
+            let ip = self.inc.as_ptr().cast::<__m256i>();
+            let old = [_mm256_load_si256(sp), _mm256_load_si256(sp.add(1))];
+            let inc = [_mm256_load_si256(ip), _mm256_load_si256(ip.add(1))];
+            let mut s = old;
+            let out = std::array::from_fn(|_| {
+                let x = pack32(xsh_rr(s[0]), xsh_rr(s[1]));
+                s = [step(s[0], inc[0]), step(s[1], inc[1])];
+                // (x >> 8) as f32 * 2^-24
+                V(_mm256_mul_ps(
+                    _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(x)),
+                    _mm256_set1_ps(1.0 / 16_777_216.0),
+                ))
+            });
+            let m = |bits: i64| {
+                let lane = _mm256_setr_epi64x(bits, bits << 1, bits << 2, bits << 3);
+                let set = _mm256_set1_epi64x(i64::from(mask));
+                _mm256_cmpeq_epi64(_mm256_and_si256(set, lane), lane)
+            };
+            _mm256_store_si256(sp, _mm256_blendv_epi8(old[0], s[0], m(1)));
+            _mm256_store_si256(sp.add(1), _mm256_blendv_epi8(old[1], s[1], m(16)));
+            out
+        }
+    }
+}
+
+/// PCG32's state transition, `state · PCG_MULT + inc` mod 2⁶⁴, in four u64
+/// lanes: the product from three 32 × 32-bit ones (the high × high one
+/// falls outside 64 bits).
+#[inline(always)]
+fn step(state: __m256i, inc: __m256i) -> __m256i {
+    unsafe {
+        let lo = _mm256_set1_epi64x((PCG_MULT & 0xFFFF_FFFF) as i64);
+        let hi = _mm256_set1_epi64x((PCG_MULT >> 32) as i64);
+        let ll = _mm256_mul_epu32(state, lo);
+        let hl = _mm256_mul_epu32(_mm256_srli_epi64::<32>(state), lo);
+        let lh = _mm256_mul_epu32(state, hi);
+        let cross = _mm256_slli_epi64::<32>(_mm256_add_epi64(hl, lh));
+        _mm256_add_epi64(_mm256_add_epi64(ll, cross), inc)
+    }
+}
+
+/// PCG32's output (XSH RR) of four u64 states, in the low 32 bits of each
+/// lane.
+#[inline(always)]
+fn xsh_rr(old: __m256i) -> __m256i {
+    unsafe {
+        let x = _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old));
+        let rot = _mm256_srli_epi64::<59>(old);
+        // rotate right; a left shift by 32 gives 0, as rotate_right(0) needs
+        let left = _mm256_sub_epi32(_mm256_set1_epi32(32), rot);
+        _mm256_or_si256(_mm256_srlv_epi32(x, rot), _mm256_sllv_epi32(x, left))
+    }
+}
+
+/// The low 32 bits of the u64 lanes of `a` (lanes 0–3) and `b` (lanes 4–7),
+/// as eight u32 in lane order.
+#[inline(always)]
+fn pack32(a: __m256i, b: __m256i) -> __m256i {
+    unsafe {
+        let a = _mm256_shuffle_epi32::<0b10_00_10_00>(a);
+        let b = _mm256_shuffle_epi32::<0b10_00_10_00>(b);
+        // per 128 bits: a's two, b's two; then the 64-bit pieces reordered
+        let ab = _mm256_blend_epi32::<0b1100_1100>(a, b);
+        _mm256_permute4x64_epi64::<0b11_01_10_00>(ab)
+    }
+}
+
 /// The lanes of `mask`, lowest first.
 #[inline(always)]
 fn lanes(mask: u32) -> Bits {
@@ -321,17 +418,19 @@ fn offset_c(p: V, n: V) -> V {
     }
 }
 
-/// Stores the lanes of `m` of `v` into `dst`.
+/// Stores the lanes of `m` of `v` into `dst`. The old values pass through
+/// `black_box` so that LLVM does not fuse the load, the blend and the store
+/// into a masked store (`vmaskmovps`), which is slow on AMD's cores.
 #[inline(always)]
 fn put(dst: &mut [[f32; LANES]; 3], m: V, v: V3) {
-    let old = V3::load(dst);
+    let old = std::hint::black_box(V3::load(dst));
     *dst = V3::select(m, v, old).store();
 }
 
-/// Stores the lanes of `m` of `v` into `dst`.
+/// Stores the lanes of `m` of `v` into `dst`, as [`put`] does.
 #[inline(always)]
 fn put1(dst: &mut [f32; LANES], m: V, v: V) {
-    *dst = m.select(v, V::load(dst)).store();
+    *dst = m.select(v, std::hint::black_box(V::load(dst))).store();
 }
 
 /// a b0 + b b1 + c b2, as glam computes it.
@@ -365,7 +464,10 @@ pub(super) fn radiance_row(
         depth: [0; LANES],
         rays: [0; LANES],
     };
-    let mut rngs: [Pcg32; LANES] = std::array::from_fn(|_| Pcg32::new(0, 0));
+    let mut rngs = Rngs {
+        state: [0; LANES],
+        inc: [0; LANES],
+    };
     let mut pixel = [0usize; LANES];
     let mut found = [None; LANES];
     let mut alive = 0u32;
@@ -401,7 +503,7 @@ pub(super) fn radiance_row(
                 break;
             }
             let k = next - chunk0;
-            rngs[i] = chunk_rngs[k].clone();
+            rngs.set(i, &chunk_rngs[k]);
             pixel[i] = next;
             next += 1;
             let mut p = CameraPath::new(chunk_rays[k], 1);
@@ -448,7 +550,7 @@ fn vertices(
     limits: &DepthLimits,
     paths: &mut Paths,
     hits: &[Option<Hit>; LANES],
-    rngs: &mut [Pcg32; LANES],
+    rngs: &mut Rngs,
     mask: u32,
 ) -> u32 {
     let (scene, recs, lights) = (&world.scene, world.tris.records(), &world.lights);
@@ -509,15 +611,13 @@ fn vertices(
     let ng_a = ng.store();
     // Which vertices the lanes shade; the rest take the scalar step. A
     // lane's shading normal (interpolated for smooth shapes, lane by lane),
-    // its reflectance, and the numbers it draws, in the scalar order: the
-    // light's choice and point, then the BSDF's lobe and direction
+    // and its reflectance
     let mut alive = mask;
     let mut vec = 0u32;
     let mut two_sided = 0u32;
     let mut r = [[0.0f32; LANES]; 3];
     let mut ns_a = ng_a;
     let b0_a = b0.store();
-    let mut u = [[0.0f32; LANES]; 6];
     let mut light: [&TriLight; LANES] = [&NO_LIGHT; LANES];
     let mut pmf = [0.0f32; LANES];
     let mut chosen = 0u32;
@@ -532,9 +632,11 @@ fn vertices(
         let Some(ri) = diffuse else {
             let mut path = paths.get(i);
             let sp = world.surface_point(&lh[i]);
-            if !path.scatter(world, limits, &sp, &mut rngs[i]) {
+            let mut rng = rngs.get(i);
+            if !path.scatter(world, limits, &sp, &mut rng) {
                 alive &= !(1 << i);
             }
+            rngs.set(i, &rng);
             paths.set(i, &path);
             continue;
         };
@@ -550,14 +652,14 @@ fn vertices(
             let n = n.normalize_or(ng);
             V3::set(&mut ns_a, i, if n.dot(ng) < 0.0 { -n } else { n });
         }
-        let rng = &mut rngs[i];
-        for uk in u.iter_mut() {
-            uk[i] = rng.next_f32();
-        }
     }
     if vec == 0 {
         return alive;
     }
+    // The lanes' numbers, in the scalar order: the light's choice and
+    // point, then the BSDF's lobe and direction
+    let u = rngs.draw::<6>(vec);
+    let u_sel = u[0].store();
     // Frame::from_normal
     let nn = V3::load(&ns_a);
     let sign = V(unsafe {
@@ -584,7 +686,7 @@ fn vertices(
     let (p_a, ngo_a) = (p.store(), ng_o.store());
     for i in lanes(vec) {
         let (pi, ni) = (V3::lane(&p_a, i), V3::lane(&ngo_a, i));
-        if let Some((tl, pm)) = lights.select_tri(limits.light_selection, pi, ni, u[0][i]) {
+        if let Some((tl, pm)) = lights.select_tri(limits.light_selection, pi, ni, u_sel[i]) {
             chosen |= 1 << i;
             (light[i], pmf[i]) = (tl, pm);
         }
@@ -620,7 +722,7 @@ fn vertices(
 
     // Next-event estimation with MIS (Lights::sample_entry, Bsdf::eval and
     // Bsdf::pdf of Diffuse, power_heuristic)
-    let (ux, uy) = (V::load(&u[1]), V::load(&u[2]));
+    let (ux, uy) = (u[1], u[2]);
     let su = ux.sqrt();
     let (tb_x, tb_y) = (one - su, uy * su);
     let w0 = one - tb_x - tb_y;
@@ -662,26 +764,16 @@ fn vertices(
         beta.z * f.z * lle.z * k,
     );
 
-    // Sample the BSDF (Diffuse: cosine_hemisphere), the sines and cosines
-    // lane by lane from the scalar functions
-    let (ox, oy) = (
-        V::splat(2.0) * V::load(&u[4]) - one,
-        V::splat(2.0) * V::load(&u[5]) - one,
-    );
+    // Sample the BSDF (Diffuse: cosine_hemisphere, concentric_disk's
+    // polynomial in lanes)
+    let (ox, oy) = (V::splat(2.0) * u[4] - one, V::splat(2.0) * u[5] - one);
     let centre = ox.eq(zero) & oy.eq(zero);
     let wide = ox.abs().gt(oy.abs());
     let rad = wide.select(ox, oy);
-    let theta = wide.select(
-        V::splat(PI / 4.0) * (oy / ox),
-        V::splat(PI / 2.0) - V::splat(PI / 4.0) * (ox / oy),
-    );
-    let theta_a = theta.store();
-    let (mut cos_a, mut sin_a) = ([0.0f32; LANES], [0.0f32; LANES]);
-    for i in lanes(vec & !centre.bits()) {
-        (cos_a[i], sin_a[i]) = (theta_a[i].cos(), theta_a[i].sin());
-    }
-    let dx = centre.select(zero, rad * V::load(&cos_a));
-    let dy = centre.select(zero, rad * V::load(&sin_a));
+    let phi = V::splat(PI / 4.0) * wide.select(oy / ox, ox / oy);
+    let (sin, cos) = sin_cos_quarter(phi, V::splat);
+    let dx = centre.select(zero, rad * wide.select(cos, sin));
+    let dy = centre.select(zero, rad * wide.select(sin, cos));
     let z = (one - (dx * dx + dy * dy)).max0().sqrt();
     let spdf = z.max0() / V::splat(PI);
     let swi = V3::new(dx, dy, z);
@@ -722,7 +814,6 @@ fn vertices(
     put(&mut paths.l, V::mask(clear), lc);
 
     // The next segment, and Russian roulette's draws
-    let mut u_rr = [0.0f32; LANES];
     let mut rr_lanes = 0u32;
     for i in lanes(vec) {
         if on & (1 << i) == 0 {
@@ -732,11 +823,15 @@ fn vertices(
         paths.depth[i] += 1;
         if paths.depth[i] > limits.rr_depth {
             rr_lanes |= 1 << i;
-            u_rr[i] = rngs[i].next_f32();
         }
     }
     let rr_m = V::mask(rr_lanes);
-    let stop = (rr_m & V::load(&u_rr).ge(qrr)).bits();
+    let stop = if rr_lanes == 0 {
+        0
+    } else {
+        let [u_rr] = rngs.draw::<1>(rr_lanes);
+        (rr_m & u_rr.ge(qrr)).bits()
+    };
     alive &= !stop;
     let nbeta = V3::select(
         rr_m,
