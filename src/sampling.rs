@@ -323,7 +323,7 @@ mod tests {
         }
         assert!(from_f32 <= 4.0 * ulp, "{from_f32:e} from f32::sin_cos");
         assert!(
-            from_exact <= 2.0 * f64::from(ulp),
+            from_exact <= 1.25 * f64::from(ulp),
             "{from_exact:e} from the exact values"
         );
     }

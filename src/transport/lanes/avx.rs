@@ -327,6 +327,8 @@ impl Rngs {
 /// falls outside 64 bits).
 #[inline(always)]
 fn step(state: __m256i, inc: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
     unsafe {
         let lo = _mm256_set1_epi64x((PCG_MULT & 0xFFFF_FFFF) as i64);
         let hi = _mm256_set1_epi64x((PCG_MULT >> 32) as i64);
@@ -342,6 +344,8 @@ fn step(state: __m256i, inc: __m256i) -> __m256i {
 /// lane.
 #[inline(always)]
 fn xsh_rr(old: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
     unsafe {
         let x = _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old));
         let rot = _mm256_srli_epi64::<59>(old);
@@ -355,6 +359,8 @@ fn xsh_rr(old: __m256i) -> __m256i {
 /// as eight u32 in lane order.
 #[inline(always)]
 fn pack32(a: __m256i, b: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
     unsafe {
         let a = _mm256_shuffle_epi32::<0b10_00_10_00>(a);
         let b = _mm256_shuffle_epi32::<0b10_00_10_00>(b);
