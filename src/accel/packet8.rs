@@ -68,13 +68,19 @@ pub(super) fn closest(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
     let _ = w.avx2;
     assert!(!rays.is_empty() && rays.len() <= PACKET && out.len() == rays.len());
     // SAFETY: a Wide8 holds an Avx2 token, made only where AVX2 was detected
-    unsafe {
-        let p = Lanes::new(rays);
-        if p.octant.is_some() {
-            closest_avx2::<false>(w, &p, out);
-        } else {
-            closest_avx2::<true>(w, &p, out);
-        }
+    unsafe { closest_avx2(w, rays, out) }
+}
+
+/// [`closest`] with AVX2. The lanes are made here and the walk inlined, so
+/// that they stay in this frame (a walk called with a reference to them
+/// copied them into its own).
+#[target_feature(enable = "avx2")]
+fn closest_avx2(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
+    let p = Lanes::new(rays);
+    if p.octant.is_some() {
+        walk::<false>(w, &p, out);
+    } else {
+        walk::<true>(w, &p, out);
     }
 }
 
@@ -571,8 +577,11 @@ impl Best {
     }
 }
 
+/// The walk of [`closest_avx2`], with `MIXED` where the rays do not share
+/// an octant.
+#[inline]
 #[target_feature(enable = "avx2")]
-fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
+fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
     let mut best = Best {
         t: p.tmax,
         u: _mm256_setzero_ps(),
