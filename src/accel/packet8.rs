@@ -39,7 +39,14 @@
 //! axis by its direction's sign bit, as the single-ray kernel does. Where
 //! they do share one (camera rays of neighbouring pixels, but at the
 //! image's middle row and column), the choice is one for all lanes and the
-//! selection costs nothing.
+//! selection costs nothing, and a node's children are first tested against
+//! the packet's bounds (the least and greatest origin and `1/d` of its rays
+//! along each axis: an interval slab test, Embree's for coherent streams),
+//! which drops, for all eight children at once, those no ray can enter;
+//! only the others are tested ray by ray in the lanes. The interval test
+//! is conservative (see `Frustum::keep`), so it drops nothing the rays'
+//! own tests would keep, and is left out for packets with a zero direction
+//! component, whose products the slab test may meet as NaN.
 
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
@@ -61,13 +68,19 @@ pub(super) fn closest(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
     let _ = w.avx2;
     assert!(!rays.is_empty() && rays.len() <= PACKET && out.len() == rays.len());
     // SAFETY: a Wide8 holds an Avx2 token, made only where AVX2 was detected
-    unsafe {
-        let p = Lanes::new(rays);
-        if p.octant.is_some() {
-            closest_avx2::<false>(w, &p, out);
-        } else {
-            closest_avx2::<true>(w, &p, out);
-        }
+    unsafe { closest_avx2(w, rays, out) }
+}
+
+/// [`closest`] with AVX2. The lanes are made here and the walk inlined, so
+/// that they stay in this frame (a walk called with a reference to them
+/// copied them into its own).
+#[target_feature(enable = "avx2")]
+fn closest_avx2(w: &Wide8, rays: &[Ray], out: &mut [Option<Hit>]) {
+    let p = Lanes::new(rays);
+    if p.octant.is_some() {
+        walk::<false>(w, &p, out);
+    } else {
+        walk::<true>(w, &p, out);
     }
 }
 
@@ -86,6 +99,123 @@ struct Lanes {
     /// When all eight lanes' directions have the same sign bit along each
     /// axis: bit `axis` set where that sign is negative.
     octant: Option<u32>,
+    /// The packet's bounds, where it has an octant and bounds that hold.
+    frustum: Option<Frustum>,
+}
+
+/// Bounds of a common-octant packet's rays, for the interval test
+/// ([`Frustum::keep`]) that drops the children of a node no ray can enter
+/// before the rays' own tests. Each field holds its value in every lane.
+struct Frustum {
+    /// Per axis, the origin coordinate that gives the least `n − o` on the
+    /// near plane: the greatest where the directions are positive, the
+    /// least where they are negative.
+    o_near: [__m256; 3],
+    /// Per axis, the origin coordinate that gives the greatest `f − o` on
+    /// the far plane (the other extreme).
+    o_far: [__m256; 3],
+    /// Per axis, the least and the greatest `1/d` of the rays.
+    inv_lo: [__m256; 3],
+    inv_hi: [__m256; 3],
+    /// The least `tmin` of the rays.
+    tmin: __m256,
+}
+
+impl Frustum {
+    /// The bounds of `p`'s rays, or none where an interval could not bound
+    /// their tests: a zero, infinite or NaN reciprocal (a zero direction
+    /// component, whose products may be NaN, which the slab test skips), an
+    /// origin that is not finite, or a NaN `tmin` or `tmax`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn new(
+        o: &[__m256; 3],
+        inv: &[__m256; 3],
+        tmin: __m256,
+        tmax: __m256,
+        octant: u32,
+    ) -> Option<Frustum> {
+        let abs = |x| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
+        let inf = _mm256_set1_ps(f32::INFINITY);
+        let mut ok = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_ORD_Q>(tmin, tmin),
+            _mm256_cmp_ps::<_CMP_ORD_Q>(tmax, tmax),
+        );
+        for axis in 0..3 {
+            let (a, b) = (abs(inv[axis]), abs(o[axis]));
+            ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(a, _mm256_setzero_ps()));
+            ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(a, inf));
+            ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(b, inf));
+        }
+        if _mm256_movemask_ps(ok) != 0xff {
+            return None;
+        }
+        let (o_lo, o_hi) = (o.map(|x| least_v(x)), o.map(|x| most_v(x)));
+        let o_near = std::array::from_fn(|a| {
+            if octant & (1 << a) != 0 {
+                o_lo[a]
+            } else {
+                o_hi[a]
+            }
+        });
+        let o_far = std::array::from_fn(|a| {
+            if octant & (1 << a) != 0 {
+                o_hi[a]
+            } else {
+                o_lo[a]
+            }
+        });
+        Some(Frustum {
+            o_near,
+            o_far,
+            inv_lo: inv.map(|x| least_v(x)),
+            inv_hi: inv.map(|x| most_v(x)),
+            tmin: least_v(tmin),
+        })
+    }
+
+    /// The children of `node` (bit i for child i) that some ray of the
+    /// packet may enter within its `[tmin, t_best]`, `t_best` at most
+    /// `t_hi` in every lane: the rays' slab test done on intervals. The
+    /// entry distance of a ray along an axis, `(n − o)·(1/d)`, is at least
+    /// the least of `(n − o_near)·(1/d)` over the extreme reciprocals
+    /// (`x·y` is bilinear, so its extremes over a box are at corners, and
+    /// correctly rounded subtraction and multiplication are monotone); its
+    /// exit distance at most the greatest of `(f − o_far)·(1/d)`. A child
+    /// whose least entry is beyond its greatest exit (times `FAR_SCALE`) is
+    /// entered by no ray; with no NaN among the rays' values (as
+    /// [`Frustum::new`] requires) its lanes' own tests reject it too.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn keep(&self, node: &Node8, octant: u32, t_hi: __m256) -> u32 {
+        let mut t0 = self.tmin;
+        let mut t1 = t_hi;
+        for axis in 0..3 {
+            let s = ((octant >> axis) & 1) as usize;
+            // SAFETY: each row is eight f32s, 32-byte aligned (Node8's repr)
+            let (n, f) = unsafe {
+                (
+                    _mm256_load_ps(node.b[2 * axis + s].as_ptr()),
+                    _mm256_load_ps(node.b[2 * axis + 1 - s].as_ptr()),
+                )
+            };
+            let x = _mm256_sub_ps(n, self.o_near[axis]);
+            let (a, b) = (
+                _mm256_mul_ps(x, self.inv_lo[axis]),
+                _mm256_mul_ps(x, self.inv_hi[axis]),
+            );
+            t0 = _mm256_max_ps(_mm256_min_ps(a, b), t0);
+            let x = _mm256_sub_ps(f, self.o_far[axis]);
+            let (a, b) = (
+                _mm256_mul_ps(x, self.inv_lo[axis]),
+                _mm256_mul_ps(x, self.inv_hi[axis]),
+            );
+            t1 = _mm256_min_ps(_mm256_max_ps(a, b), t1);
+        }
+        let far = _mm256_mul_ps(t1, _mm256_set1_ps(FAR_SCALE));
+        // Kept unless surely beyond (a NaN from an unused slot keeps it)
+        _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NGT_UQ>(t0, far)) as u32
+    }
 }
 
 impl Lanes {
@@ -93,14 +223,17 @@ impl Lanes {
     #[target_feature(enable = "avx2")]
     fn new(rays: &[Ray]) -> Lanes {
         let n = rays.len();
-        let ray = |k: usize| &rays[if k < n { k } else { 0 }];
-        let lanes = |f: &dyn Fn(&Ray) -> f32| {
-            let a: [f32; PACKET] = std::array::from_fn(|k| f(ray(k)));
-            // SAFETY: eight readable f32s; no alignment needed
-            unsafe { _mm256_loadu_ps(a.as_ptr()) }
-        };
-        let o = [lanes(&|r| r.o.x), lanes(&|r| r.o.y), lanes(&|r| r.o.z)];
-        let d = [lanes(&|r| r.d.x), lanes(&|r| r.d.y), lanes(&|r| r.d.z)];
+        // A ray is eight f32s: each is one row, and the transpose of the
+        // eight rows gives each of the ray's values in the lanes
+        let rows: [__m256; PACKET] = std::array::from_fn(|k| {
+            let r = &rays[if k < n { k } else { 0 }];
+            // SAFETY: a Ray is eight f32s (checked at compile time below);
+            // no alignment needed
+            unsafe { _mm256_loadu_ps((r as *const Ray).cast()) }
+        });
+        let t = transpose(rows);
+        let o = [t[O], t[O + 1], t[O + 2]];
+        let d = [t[D], t[D + 1], t[D + 2]];
         let one = _mm256_set1_ps(1.0);
         let inv = d.map(|d| _mm256_div_ps(one, d));
         // The sign bits of each axis's eight directions
@@ -109,14 +242,17 @@ impl Lanes {
             .iter()
             .all(|&s| s == 0 || s == 0xff)
             .then(|| (0..3).map(|a| u32::from(signs[a] != 0) << a).sum());
+        let (tmin, tmax) = (t[TMIN], t[TMAX]);
+        let frustum = octant.and_then(|oct| Frustum::new(&o, &inv, tmin, tmax, oct));
         Lanes {
             o,
             d,
             inv,
-            tmin: lanes(&|r| r.tmin),
-            tmax: lanes(&|r| r.tmax),
+            tmin,
+            tmax,
             rays: (1 << n) - 1,
             octant,
+            frustum,
         }
     }
 
@@ -174,12 +310,15 @@ impl Lanes {
 
 /// The packet's stack: child references, the least entry distance of the
 /// rays that enter each, and the set of those rays (bit k for ray k). Left
-/// uninitialised, as `traverse.rs`'s `Stack`.
+/// uninitialised, as `traverse.rs`'s `Stack`. (`len` goes first: after
+/// the bytes of `rays`, LLVM merged its zero with them into a memset of
+/// the whole array.)
+#[repr(C)]
 struct PacketStack {
+    len: usize,
     node: MaybeUninit<[u32; STACK]>,
     dist: MaybeUninit<[f32; STACK]>,
     rays: MaybeUninit<[u8; STACK]>,
-    len: usize,
 }
 
 impl PacketStack {
@@ -226,6 +365,67 @@ fn lane_mask(bits: u32) -> __m256 {
     let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
     let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane);
     _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, lane))
+}
+
+// Where a Ray's values sit among its eight f32s (glam's Vec3 is three f32s,
+// `repr(C)`)
+const _: () = assert!(std::mem::size_of::<Ray>() == 8 * 4);
+const O: usize = std::mem::offset_of!(Ray, o) / 4;
+const D: usize = std::mem::offset_of!(Ray, d) / 4;
+const TMIN: usize = std::mem::offset_of!(Ray, tmin) / 4;
+const TMAX: usize = std::mem::offset_of!(Ray, tmax) / 4;
+
+/// The transpose of eight rows of eight f32s: lane k of row j becomes
+/// lane j of row k.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn transpose(r: [__m256; 8]) -> [__m256; 8] {
+    // Pairs of rows interleaved, then pairs of pairs, within each half
+    let a: [__m256; 8] = std::array::from_fn(|k| {
+        let (x, y) = (r[k & !1 & 6], r[(k & 6) + 1]);
+        if k & 1 == 0 {
+            _mm256_unpacklo_ps(x, y)
+        } else {
+            _mm256_unpackhi_ps(x, y)
+        }
+    });
+    let b: [__m256; 8] = std::array::from_fn(|k| {
+        let (x, y) = (a[(k & 4) | ((k >> 1) & 1)], a[(k & 4) | ((k >> 1) & 1) | 2]);
+        if k & 1 == 0 {
+            _mm256_shuffle_ps::<0b0100_0100>(x, y)
+        } else {
+            _mm256_shuffle_ps::<0b1110_1110>(x, y)
+        }
+    });
+    // Then the halves: rows 0–3 of the result from the low halves
+    std::array::from_fn(|k| {
+        let (x, y) = (b[k & 3], b[(k & 3) | 4]);
+        if k < 4 {
+            _mm256_permute2f128_ps::<0x20>(x, y)
+        } else {
+            _mm256_permute2f128_ps::<0x31>(x, y)
+        }
+    })
+}
+
+/// The least of the eight lanes of `x`, in every lane (with no NaN among
+/// them).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn least_v(x: __m256) -> __m256 {
+    let m = _mm256_min_ps(x, _mm256_permute2f128_ps::<1>(x, x));
+    let m = _mm256_min_ps(m, _mm256_shuffle_ps::<0b0100_1110>(m, m));
+    _mm256_min_ps(m, _mm256_shuffle_ps::<0b1011_0001>(m, m))
+}
+
+/// The greatest of the eight lanes of `x`, in every lane (with no NaN
+/// among them).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn most_v(x: __m256) -> __m256 {
+    let m = _mm256_max_ps(x, _mm256_permute2f128_ps::<1>(x, x));
+    let m = _mm256_max_ps(m, _mm256_shuffle_ps::<0b0100_1110>(m, m));
+    _mm256_max_ps(m, _mm256_shuffle_ps::<0b1011_0001>(m, m))
 }
 
 /// The least of the eight lanes of `x`.
@@ -377,8 +577,11 @@ impl Best {
     }
 }
 
+/// The walk of [`closest_avx2`], with `MIXED` where the rays do not share
+/// an octant.
+#[inline]
 #[target_feature(enable = "avx2")]
-fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
+fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
     let mut best = Best {
         t: p.tmax,
         u: _mm256_setzero_ps(),
@@ -405,7 +608,13 @@ fn closest_avx2<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]
             };
             let (mut near, mut who) = ([0f32; 8], [0u8; 8]);
             let mut hit_children = 0u32;
-            let valid = !unused & 0xff;
+            let mut valid = !unused & 0xff;
+            if !MIXED {
+                if let (Some(f), Some(oct)) = (&p.frustum, p.octant) {
+                    // Drop the children no ray can enter
+                    valid &= f.keep(node, oct, most_v(best.t));
+                }
+            }
             if active.count_ones() < valid.count_ones() {
                 // Fewer rays than children: each ray against the eight
                 // boxes at once, as the single-ray kernel tests them

@@ -592,10 +592,11 @@ proptest! {
 
 /// Rays of one octant, as a camera's neighbouring pixels give: the sign of
 /// each direction component is the octant's (zero components are +0 or −0
-/// alike), its magnitude a base's times a jitter, or zero (rays parallel to
-/// an axis or a plane); the origins one point shared by all, or on one of
-/// the `n_tris` triangles; ranges as [`rays`]'s.
-fn octant_rays(n_tris: usize) -> impl Strategy<Value = Vec<TestRay>> {
+/// alike), its magnitude a base's times a jitter, or, with `zeros`, zero
+/// (rays parallel to an axis or a plane); the origins one point shared by
+/// all, or on one of the `n_tris` triangles, or (without `zeros`) each
+/// ray's own; ranges as [`rays`]'s.
+fn octant_rays(n_tris: usize, zeros: bool) -> impl Strategy<Value = Vec<TestRay>> {
     let range = prop_oneof![
         Just((0.0f32, f32::INFINITY)),
         (0.0f32..1.0, 0.0f32..4.0).prop_map(|(a, len)| (a, a + len)),
@@ -604,14 +605,19 @@ fn octant_rays(n_tris: usize) -> impl Strategy<Value = Vec<TestRay>> {
         3 => Just(None),
         1 => (0..n_tris, 0.0f32..1.0, 0.0f32..1.0).prop_map(Some),
     ];
-    let zero = prop_oneof![6 => Just(false), 1 => Just(true)];
+    let own = if zeros {
+        Just(None).boxed()
+    } else {
+        prop::option::of(point()).boxed()
+    };
+    let zero = prop_oneof![6 => Just(false), 1 => Just(zeros)];
     (
         any::<[bool; 3]>(),
         [0.05f32..1.0, 0.05f32..1.0, 0.05f32..1.0],
         point(),
         prop::collection::vec(
             (
-                on,
+                (on, own),
                 [0.8f32..1.25, 0.8f32..1.25, 0.8f32..1.25],
                 [zero.clone(), zero.clone(), zero],
                 range,
@@ -621,7 +627,7 @@ fn octant_rays(n_tris: usize) -> impl Strategy<Value = Vec<TestRay>> {
     )
         .prop_map(|(neg, base, o, rays)| {
             rays.into_iter()
-                .map(|(on, jitter, zero, (a, b))| {
+                .map(|((on, own), jitter, zero, (a, b))| {
                     let d: [f32; 3] = std::array::from_fn(|k| {
                         let m = if zero[k] { 0.0 } else { base[k] * jitter[k] };
                         if neg[k] {
@@ -630,7 +636,7 @@ fn octant_rays(n_tris: usize) -> impl Strategy<Value = Vec<TestRay>> {
                             m
                         }
                     });
-                    (on, o, Vec3::from(d), a, b)
+                    (on, own.unwrap_or(o), Vec3::from(d), a, b)
                 })
                 .collect()
         })
@@ -645,7 +651,47 @@ proptest! {
     #[test]
     fn packets_of_one_octant_answer_as_single_rays(
         (tris, rays) in prop::collection::vec(triangle(), 1..200)
-            .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), octant_rays(n)) }),
+            .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), octant_rays(n, true)) }),
+        copies in 1usize..3,
+    ) {
+        let tris: Vec<[Vec3; 3]> = tris.iter().cycle().take(tris.len() * copies).copied().collect();
+        let rays: Vec<Ray> = rays
+            .into_iter()
+            .map(|(on, o, d, tmin, tmax)| {
+                let o = match on {
+                    Some((k, s, r)) => {
+                        let [a, b, c] = tris[k];
+                        let (s, r) = if s + r > 1.0 { (1.0 - s, 1.0 - r) } else { (s, r) };
+                        a + (b - a) * s + (c - a) * r
+                    }
+                    None => o,
+                };
+                Ray { o, d, tmin, tmax }
+            })
+            .collect();
+        for accel in builds(&soup(&tris)) {
+            let mut got = vec![None; rays.len()];
+            accel.intersect_packet(&rays, &mut got);
+            for (r, g) in rays.iter().zip(&got) {
+                let want = accel.intersect(r);
+                prop_assert!(same(*g, want), "packet {:?}, single {:?}, ray {:?}", g, want, r);
+            }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// [`packets_of_one_octant_answer_as_single_rays`] with no zero
+    /// direction components and origins spread out (a shared point, points
+    /// on triangles, each ray's own), so that the packets' interval test
+    /// (`packet8::Frustum`) drops children: it must drop none that a ray
+    /// enters.
+    #[test]
+    fn packets_culled_by_their_bounds_answer_as_single_rays(
+        (tris, rays) in prop::collection::vec(triangle(), 1..200)
+            .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), octant_rays(n, false)) }),
         copies in 1usize..3,
     ) {
         let tris: Vec<[Vec3; 3]> = tris.iter().cycle().take(tris.len() * copies).copied().collect();
