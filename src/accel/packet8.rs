@@ -53,7 +53,7 @@ use std::mem::MaybeUninit;
 
 use super::collapse::leaf_packs;
 use super::traverse::FAR_SCALE;
-use super::traverse8::Prepared;
+use super::traverse8::{moller_trumbore, Prepared};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
 use super::Hit;
 use crate::geometry::Ray;
@@ -464,47 +464,8 @@ impl Best {
             ]
         };
         let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
-        let (add, sub, mul) = (
-            |a, b| _mm256_add_ps(a, b),
-            |a, b| _mm256_sub_ps(a, b),
-            |a, b| _mm256_mul_ps(a, b),
-        );
-        let dot = |a: &[__m256; 3], b: &[__m256; 3]| {
-            add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
-        };
-        let o = &p.o;
-        let c = [sub(v0[0], o[0]), sub(v0[1], o[1]), sub(v0[2], o[2])];
-        let d = &p.d;
-        let r = [
-            sub(mul(d[1], c[2]), mul(d[2], c[1])),
-            sub(mul(d[2], c[0]), mul(d[0], c[2])),
-            sub(mul(d[0], c[1]), mul(d[1], c[0])),
-        ];
-        let det = dot(&ng, d);
-        let one = _mm256_set1_ps(1.0);
-        let inv_det = _mm256_div_ps(one, det);
-        let u = mul(dot(&r, &e2), inv_det);
-        let v = mul(dot(&r, &e1), inv_det);
-        let w = sub(sub(one, u), v);
-        let t = mul(dot(&ng, &c), inv_det);
-        let zero = _mm256_setzero_ps();
+        let (hit, t, u, v) = moller_trumbore::<true>(&p.o, &p.d, [v0, e1, e2, ng], p.tmin, self.t);
         let and = |a, b| _mm256_and_ps(a, b);
-        let hit = and(
-            and(
-                and(
-                    _mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero),
-                    _mm256_cmp_ps::<_CMP_GE_OS>(u, zero),
-                ),
-                and(
-                    _mm256_cmp_ps::<_CMP_GE_OS>(v, zero),
-                    _mm256_cmp_ps::<_CMP_GE_OS>(w, zero),
-                ),
-            ),
-            and(
-                _mm256_cmp_ps::<_CMP_GE_OS>(t, p.tmin),
-                _mm256_cmp_ps::<_CMP_LE_OS>(t, self.t),
-            ),
-        );
         // `better`: nearer, or as near and of lower scene index than a
         // best there is (a lane without one holds −1, below every index)
         let nearer = _mm256_cmp_ps::<_CMP_LT_OS>(t, self.t);

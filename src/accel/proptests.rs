@@ -564,29 +564,7 @@ proptest! {
         copies in 1usize..3,
     ) {
         // Copies of the soup make coincident triangles, so exact ties
-        let tris: Vec<[Vec3; 3]> = tris.iter().cycle().take(tris.len() * copies).copied().collect();
-        let rays: Vec<Ray> = rays
-            .into_iter()
-            .map(|(on, o, d, tmin, tmax)| {
-                let o = match on {
-                    Some((k, s, r)) => {
-                        let [a, b, c] = tris[k];
-                        let (s, r) = if s + r > 1.0 { (1.0 - s, 1.0 - r) } else { (s, r) };
-                        a + (b - a) * s + (c - a) * r
-                    }
-                    None => o,
-                };
-                Ray { o, d, tmin, tmax }
-            })
-            .collect();
-        for accel in builds(&soup(&tris)) {
-            let mut got = vec![None; rays.len()];
-            accel.intersect_packet(&rays, &mut got);
-            for (r, g) in rays.iter().zip(&got) {
-                let want = accel.intersect(r);
-                prop_assert!(same(*g, want), "packet {:?}, single {:?}, ray {:?}", g, want, r);
-            }
-        }
+        packets_match_single_rays(&tris, copies, rays)?;
     }
 }
 
@@ -654,29 +632,7 @@ proptest! {
             .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), octant_rays(n, true)) }),
         copies in 1usize..3,
     ) {
-        let tris: Vec<[Vec3; 3]> = tris.iter().cycle().take(tris.len() * copies).copied().collect();
-        let rays: Vec<Ray> = rays
-            .into_iter()
-            .map(|(on, o, d, tmin, tmax)| {
-                let o = match on {
-                    Some((k, s, r)) => {
-                        let [a, b, c] = tris[k];
-                        let (s, r) = if s + r > 1.0 { (1.0 - s, 1.0 - r) } else { (s, r) };
-                        a + (b - a) * s + (c - a) * r
-                    }
-                    None => o,
-                };
-                Ray { o, d, tmin, tmax }
-            })
-            .collect();
-        for accel in builds(&soup(&tris)) {
-            let mut got = vec![None; rays.len()];
-            accel.intersect_packet(&rays, &mut got);
-            for (r, g) in rays.iter().zip(&got) {
-                let want = accel.intersect(r);
-                prop_assert!(same(*g, want), "packet {:?}, single {:?}, ray {:?}", g, want, r);
-            }
-        }
+        packets_match_single_rays(&tris, copies, rays)?;
     }
 }
 
@@ -694,29 +650,7 @@ proptest! {
             .prop_flat_map(|tris| { let n = tris.len(); (Just(tris), octant_rays(n, false)) }),
         copies in 1usize..3,
     ) {
-        let tris: Vec<[Vec3; 3]> = tris.iter().cycle().take(tris.len() * copies).copied().collect();
-        let rays: Vec<Ray> = rays
-            .into_iter()
-            .map(|(on, o, d, tmin, tmax)| {
-                let o = match on {
-                    Some((k, s, r)) => {
-                        let [a, b, c] = tris[k];
-                        let (s, r) = if s + r > 1.0 { (1.0 - s, 1.0 - r) } else { (s, r) };
-                        a + (b - a) * s + (c - a) * r
-                    }
-                    None => o,
-                };
-                Ray { o, d, tmin, tmax }
-            })
-            .collect();
-        for accel in builds(&soup(&tris)) {
-            let mut got = vec![None; rays.len()];
-            accel.intersect_packet(&rays, &mut got);
-            for (r, g) in rays.iter().zip(&got) {
-                let want = accel.intersect(r);
-                prop_assert!(same(*g, want), "packet {:?}, single {:?}, ray {:?}", g, want, r);
-            }
-        }
+        packets_match_single_rays(&tris, copies, rays)?;
     }
 }
 
@@ -770,4 +704,53 @@ fn packets_and_single_rays_break_ties_alike() {
             assert!(same(*g, want), "packet {g:?}, single {want:?}, ray {r:?}");
         }
     }
+}
+
+/// `rays` (each with its origin on triangle k at (s, r), or its own)
+/// traced as packets through every build of `tris` repeated `copies`
+/// times, each answer against the single-ray kernel's, bit for bit.
+fn packets_match_single_rays(
+    tris: &[[Vec3; 3]],
+    copies: usize,
+    rays: Vec<TestRay>,
+) -> Result<(), TestCaseError> {
+    let tris: Vec<[Vec3; 3]> = tris
+        .iter()
+        .cycle()
+        .take(tris.len() * copies)
+        .copied()
+        .collect();
+    let rays: Vec<Ray> = rays
+        .into_iter()
+        .map(|(on, o, d, tmin, tmax)| {
+            let o = match on {
+                Some((k, s, r)) => {
+                    let [a, b, c] = tris[k];
+                    let (s, r) = if s + r > 1.0 {
+                        (1.0 - s, 1.0 - r)
+                    } else {
+                        (s, r)
+                    };
+                    a + (b - a) * s + (c - a) * r
+                }
+                None => o,
+            };
+            Ray { o, d, tmin, tmax }
+        })
+        .collect();
+    for accel in builds(&soup(&tris)) {
+        let mut got = vec![None; rays.len()];
+        accel.intersect_packet(&rays, &mut got);
+        for (r, g) in rays.iter().zip(&got) {
+            let want = accel.intersect(r);
+            prop_assert!(
+                same(*g, want),
+                "packet {:?}, single {:?}, ray {:?}",
+                g,
+                want,
+                r
+            );
+        }
+    }
+    Ok(())
 }

@@ -178,6 +178,30 @@ impl Prepared {
             ]
         };
         let (v0, e1, e2, ng) = (ld(&pack.v0), ld(&pack.e1), ld(&pack.e2), ld(&pack.ng));
+        let (hit, t, u, v) =
+            moller_trumbore::<UPTO>(&self.o, &self.d, [v0, e1, e2, ng], tmin, tmax);
+        (_mm256_movemask_ps(hit) as u32, t, u, v)
+    }
+}
+
+/// Möller–Trumbore in eight lanes: the rays `o + t d` against the
+/// triangles of corner `v0`, edges `e1`, `e2` and normal `ng = e1 × e2`,
+/// lane by lane; either may be the same in every lane (one ray against a
+/// pack's eight triangles here, one triangle against a packet's eight rays
+/// in `packet8.rs`), so that both kernels do the same operations in the
+/// same order. The lanes that hit within `[tmin, tmax)`, or `[tmin, tmax]`
+/// when `UPTO`, as a vector mask, with the distances and the barycentric
+/// weights of the second and third vertex.
+#[inline(always)]
+pub(super) fn moller_trumbore<const UPTO: bool>(
+    o: &[__m256; 3],
+    d: &[__m256; 3],
+    [v0, e1, e2, ng]: [[__m256; 3]; 4],
+    tmin: __m256,
+    tmax: __m256,
+) -> (__m256, __m256, __m256, __m256) {
+    // SAFETY: register operations only; inlined into the AVX2 kernels
+    unsafe {
         let (add, sub, mul) = (
             |a, b| _mm256_add_ps(a, b),
             |a, b| _mm256_sub_ps(a, b),
@@ -186,9 +210,7 @@ impl Prepared {
         let dot = |a: &[__m256; 3], b: &[__m256; 3]| {
             add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
         };
-        let o = &self.o;
         let c = [sub(v0[0], o[0]), sub(v0[1], o[1]), sub(v0[2], o[2])];
-        let d = &self.d;
         let r = [
             sub(mul(d[1], c[2]), mul(d[2], c[1])),
             sub(mul(d[2], c[0]), mul(d[0], c[2])),
@@ -224,7 +246,7 @@ impl Prepared {
                 },
             ),
         );
-        (_mm256_movemask_ps(hit) as u32, t, u, v)
+        (hit, t, u, v)
     }
 }
 
