@@ -23,5 +23,7 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod scenegen;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod simd8;
 pub mod transport;
 pub mod world;

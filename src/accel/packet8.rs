@@ -231,7 +231,7 @@ impl Lanes {
             // no alignment needed
             unsafe { _mm256_loadu_ps((r as *const Ray).cast()) }
         });
-        let t = transpose(rows);
+        let t = crate::simd8::transpose8(rows);
         let o = [t[O], t[O + 1], t[O + 2]];
         let d = [t[D], t[D + 1], t[D + 2]];
         let one = _mm256_set1_ps(1.0);
@@ -374,39 +374,6 @@ const O: usize = std::mem::offset_of!(Ray, o) / 4;
 const D: usize = std::mem::offset_of!(Ray, d) / 4;
 const TMIN: usize = std::mem::offset_of!(Ray, tmin) / 4;
 const TMAX: usize = std::mem::offset_of!(Ray, tmax) / 4;
-
-/// The transpose of eight rows of eight f32s: lane k of row j becomes
-/// lane j of row k.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn transpose(r: [__m256; 8]) -> [__m256; 8] {
-    // Pairs of rows interleaved, then pairs of pairs, within each half
-    let a: [__m256; 8] = std::array::from_fn(|k| {
-        let (x, y) = (r[k & !1 & 6], r[(k & 6) + 1]);
-        if k & 1 == 0 {
-            _mm256_unpacklo_ps(x, y)
-        } else {
-            _mm256_unpackhi_ps(x, y)
-        }
-    });
-    let b: [__m256; 8] = std::array::from_fn(|k| {
-        let (x, y) = (a[(k & 4) | ((k >> 1) & 1)], a[(k & 4) | ((k >> 1) & 1) | 2]);
-        if k & 1 == 0 {
-            _mm256_shuffle_ps::<0b0100_0100>(x, y)
-        } else {
-            _mm256_shuffle_ps::<0b1110_1110>(x, y)
-        }
-    });
-    // Then the halves: rows 0–3 of the result from the low halves
-    std::array::from_fn(|k| {
-        let (x, y) = (b[k & 3], b[(k & 3) | 4]);
-        if k < 4 {
-            _mm256_permute2f128_ps::<0x20>(x, y)
-        } else {
-            _mm256_permute2f128_ps::<0x31>(x, y)
-        }
-    })
-}
 
 /// The least of the eight lanes of `x`, in every lane (with no NaN among
 /// them).

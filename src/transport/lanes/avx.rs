@@ -207,7 +207,7 @@ impl V3 {
 fn transpose(r: [__m256; 8]) -> [V; 8] {
     // SAFETY: only inlined into `radiance_row`, which runs where the CPU
     // has AVX2
-    unsafe { super::transpose8(r) }.map(V)
+    unsafe { crate::simd8::transpose8(r) }.map(V)
 }
 
 /// The light of lanes that chose none.

@@ -17,7 +17,7 @@ use std::ops::Range;
 
 use super::raster::{Proj, Projector, ToMap, BOX_LIMIT};
 use crate::methods::bundle::patches::Corners;
-use crate::transport::lanes::transpose8;
+use crate::simd8::transpose8;
 
 // The write-out stores each projection as eighteen 4-byte rows in the
 // order of `Proj`'s fields (C layout); these pin that layout.
