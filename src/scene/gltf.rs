@@ -46,150 +46,13 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
     let (doc, buffers, images) = import(path)?;
     let mut scene = Scene::empty(path.display().to_string());
-    let warn = |scene: &mut Scene, msg: String| {
-        scene.warnings.push(format!("{}: {msg}", path.display()));
-    };
 
     // Materials, each with its emission
     let mut mats = Vec::new();
     let mut textures: Vec<Option<Arc<TexImage>>> = vec![None; images.len()];
     for m in doc.materials() {
-        let pbr = m.pbr_metallic_roughness();
-        let f = pbr.base_color_factor();
-        let factor = Rgb::new(f[0], f[1], f[2]);
-        if !(factor.is_finite() && factor.min_element() >= 0.0) {
-            return Err(err(format!(
-                "material {} `{}`: baseColorFactor must be non-negative, found ({}, {}, {})",
-                m.index().map_or("?".into(), |i| i.to_string()),
-                name_of(&m),
-                factor.x,
-                factor.y,
-                factor.z
-            )));
-        }
-        let base = match pbr.base_color_texture() {
-            Some(info) => {
-                let i = info.texture().source().index();
-                if info.tex_coord() != 0 {
-                    warn(
-                        &mut scene,
-                        format!("material `{}`: only uv set 0 is read", name_of(&m)),
-                    );
-                }
-                let img = match textures.get(i).cloned().flatten() {
-                    Some(img) => Some(img),
-                    None => {
-                        let img = images.get(i).and_then(to_tex_image).map(Arc::new);
-                        if let (Some(img), Some(slot)) = (&img, textures.get_mut(i)) {
-                            *slot = Some(img.clone());
-                        }
-                        img
-                    }
-                };
-                match img {
-                    Some(img) => {
-                        let img = if factor == Rgb::ONE {
-                            img
-                        } else {
-                            Arc::new(img.map(|c| c * factor))
-                        };
-                        // glTF's uv (0, 0) is the image's top-left corner, as
-                        // Mitsuba's; TexImage puts v = 0 at the bottom
-                        Texture::Bitmap {
-                            image: img,
-                            to_uv: glam::Affine2::from_mat2_translation(
-                                glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
-                                Vec2::new(0.0, 1.0),
-                            ),
-                        }
-                    }
-                    None => {
-                        warn(
-                            &mut scene,
-                            format!("material `{}`: unsupported texture format", name_of(&m)),
-                        );
-                        Texture::Constant(factor)
-                    }
-                }
-            }
-            None => Texture::Constant(factor),
-        };
-        if pbr.metallic_roughness_texture().is_some() || m.emissive_texture().is_some() {
-            warn(
-                &mut scene,
-                format!(
-                    "material `{}`: metallic-roughness and emissive textures are ignored",
-                    name_of(&m)
-                ),
-            );
-        }
-        let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
-        let material = if pbr.metallic_factor() >= 0.5 {
-            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
-            let (eta, k) = (Rgb::ZERO, Rgb::ONE);
-            if roughness <= 0.0 {
-                Material::Conductor {
-                    eta,
-                    k,
-                    specular_reflectance: base,
-                }
-            } else {
-                Material::RoughConductor {
-                    distribution: MicrofacetKind::Ggx,
-                    alpha: (roughness * roughness).max(1e-3),
-                    eta,
-                    k,
-                    specular_reflectance: base,
-                }
-            }
-        } else {
-            Material::Diffuse { reflectance: base }
-        };
-        let material = if m.double_sided() {
-            Material::TwoSided(Box::new(material))
-        } else {
-            material
-        };
-        // KHR_materials_emissive_strength scales the [0, 1] factor (Blender
-        // writes emission strengths above 1 this way)
-        let e = Rgb::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
-        if !(e.is_finite() && e.min_element() >= 0.0) {
-            return Err(err(format!(
-                "material {} `{}`: emission (emissiveFactor × emissiveStrength) must be finite \
-                 and non-negative, found ({}, {}, {})",
-                m.index().map_or("?".into(), |i| i.to_string()),
-                name_of(&m),
-                e.x,
-                e.y,
-                e.z
-            )));
-        }
-        let emission = (e.max_element() > 0.0).then_some(e);
-        if emission.is_some() {
-            warn(
-                &mut scene,
-                format!(
-                    "material `{}`: glTF emission is unitless; read as radiance ({}, {}, {}) \
-                     W/(m²·sr){}",
-                    name_of(&m),
-                    e.x,
-                    e.y,
-                    e.z,
-                    if m.emissive_strength().is_none() && e.max_element() <= 1.0 {
-                        // an exporter's display white, not a lamp's output:
-                        // Blender writes lamps as KHR_lights_punctual, and
-                        // emission strengths above 1 as emissiveStrength
-                        " (at most 1, as viewers show it: a dim light; the file has no \
-                         KHR_materials_emissive_strength, and punctual lights are not read)"
-                    } else {
-                        ""
-                    }
-                ),
-            );
-        }
-        mats.push((scene.add_material(material), emission));
+        mats.push(material(&m, &images, &mut textures, &mut scene, path)?);
     }
-    let mut default_mat = None;
 
     // Walk the node tree of the default scene
     let gscene = doc
@@ -197,108 +60,20 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
         .or_else(|| doc.scenes().next())
         .ok_or_else(|| err("glTF file has no scene".into()))?;
     check_instancing(&doc, &gscene, path)?;
-    let mut stack: Vec<(gltf::Node, Mat4)> = gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
-    let mut camera_seen = false;
-    while let Some((node, parent)) = stack.pop() {
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        if let Some(mesh) = node.mesh() {
-            for (k, prim) in mesh.primitives().enumerate() {
-                if prim.mode() != gltf::mesh::Mode::Triangles {
-                    warn(
-                        &mut scene,
-                        format!(
-                            "mesh `{}`: non-triangle primitive skipped",
-                            mesh.name().unwrap_or("?")
-                        ),
-                    );
-                    continue;
-                }
-                check_accessor_types(&prim)
-                    .map_err(|e| err(format!("mesh {} primitive {k}: {e}", mesh.index())))?;
-                let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-                let Some(positions) = reader.read_positions() else {
-                    warn(
-                        &mut scene,
-                        format!(
-                            "mesh {} primitive {k}: no readable POSITION (missing, or outside \
-                             its buffer): skipped",
-                            mesh.index()
-                        ),
-                    );
-                    continue;
-                };
-                let positions: Vec<Vec3> = positions.map(Vec3::from).collect();
-                super::check_finite(
-                    path,
-                    &format!("mesh {} primitive {k}", mesh.index()),
-                    &positions,
-                )?;
-                let n = positions.len();
-                let normals: Option<Vec<Vec3>> = reader
-                    .read_normals()
-                    .map(|it| it.map(Vec3::from).collect::<Vec<_>>())
-                    .filter(|v| v.len() == n);
-                let uvs: Option<Vec<Vec2>> = reader
-                    .read_tex_coords(0)
-                    .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
-                    .filter(|v| v.len() == n);
-                let flat: Vec<u32> = match reader.read_indices() {
-                    Some(ix) => ix.into_u32().collect(),
-                    None => (0..n as u32).collect(),
-                };
-                let indices = flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
-                let mut m = MeshData {
-                    positions,
-                    normals,
-                    uvs,
-                    indices,
-                };
-                m.transform(&world);
-                if Mat3::from_mat4(world).determinant() < 0.0 {
-                    m.reverse_winding();
-                }
-                let (material, emission) = match prim.material().index().and_then(|i| mats.get(i)) {
-                    Some(&(mat, e)) => (mat, e),
-                    None => {
-                        let d = *default_mat.get_or_insert_with(|| {
-                            scene.add_material(Material::Diffuse {
-                                reflectance: Texture::Constant(Rgb::ONE),
-                            })
-                        });
-                        (d, None)
-                    }
-                };
-                let name = format!("{}.{k}", node.name().or(mesh.name()).unwrap_or("mesh"));
-                scene.add_mesh(
-                    name,
-                    &m.positions,
-                    m.normals.as_deref(),
-                    m.uvs.as_deref(),
-                    &m.indices,
-                    material,
-                    emission,
-                );
-            }
-        }
-        if let (Some(cam), false) = (node.camera(), camera_seen) {
-            if let gltf::camera::Projection::Perspective(p) = cam.projection() {
-                let aspect = p.aspect_ratio().filter(|a| *a > 0.0).unwrap_or(1.0);
-                let height = 512u32;
-                let width = ((height as f32 * aspect).round() as u32).clamp(1, 1 << 16);
-                let to_world = world * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
-                if let Some(mut c) =
-                    CameraDesc::from_fov(to_world, p.yfov().to_degrees(), "y", width, height)
-                {
-                    c.near_clip = p.znear().max(1e-6);
-                    scene.camera = c;
-                    camera_seen = true;
-                }
-            }
-        }
-        for c in node.children() {
-            stack.push((c, world));
-        }
-    }
+    let mut walk = Walk {
+        path,
+        buffers: &buffers,
+        mats: &mats,
+        default_mat: None,
+        scene,
+        camera_seen: false,
+    };
+    walk.nodes(&gscene)?;
+    let Walk {
+        mut scene,
+        camera_seen,
+        ..
+    } = walk;
     if scene.triangles.is_empty() {
         return Err(err("glTF file has no triangles".into()));
     }
@@ -307,6 +82,340 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     }
     scene.light_if_dark(path);
     Ok(scene)
+}
+
+/// Adds a warning about the file to the scene.
+fn warn(scene: &mut Scene, path: &Path, msg: String) {
+    scene.warnings.push(format!("{}: {msg}", path.display()));
+}
+
+/// Adds one glTF material to the scene (see the module doc for the
+/// mapping) and returns its index with its emitted radiance, if any.
+/// `textures` caches the decoded images, by image index.
+fn material(
+    m: &gltf::Material,
+    images: &[gltf::image::Data],
+    textures: &mut [Option<Arc<TexImage>>],
+    scene: &mut Scene,
+    path: &Path,
+) -> Result<(u32, Option<Rgb>), SceneError> {
+    let pbr = m.pbr_metallic_roughness();
+    let f = pbr.base_color_factor();
+    let factor = Rgb::new(f[0], f[1], f[2]);
+    if !(factor.is_finite() && factor.min_element() >= 0.0) {
+        return Err(SceneError::new(
+            path,
+            0,
+            format!(
+                "material {} `{}`: baseColorFactor must be non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(m),
+                factor.x,
+                factor.y,
+                factor.z
+            ),
+        ));
+    }
+    let base = match pbr.base_color_texture() {
+        Some(info) => base_color_texture(m, &info, factor, images, textures, scene, path),
+        None => Texture::Constant(factor),
+    };
+    if pbr.metallic_roughness_texture().is_some() || m.emissive_texture().is_some() {
+        warn(
+            scene,
+            path,
+            format!(
+                "material `{}`: metallic-roughness and emissive textures are ignored",
+                name_of(m)
+            ),
+        );
+    }
+    let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
+    let material = if pbr.metallic_factor() >= 0.5 {
+        // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+        let (eta, k) = (Rgb::ZERO, Rgb::ONE);
+        if roughness <= 0.0 {
+            Material::Conductor {
+                eta,
+                k,
+                specular_reflectance: base,
+            }
+        } else {
+            Material::RoughConductor {
+                distribution: MicrofacetKind::Ggx,
+                alpha: (roughness * roughness).max(1e-3),
+                eta,
+                k,
+                specular_reflectance: base,
+            }
+        }
+    } else {
+        Material::Diffuse { reflectance: base }
+    };
+    let material = if m.double_sided() {
+        Material::TwoSided(Box::new(material))
+    } else {
+        material
+    };
+    let emission = emission(m, scene, path)?;
+    Ok((scene.add_material(material), emission))
+}
+
+/// The base colour of a material with a `baseColorTexture`: the image
+/// (decoded once, through `textures`) times `factor`, or `factor` alone,
+/// with a warning, when the image's format is not supported.
+fn base_color_texture(
+    m: &gltf::Material,
+    info: &gltf::texture::Info,
+    factor: Rgb,
+    images: &[gltf::image::Data],
+    textures: &mut [Option<Arc<TexImage>>],
+    scene: &mut Scene,
+    path: &Path,
+) -> Texture {
+    let i = info.texture().source().index();
+    if info.tex_coord() != 0 {
+        warn(
+            scene,
+            path,
+            format!("material `{}`: only uv set 0 is read", name_of(m)),
+        );
+    }
+    let img = match textures.get(i).cloned().flatten() {
+        Some(img) => Some(img),
+        None => {
+            let img = images.get(i).and_then(to_tex_image).map(Arc::new);
+            if let (Some(img), Some(slot)) = (&img, textures.get_mut(i)) {
+                *slot = Some(img.clone());
+            }
+            img
+        }
+    };
+    match img {
+        Some(img) => {
+            let img = if factor == Rgb::ONE {
+                img
+            } else {
+                Arc::new(img.map(|c| c * factor))
+            };
+            // glTF's uv (0, 0) is the image's top-left corner, as
+            // Mitsuba's; TexImage puts v = 0 at the bottom
+            Texture::Bitmap {
+                image: img,
+                to_uv: glam::Affine2::from_mat2_translation(
+                    glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
+                    Vec2::new(0.0, 1.0),
+                ),
+            }
+        }
+        None => {
+            warn(
+                scene,
+                path,
+                format!("material `{}`: unsupported texture format", name_of(m)),
+            );
+            Texture::Constant(factor)
+        }
+    }
+}
+
+/// A material's emitted radiance: `emissiveFactor` ×
+/// `KHR_materials_emissive_strength`, `None` when black. Emission is
+/// unitless in glTF, so a warning says how it is read.
+fn emission(m: &gltf::Material, scene: &mut Scene, path: &Path) -> Result<Option<Rgb>, SceneError> {
+    // KHR_materials_emissive_strength scales the [0, 1] factor (Blender
+    // writes emission strengths above 1 this way)
+    let e = Rgb::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+    if !(e.is_finite() && e.min_element() >= 0.0) {
+        return Err(SceneError::new(
+            path,
+            0,
+            format!(
+                "material {} `{}`: emission (emissiveFactor × emissiveStrength) must be finite \
+                 and non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(m),
+                e.x,
+                e.y,
+                e.z
+            ),
+        ));
+    }
+    let emission = (e.max_element() > 0.0).then_some(e);
+    if emission.is_some() {
+        warn(
+            scene,
+            path,
+            format!(
+                "material `{}`: glTF emission is unitless; read as radiance ({}, {}, {}) \
+                 W/(m²·sr){}",
+                name_of(m),
+                e.x,
+                e.y,
+                e.z,
+                if m.emissive_strength().is_none() && e.max_element() <= 1.0 {
+                    // an exporter's display white, not a lamp's output:
+                    // Blender writes lamps as KHR_lights_punctual, and
+                    // emission strengths above 1 as emissiveStrength
+                    " (at most 1, as viewers show it: a dim light; the file has no \
+                     KHR_materials_emissive_strength, and punctual lights are not read)"
+                } else {
+                    ""
+                }
+            ),
+        );
+    }
+    Ok(emission)
+}
+
+/// The walk of a glTF scene's node tree: what it adds meshes with, and
+/// the scene it adds them to.
+struct Walk<'a> {
+    path: &'a Path,
+    buffers: &'a [gltf::buffer::Data],
+    /// Each glTF material's index in the scene, and its emission.
+    mats: &'a [(u32, Option<Rgb>)],
+    /// The white diffuse material of primitives without one, once added.
+    default_mat: Option<u32>,
+    scene: Scene,
+    /// Whether a camera was read (the first perspective one is used).
+    camera_seen: bool,
+}
+
+impl Walk<'_> {
+    /// Walks the nodes of `gscene` depth first, each with its world
+    /// transform, adding their mesh primitives and the first camera.
+    fn nodes(&mut self, gscene: &gltf::Scene) -> Result<(), SceneError> {
+        let mut stack: Vec<(gltf::Node, Mat4)> =
+            gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+        while let Some((node, parent)) = stack.pop() {
+            let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+            if let Some(mesh) = node.mesh() {
+                for (k, prim) in mesh.primitives().enumerate() {
+                    self.primitive(&node, &mesh, k, &prim, world)?;
+                }
+            }
+            if let (Some(cam), false) = (node.camera(), self.camera_seen) {
+                if let Some(c) = camera(&cam, world) {
+                    self.scene.camera = c;
+                    self.camera_seen = true;
+                }
+            }
+            for c in node.children() {
+                stack.push((c, world));
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds primitive `k` of a node's mesh in world space, or skips it with
+    /// a warning when it is not made of triangles or has no readable
+    /// positions.
+    fn primitive(
+        &mut self,
+        node: &gltf::Node,
+        mesh: &gltf::Mesh,
+        k: usize,
+        prim: &gltf::Primitive,
+        world: Mat4,
+    ) -> Result<(), SceneError> {
+        let (path, scene) = (self.path, &mut self.scene);
+        let err = |msg: String| SceneError::new(path, 0, msg);
+        if prim.mode() != gltf::mesh::Mode::Triangles {
+            warn(
+                scene,
+                path,
+                format!(
+                    "mesh `{}`: non-triangle primitive skipped",
+                    mesh.name().unwrap_or("?")
+                ),
+            );
+            return Ok(());
+        }
+        check_accessor_types(prim)
+            .map_err(|e| err(format!("mesh {} primitive {k}: {e}", mesh.index())))?;
+        let buffers = self.buffers;
+        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let Some(positions) = reader.read_positions() else {
+            warn(
+                scene,
+                path,
+                format!(
+                    "mesh {} primitive {k}: no readable POSITION (missing, or outside \
+                     its buffer): skipped",
+                    mesh.index()
+                ),
+            );
+            return Ok(());
+        };
+        let positions: Vec<Vec3> = positions.map(Vec3::from).collect();
+        super::check_finite(
+            path,
+            &format!("mesh {} primitive {k}", mesh.index()),
+            &positions,
+        )?;
+        let n = positions.len();
+        let normals: Option<Vec<Vec3>> = reader
+            .read_normals()
+            .map(|it| it.map(Vec3::from).collect::<Vec<_>>())
+            .filter(|v| v.len() == n);
+        let uvs: Option<Vec<Vec2>> = reader
+            .read_tex_coords(0)
+            .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
+            .filter(|v| v.len() == n);
+        let flat: Vec<u32> = match reader.read_indices() {
+            Some(ix) => ix.into_u32().collect(),
+            None => (0..n as u32).collect(),
+        };
+        let indices = flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let mut m = MeshData {
+            positions,
+            normals,
+            uvs,
+            indices,
+        };
+        m.transform(&world);
+        if Mat3::from_mat4(world).determinant() < 0.0 {
+            m.reverse_winding();
+        }
+        let (material, emission) = match prim.material().index().and_then(|i| self.mats.get(i)) {
+            Some(&(mat, e)) => (mat, e),
+            None => {
+                let d = *self.default_mat.get_or_insert_with(|| {
+                    scene.add_material(Material::Diffuse {
+                        reflectance: Texture::Constant(Rgb::ONE),
+                    })
+                });
+                (d, None)
+            }
+        };
+        let name = format!("{}.{k}", node.name().or(mesh.name()).unwrap_or("mesh"));
+        scene.add_mesh(
+            name,
+            &m.positions,
+            m.normals.as_deref(),
+            m.uvs.as_deref(),
+            &m.indices,
+            material,
+            emission,
+        );
+        Ok(())
+    }
+}
+
+/// A perspective glTF camera placed by `world`, as kalos's camera (`None`
+/// for an orthographic camera, or one kalos cannot build).
+fn camera(cam: &gltf::Camera, world: Mat4) -> Option<CameraDesc> {
+    let gltf::camera::Projection::Perspective(p) = cam.projection() else {
+        return None;
+    };
+    let aspect = p.aspect_ratio().filter(|a| *a > 0.0).unwrap_or(1.0);
+    let height = 512u32;
+    let width = ((height as f32 * aspect).round() as u32).clamp(1, 1 << 16);
+    let to_world = world * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+    let mut c = CameraDesc::from_fov(to_world, p.yfov().to_degrees(), "y", width, height)?;
+    c.near_clip = p.znear().max(1e-6);
+    Some(c)
 }
 
 /// Reads a glTF or GLB file once, checking what the `gltf` crate would

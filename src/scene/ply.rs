@@ -163,8 +163,53 @@ pub fn load_ply_scene(path: &Path) -> Result<Scene, SceneError> {
 /// Parses PLY bytes; `path` only names the file in errors.
 pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
     let err = |line: u32, msg: String| SceneError::new(path, line, msg);
+    let (format, elements, body_start) = parse_header(bytes, path)?;
+    let body = &bytes[body_start..];
+    check_counts(format, &elements, body, path)?;
+    let mut reader = match format {
+        Format::Ascii => Reader::Ascii(
+            std::str::from_utf8(body)
+                .map_err(|_| err(0, "ASCII PLY body is not valid text".into()))?
+                .split_ascii_whitespace(),
+        ),
+        Format::Le => Reader::Binary {
+            data: body,
+            pos: 0,
+            le: true,
+        },
+        Format::Be => Reader::Binary {
+            data: body,
+            pos: 0,
+            le: false,
+        },
+    };
 
-    // Parse the header, line by line, up to `end_header`
+    // Read the elements in order: the first `vertex` and the first `face`
+    // with polygons are kept, every other one is skipped
+    let mut read = Elements::default();
+    for el in &elements {
+        match el.name.as_str() {
+            "vertex" if !read.seen_vertex => {
+                read.seen_vertex = true;
+                read_vertices(&mut reader, el, body.len(), &mut read, path)?;
+            }
+            "face" if read.faces.is_empty() => {
+                read_faces(&mut reader, el, body.len(), &mut read.faces, path)?;
+            }
+            _ if el.props.is_empty() => {}
+            _ => skip_element(&mut reader, el, path)?,
+        }
+    }
+    if !read.seen_vertex {
+        return Err(err(0, "PLY file has no vertex element".into()));
+    }
+    assemble(read, path)
+}
+
+/// Parses the header, line by line, up to `end_header`: the body's format,
+/// the elements it declares, and where the body starts.
+fn parse_header(bytes: &[u8], path: &Path) -> Result<(Format, Vec<Element>, usize), SceneError> {
+    let err = |line: u32, msg: String| SceneError::new(path, line, msg);
     let mut pos = 0usize;
     let mut line_no = 0u32;
     let mut format = None;
@@ -253,14 +298,21 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
         return Err(err(line_no, "PLY header has no `end_header`".into()));
     }
     let format = format.ok_or_else(|| err(0, "PLY header has no `format` line".into()))?;
-    let body = &bytes[pos..];
+    Ok((format, elements, pos))
+}
 
-    // Trust no count beyond what the body can hold: every entry takes at
-    // least its scalars' bytes (binary) or one digit and a separator per
-    // value (ASCII), so a lying header is refused before anything is sized
-    // from it
+/// Trusts no count beyond what the body can hold: every entry takes at
+/// least its scalars' bytes (binary) or one digit and a separator per
+/// value (ASCII), so a lying header is refused before anything is sized
+/// from it.
+fn check_counts(
+    format: Format,
+    elements: &[Element],
+    body: &[u8],
+    path: &Path,
+) -> Result<(), SceneError> {
     let mut need = 0u64;
-    for el in &elements {
+    for el in elements {
         let min_entry: u64 = el
             .props
             .iter()
@@ -272,7 +324,8 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
             .sum();
         need = need.saturating_add((el.count as u64).saturating_mul(min_entry));
         if need > body.len() as u64 + 1 {
-            return Err(err(
+            return Err(SceneError::new(
+                path,
                 el.line,
                 format!(
                     "element `{}` declares {} entries, but the {} bytes after the header \
@@ -284,143 +337,168 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
             ));
         }
     }
-    let mut reader = match format {
-        Format::Ascii => Reader::Ascii(
-            std::str::from_utf8(body)
-                .map_err(|_| err(0, "ASCII PLY body is not valid text".into()))?
-                .split_ascii_whitespace(),
-        ),
-        Format::Le => Reader::Binary {
-            data: body,
-            pos: 0,
-            le: true,
-        },
-        Format::Be => Reader::Binary {
-            data: body,
-            pos: 0,
-            le: false,
-        },
-    };
-    // an upper bound on what the body can hold, so a lying count cannot make
-    // us allocate gigabytes
-    let cap = |n: usize| n.min(body.len());
+    Ok(())
+}
 
-    let mut mesh = MeshData::default();
-    let mut normals = Vec::new();
-    let mut uvs = Vec::new();
-    let mut seen_vertex = false;
-    let mut faces: Vec<Vec<i64>> = Vec::new();
-    for el in &elements {
-        let truncated = || {
-            err(
-                0,
-                format!(
-                    "PLY file is truncated or malformed in element `{}` (expected {} entries)",
-                    el.name, el.count
-                ),
-            )
-        };
-        let find = |names: &[&str]| {
-            names.iter().find_map(|n| {
-                el.props
-                    .iter()
-                    .position(|p| p.name == *n && p.list.is_none())
-            })
-        };
-        match el.name.as_str() {
-            "vertex" if !seen_vertex => {
-                seen_vertex = true;
-                let (Some(ix), Some(iy), Some(iz)) = (find(&["x"]), find(&["y"]), find(&["z"]))
-                else {
-                    return Err(err(0, "PLY vertex element has no x, y, z".into()));
-                };
-                let inormal = match (find(&["nx"]), find(&["ny"]), find(&["nz"])) {
-                    (Some(a), Some(b), Some(c)) => Some([a, b, c]),
-                    _ => None,
-                };
-                let iuv = [
-                    ("u", "v"),
-                    ("s", "t"),
-                    ("texture_u", "texture_v"),
-                    ("texture_s", "texture_t"),
-                ]
+/// What the body's elements give: the vertices (positions in `mesh`, with
+/// their optional normals and uvs) and the polygons.
+#[derive(Default)]
+struct Elements {
+    mesh: MeshData,
+    normals: Vec<Vec3>,
+    uvs: Vec<Vec2>,
+    seen_vertex: bool,
+    faces: Vec<Vec<i64>>,
+}
+
+/// The error for an element the body ends in, or that holds a token that
+/// is not a number.
+fn truncated(el: &Element, path: &Path) -> SceneError {
+    SceneError::new(
+        path,
+        0,
+        format!(
+            "PLY file is truncated or malformed in element `{}` (expected {} entries)",
+            el.name, el.count
+        ),
+    )
+}
+
+/// Reads the `vertex` element: its positions, and its normals and uvs when
+/// it has them. `body_len` bounds what is reserved, so a lying count cannot
+/// make us allocate gigabytes.
+fn read_vertices(
+    reader: &mut Reader,
+    el: &Element,
+    body_len: usize,
+    out: &mut Elements,
+    path: &Path,
+) -> Result<(), SceneError> {
+    let truncated = || truncated(el, path);
+    let find = |names: &[&str]| {
+        names.iter().find_map(|n| {
+            el.props
                 .iter()
-                .find_map(|(u, v)| Some([find(&[u])?, find(&[v])?]));
-                mesh.positions.reserve(cap(el.count));
-                let mut vals = vec![0.0f64; el.props.len()];
-                for _ in 0..el.count {
-                    for (k, p) in el.props.iter().enumerate() {
-                        match p.list {
-                            None => vals[k] = reader.read(p.ty).ok_or_else(truncated)?,
-                            Some(ct) => skip_list(&mut reader, ct, p.ty).ok_or_else(truncated)?,
-                        }
-                    }
-                    let v3 = |i: [usize; 3]| {
-                        Vec3::new(vals[i[0]] as f32, vals[i[1]] as f32, vals[i[2]] as f32)
-                    };
-                    mesh.positions.push(v3([ix, iy, iz]));
-                    if let Some(i) = inormal {
-                        normals.push(v3(i));
-                    }
-                    if let Some([iu, iv]) = iuv {
-                        uvs.push(Vec2::new(vals[iu] as f32, vals[iv] as f32));
-                    }
-                }
+                .position(|p| p.name == *n && p.list.is_none())
+        })
+    };
+    let (Some(ix), Some(iy), Some(iz)) = (find(&["x"]), find(&["y"]), find(&["z"])) else {
+        return Err(SceneError::new(
+            path,
+            0,
+            "PLY vertex element has no x, y, z",
+        ));
+    };
+    let inormal = match (find(&["nx"]), find(&["ny"]), find(&["nz"])) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
+    let iuv = [
+        ("u", "v"),
+        ("s", "t"),
+        ("texture_u", "texture_v"),
+        ("texture_s", "texture_t"),
+    ]
+    .iter()
+    .find_map(|(u, v)| Some([find(&[u])?, find(&[v])?]));
+    out.mesh.positions.reserve(el.count.min(body_len));
+    let mut vals = vec![0.0f64; el.props.len()];
+    for _ in 0..el.count {
+        for (k, p) in el.props.iter().enumerate() {
+            match p.list {
+                None => vals[k] = reader.read(p.ty).ok_or_else(truncated)?,
+                Some(ct) => skip_list(reader, ct, p.ty).ok_or_else(truncated)?,
             }
-            "face" if faces.is_empty() => {
-                let Some(fi) = el.props.iter().position(|p| {
-                    p.list.is_some() && (p.name == "vertex_indices" || p.name == "vertex_index")
-                }) else {
-                    return Err(err(0, "PLY face element has no vertex_indices list".into()));
-                };
-                faces.reserve(cap(el.count));
-                for _ in 0..el.count {
-                    for (k, p) in el.props.iter().enumerate() {
-                        match p.list {
-                            Some(ct) if k == fi => {
-                                let n = reader.read(ct).ok_or_else(truncated)?;
-                                if !(0.0..=1e6).contains(&n) {
-                                    return Err(err(0, format!("bad PLY face size {n}")));
-                                }
-                                let mut poly = Vec::with_capacity(n as usize);
-                                for _ in 0..n as usize {
-                                    poly.push(reader.read(p.ty).ok_or_else(truncated)? as i64);
-                                }
-                                faces.push(poly);
-                            }
-                            Some(ct) => skip_list(&mut reader, ct, p.ty).ok_or_else(truncated)?,
-                            None => {
-                                reader.read(p.ty).ok_or_else(truncated)?;
-                            }
-                        }
+        }
+        let v3 = |i: [usize; 3]| Vec3::new(vals[i[0]] as f32, vals[i[1]] as f32, vals[i[2]] as f32);
+        out.mesh.positions.push(v3([ix, iy, iz]));
+        if let Some(i) = inormal {
+            out.normals.push(v3(i));
+        }
+        if let Some([iu, iv]) = iuv {
+            out.uvs.push(Vec2::new(vals[iu] as f32, vals[iv] as f32));
+        }
+    }
+    Ok(())
+}
+
+/// Reads the `face` element's `vertex_indices` (or `vertex_index`) lists
+/// into `faces`, skipping its other properties. `body_len` bounds what is
+/// reserved.
+fn read_faces(
+    reader: &mut Reader,
+    el: &Element,
+    body_len: usize,
+    faces: &mut Vec<Vec<i64>>,
+    path: &Path,
+) -> Result<(), SceneError> {
+    let truncated = || truncated(el, path);
+    let Some(fi) = el
+        .props
+        .iter()
+        .position(|p| p.list.is_some() && (p.name == "vertex_indices" || p.name == "vertex_index"))
+    else {
+        return Err(SceneError::new(
+            path,
+            0,
+            "PLY face element has no vertex_indices list",
+        ));
+    };
+    faces.reserve(el.count.min(body_len));
+    for _ in 0..el.count {
+        for (k, p) in el.props.iter().enumerate() {
+            match p.list {
+                Some(ct) if k == fi => {
+                    let n = reader.read(ct).ok_or_else(truncated)?;
+                    if !(0.0..=1e6).contains(&n) {
+                        return Err(SceneError::new(path, 0, format!("bad PLY face size {n}")));
                     }
+                    let mut poly = Vec::with_capacity(n as usize);
+                    for _ in 0..n as usize {
+                        poly.push(reader.read(p.ty).ok_or_else(truncated)? as i64);
+                    }
+                    faces.push(poly);
                 }
-            }
-            _ if el.props.is_empty() => {}
-            _ => {
-                // Skip an element we do not use, value by value
-                for _ in 0..el.count {
-                    for p in &el.props {
-                        match p.list {
-                            Some(ct) => skip_list(&mut reader, ct, p.ty).ok_or_else(truncated)?,
-                            None => {
-                                reader.read(p.ty).ok_or_else(truncated)?;
-                            }
-                        }
-                    }
+                Some(ct) => skip_list(reader, ct, p.ty).ok_or_else(truncated)?,
+                None => {
+                    reader.read(p.ty).ok_or_else(truncated)?;
                 }
             }
         }
     }
-    if !seen_vertex {
-        return Err(err(0, "PLY file has no vertex element".into()));
-    }
+    Ok(())
+}
 
-    // Fan-triangulate the faces
+/// Skips an element we do not use, value by value.
+fn skip_element(reader: &mut Reader, el: &Element, path: &Path) -> Result<(), SceneError> {
+    for _ in 0..el.count {
+        for p in &el.props {
+            match p.list {
+                Some(ct) => skip_list(reader, ct, p.ty).ok_or_else(|| truncated(el, path))?,
+                None => {
+                    reader.read(p.ty).ok_or_else(|| truncated(el, path))?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Builds the mesh: fan-triangulates the faces (checking their indices)
+/// and checks that the positions are finite.
+fn assemble(read: Elements, path: &Path) -> Result<MeshData, SceneError> {
+    let Elements {
+        mut mesh,
+        normals,
+        uvs,
+        faces,
+        ..
+    } = read;
     let nv = mesh.positions.len() as i64;
     for (f, poly) in faces.iter().enumerate() {
         if let Some(&bad) = poly.iter().find(|&&i| i < 0 || i >= nv) {
-            return Err(err(
+            return Err(SceneError::new(
+                path,
                 0,
                 format!("PLY face {f} has vertex index {bad}, but there are {nv} vertices"),
             ));

@@ -30,6 +30,8 @@ impl<'t> Builder<'t> {
         m
     }
 
+    /// A `<shape>`: its geometry in world space, its nested BSDF and area
+    /// emitter, added to the scene (a sphere once the whole scene is read).
     pub(super) fn shape(&mut self, el: &'t El) -> Result<()> {
         let ty = self.plugin_type(el)?;
         let mut p = Props::new(el);
@@ -41,44 +43,7 @@ impl<'t> Builder<'t> {
         // Geometry in object space (a sphere's waits for the whole scene)
         let mut sphere = None;
         let (mut mesh, analytic) = match ty {
-            "obj" | "ply" => {
-                let filename = self
-                    .string(&mut p, "filename")?
-                    .ok_or_else(|| self.err(el, format!("{} needs a `filename`", el.describe())))?;
-                let face_normals = self.boolean(&mut p, "face_normals", false)?;
-                let flip_tex = self.boolean(&mut p, "flip_tex_coords", ty == "obj")?;
-                let path = resolve(self.main_dir, &self.file(el), filename);
-                if !path.is_file() {
-                    return Err(self.err(
-                        el,
-                        format!(
-                            "mesh file `{filename}` not found (looked for {})",
-                            path.display()
-                        ),
-                    ));
-                }
-                let mut mesh = if ty == "obj" {
-                    crate::scene::obj::load_obj(&path, flip_tex)
-                } else {
-                    crate::scene::ply::load_ply(&path).map(|mut m| {
-                        if flip_tex {
-                            if let Some(uvs) = &mut m.uvs {
-                                uvs.iter_mut().for_each(|t| t.y = 1.0 - t.y);
-                            }
-                        }
-                        m
-                    })
-                }
-                .map_err(|e| self.err(el, format!("in the mesh of this shape: {e}")))?;
-                if face_normals {
-                    mesh.normals = None;
-                }
-                mesh.transform(&to_world);
-                if mesh.normals.is_none() && !face_normals {
-                    mesh.compute_vertex_normals();
-                }
-                (mesh, false)
-            }
+            "obj" | "ply" => (self.mesh_file(el, &mut p, ty, &to_world)?, false),
             "sphere" => {
                 let center = self.point(&mut p, "center")?.unwrap_or(Vec3::ZERO);
                 let radius = self.float(&mut p, "radius", 1.0)?;
@@ -115,31 +80,7 @@ impl<'t> Builder<'t> {
         }
 
         // Nested BSDF and area emitter, inline or by reference
-        let mut bsdf = None;
-        let mut radiance = None;
-        for o in p.objects() {
-            let target = if o.tag == "ref" { self.lookup(o)? } else { o };
-            match target.tag.as_str() {
-                "bsdf" => {
-                    if bsdf.is_some() {
-                        return Err(self.err(o, "a shape can have only one <bsdf>"));
-                    }
-                    bsdf = Some(self.bsdf(target)?);
-                }
-                "emitter" => {
-                    if radiance.is_some() {
-                        return Err(self.err(o, "a shape can have only one <emitter>"));
-                    }
-                    radiance = Some(self.area_emitter(target)?);
-                }
-                _ => {
-                    return Err(self.err(
-                        o,
-                        format!("unsupported {} inside a shape", target.describe()),
-                    ))
-                }
-            }
-        }
+        let (bsdf, radiance) = self.shape_children(&mut p)?;
         self.finish(&p)?;
         let tris = self.scene.triangles.len() as u64 + mesh.indices.len() as u64;
         if tris > crate::scene::MAX_TRIANGLES {
@@ -181,6 +122,84 @@ impl<'t> Builder<'t> {
             None => self.add(name, &mesh, material, radiance),
         }
         Ok(())
+    }
+
+    /// An `obj` or `ply` shape's mesh file, in world space, with vertex
+    /// normals computed when it has none (unless `face_normals`).
+    fn mesh_file(
+        &mut self,
+        el: &'t El,
+        p: &mut Props<'t>,
+        ty: &str,
+        to_world: &Mat4,
+    ) -> Result<MeshData> {
+        let filename = self
+            .string(p, "filename")?
+            .ok_or_else(|| self.err(el, format!("{} needs a `filename`", el.describe())))?;
+        let face_normals = self.boolean(p, "face_normals", false)?;
+        let flip_tex = self.boolean(p, "flip_tex_coords", ty == "obj")?;
+        let path = resolve(self.main_dir, &self.file(el), filename);
+        if !path.is_file() {
+            return Err(self.err(
+                el,
+                format!(
+                    "mesh file `{filename}` not found (looked for {})",
+                    path.display()
+                ),
+            ));
+        }
+        let mut mesh = if ty == "obj" {
+            crate::scene::obj::load_obj(&path, flip_tex)
+        } else {
+            crate::scene::ply::load_ply(&path).map(|mut m| {
+                if flip_tex {
+                    if let Some(uvs) = &mut m.uvs {
+                        uvs.iter_mut().for_each(|t| t.y = 1.0 - t.y);
+                    }
+                }
+                m
+            })
+        }
+        .map_err(|e| self.err(el, format!("in the mesh of this shape: {e}")))?;
+        if face_normals {
+            mesh.normals = None;
+        }
+        mesh.transform(to_world);
+        if mesh.normals.is_none() && !face_normals {
+            mesh.compute_vertex_normals();
+        }
+        Ok(mesh)
+    }
+
+    /// A shape's nested `<bsdf>` (its material index) and area `<emitter>`
+    /// (its radiance), each inline or by reference, at most one of each.
+    fn shape_children(&mut self, p: &mut Props<'t>) -> Result<(Option<u32>, Option<Rgb>)> {
+        let mut bsdf = None;
+        let mut radiance = None;
+        for o in p.objects() {
+            let target = if o.tag == "ref" { self.lookup(o)? } else { o };
+            match target.tag.as_str() {
+                "bsdf" => {
+                    if bsdf.is_some() {
+                        return Err(self.err(o, "a shape can have only one <bsdf>"));
+                    }
+                    bsdf = Some(self.bsdf(target)?);
+                }
+                "emitter" => {
+                    if radiance.is_some() {
+                        return Err(self.err(o, "a shape can have only one <emitter>"));
+                    }
+                    radiance = Some(self.area_emitter(target)?);
+                }
+                _ => {
+                    return Err(self.err(
+                        o,
+                        format!("unsupported {} inside a shape", target.describe()),
+                    ))
+                }
+            }
+        }
+        Ok((bsdf, radiance))
     }
 
     /// Tessellates the spheres read so far and adds them to the scene, each

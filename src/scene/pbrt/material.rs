@@ -201,137 +201,11 @@ impl Builder {
             "diffuse" => two_sided(Material::Diffuse {
                 reflectance: self.color(&mut ps, "reflectance", Kind::Reflectance, 0.5)?,
             }),
-            "coateddiffuse" => {
-                let rho = self.color(&mut ps, "reflectance", Kind::Reflectance, 0.5)?;
-                let a = self.roughness(&mut ps, "", 0.0)?;
-                let eta = self.ior(&mut ps, 1.5)?;
-                ps.ignore(&["thickness", "albedo", "g", "maxdepth", "nsamples"]);
-                self.scene.notes.push(self.cx.at(
-                    d.line,
-                    format!(
-                        "{}: coateddiffuse read as Mitsuba's {} (a diffuse base under a dielectric coat), \
-                         not pbrt's stochastic layers",
-                        ps.what,
-                        if a < SMOOTH_ALPHA { "plastic" } else { "roughplastic" }
-                    ),
-                ));
-                two_sided(if a < SMOOTH_ALPHA {
-                    Material::Plastic {
-                        diffuse_reflectance: rho,
-                        specular_reflectance: Texture::Constant(Rgb::ONE),
-                        eta,
-                        nonlinear: false,
-                    }
-                } else {
-                    Material::RoughPlastic {
-                        diffuse_reflectance: rho,
-                        specular_reflectance: Texture::Constant(Rgb::ONE),
-                        distribution: MicrofacetKind::Ggx,
-                        alpha: a,
-                        eta,
-                        nonlinear: false,
-                    }
-                })
-            }
-            "conductor" | "coatedconductor" => {
-                let prefix = if ty == "conductor" { "" } else { "conductor." };
-                let (eta, k) = self.conductor_iors(&mut ps, prefix)?;
-                let a = self.roughness(&mut ps, prefix, 0.0)?;
-                if ty == "coatedconductor" {
-                    let ignored = ps.rest();
-                    self.scene.notes.push(self.cx.at(
-                        d.line,
-                        format!(
-                            "{}: kalos has no coatedconductor; stand-in: its conductor without the coat \
-                             (ignored: {})",
-                            ps.what,
-                            ignored.join(", ")
-                        ),
-                    ));
-                }
-                two_sided(if a < SMOOTH_ALPHA {
-                    Material::Conductor {
-                        eta,
-                        k,
-                        specular_reflectance: Texture::Constant(Rgb::ONE),
-                    }
-                } else {
-                    Material::RoughConductor {
-                        distribution: MicrofacetKind::Ggx,
-                        alpha: a,
-                        eta,
-                        k,
-                        specular_reflectance: Texture::Constant(Rgb::ONE),
-                    }
-                })
-            }
-            "dielectric" | "thindielectric" => {
-                let eta = self.ior(&mut ps, 1.5)?;
-                let a = if ty == "dielectric" { self.roughness(&mut ps, "", 0.0)? } else { 0.0 };
-                if a >= SMOOTH_ALPHA {
-                    self.scene.notes.push(self.cx.at(
-                        d.line,
-                        format!("{}: kalos has no rough dielectric; stand-in: smooth glass", ps.what),
-                    ));
-                }
-                let (r, t) = (Texture::Constant(Rgb::ONE), Texture::Constant(Rgb::ONE));
-                if ty == "dielectric" {
-                    Material::Dielectric { eta, specular_reflectance: r, specular_transmittance: t }
-                } else {
-                    Material::ThinDielectric { eta, specular_reflectance: r, specular_transmittance: t }
-                }
-            }
-            "diffusetransmission" => {
-                let r = self.color(&mut ps, "reflectance", Kind::Reflectance, 0.25)?;
-                let t = self.color(&mut ps, "transmittance", Kind::Reflectance, 0.25)?;
-                let scale = ps.float(&self.cx, "scale", 1.0)?;
-                self.scene.notes.push(self.cx.at(
-                    d.line,
-                    format!(
-                        "{}: kalos has no diffuse transmission; stand-in: diffuse reflection with its \
-                         reflectance (transmittance {:?} dropped)",
-                        ps.what,
-                        t.mean()
-                    ),
-                ));
-                two_sided(Material::Diffuse {
-                    reflectance: scale_texture(&r, scale.clamp(0.0, 1.0)),
-                })
-            }
-            "mix" => {
-                let names = ps.strings(&self.cx, "materials")?.ok_or_else(|| {
-                    self.cx.err(d.line, format!("{} needs \"string materials\" [ \"a\" \"b\" ]", ps.what))
-                })?;
-                let [a, b] = names else {
-                    return Err(self.cx.err(d.line, format!("{}: `materials` names two materials", ps.what)));
-                };
-                let amount = self.cx.scalar(&mut ps, "amount", 0.5, &self.float_textures, &mut self.scene.warnings)?;
-                let get = |n: &str| -> Result<Option<u32>> {
-                    self.named_materials.get(n).copied().ok_or_else(|| {
-                        self.cx.err(d.line, format!("{}: no material named \"{n}\" is defined before this line", ps.what))
-                    })
-                };
-                let (ia, ib) = (get(a)?, get(b)?);
-                ps.finish(&self.cx)?;
-                // pbrt picks `b` with probability `amount`. Two constant
-                // diffuse materials mix exactly into one; otherwise the
-                // likelier one stands in.
-                let (ma, mb) = (ia.map(|i| self.scene.materials[i as usize].clone()), ib.map(|i| self.scene.materials[i as usize].clone()));
-                if let (Some(ma), Some(mb)) = (&ma, &mb) {
-                    if let (Some(ra), Some(rb)) = (const_diffuse(ma), const_diffuse(mb)) {
-                        let m = two_sided(Material::Diffuse {
-                            reflectance: Texture::Constant(ra * (1.0 - amount) + rb * amount),
-                        });
-                        return Ok(Some(self.scene.add_material(m)));
-                    }
-                }
-                let (pick, name) = if amount > 0.5 { (ib, b) } else { (ia, a) };
-                self.scene.notes.push(self.cx.at(
-                    d.line,
-                    format!("{}: kalos cannot mix these materials; stand-in: \"{name}\" (the likelier, amount {amount})", ps.what),
-                ));
-                return Ok(pick);
-            }
+            "coateddiffuse" => self.coated_diffuse(&mut ps, d)?,
+            "conductor" | "coatedconductor" => self.conductor(&mut ps, d, ty)?,
+            "dielectric" | "thindielectric" => self.dielectric(&mut ps, d, ty)?,
+            "diffusetransmission" => self.diffuse_transmission(&mut ps, d)?,
+            "mix" => return self.mix(&mut ps, d),
             "measured" | "hair" | "subsurface" | "coateddiffusetransmission" => {
                 let ignored = ps.rest();
                 self.scene.notes.push(self.cx.at(
@@ -356,6 +230,193 @@ impl Builder {
         };
         ps.finish(&self.cx)?;
         Ok(Some(self.scene.add_material(m)))
+    }
+
+    /// `coateddiffuse`, read as Mitsuba's `plastic` or `roughplastic` (a
+    /// diffuse base under a dielectric coat), with a note.
+    fn coated_diffuse(&mut self, ps: &mut Params<'_>, d: &Directive) -> Result<Material> {
+        let rho = self.color(ps, "reflectance", Kind::Reflectance, 0.5)?;
+        let a = self.roughness(ps, "", 0.0)?;
+        let eta = self.ior(ps, 1.5)?;
+        ps.ignore(&["thickness", "albedo", "g", "maxdepth", "nsamples"]);
+        self.scene.notes.push(self.cx.at(
+            d.line,
+            format!(
+                "{}: coateddiffuse read as Mitsuba's {} (a diffuse base under a dielectric coat), \
+                 not pbrt's stochastic layers",
+                ps.what,
+                if a < SMOOTH_ALPHA {
+                    "plastic"
+                } else {
+                    "roughplastic"
+                }
+            ),
+        ));
+        Ok(two_sided(if a < SMOOTH_ALPHA {
+            Material::Plastic {
+                diffuse_reflectance: rho,
+                specular_reflectance: Texture::Constant(Rgb::ONE),
+                eta,
+                nonlinear: false,
+            }
+        } else {
+            Material::RoughPlastic {
+                diffuse_reflectance: rho,
+                specular_reflectance: Texture::Constant(Rgb::ONE),
+                distribution: MicrofacetKind::Ggx,
+                alpha: a,
+                eta,
+                nonlinear: false,
+            }
+        }))
+    }
+
+    /// `conductor`, and `coatedconductor` as its conductor without the coat
+    /// (with a note): smooth or GGX by the roughness.
+    fn conductor(&mut self, ps: &mut Params<'_>, d: &Directive, ty: &str) -> Result<Material> {
+        let prefix = if ty == "conductor" { "" } else { "conductor." };
+        let (eta, k) = self.conductor_iors(ps, prefix)?;
+        let a = self.roughness(ps, prefix, 0.0)?;
+        if ty == "coatedconductor" {
+            let ignored = ps.rest();
+            self.scene.notes.push(self.cx.at(
+                d.line,
+                format!(
+                    "{}: kalos has no coatedconductor; stand-in: its conductor without the coat \
+                     (ignored: {})",
+                    ps.what,
+                    ignored.join(", ")
+                ),
+            ));
+        }
+        Ok(two_sided(if a < SMOOTH_ALPHA {
+            Material::Conductor {
+                eta,
+                k,
+                specular_reflectance: Texture::Constant(Rgb::ONE),
+            }
+        } else {
+            Material::RoughConductor {
+                distribution: MicrofacetKind::Ggx,
+                alpha: a,
+                eta,
+                k,
+                specular_reflectance: Texture::Constant(Rgb::ONE),
+            }
+        }))
+    }
+
+    /// `dielectric` and `thindielectric`: smooth glass (a rough one with a
+    /// note).
+    fn dielectric(&mut self, ps: &mut Params<'_>, d: &Directive, ty: &str) -> Result<Material> {
+        let eta = self.ior(ps, 1.5)?;
+        let a = if ty == "dielectric" {
+            self.roughness(ps, "", 0.0)?
+        } else {
+            0.0
+        };
+        if a >= SMOOTH_ALPHA {
+            self.scene.notes.push(self.cx.at(
+                d.line,
+                format!(
+                    "{}: kalos has no rough dielectric; stand-in: smooth glass",
+                    ps.what
+                ),
+            ));
+        }
+        let (r, t) = (Texture::Constant(Rgb::ONE), Texture::Constant(Rgb::ONE));
+        Ok(if ty == "dielectric" {
+            Material::Dielectric {
+                eta,
+                specular_reflectance: r,
+                specular_transmittance: t,
+            }
+        } else {
+            Material::ThinDielectric {
+                eta,
+                specular_reflectance: r,
+                specular_transmittance: t,
+            }
+        })
+    }
+
+    /// `diffusetransmission`: kalos has none; its reflection alone stands
+    /// in, with a note.
+    fn diffuse_transmission(&mut self, ps: &mut Params<'_>, d: &Directive) -> Result<Material> {
+        let r = self.color(ps, "reflectance", Kind::Reflectance, 0.25)?;
+        let t = self.color(ps, "transmittance", Kind::Reflectance, 0.25)?;
+        let scale = ps.float(&self.cx, "scale", 1.0)?;
+        self.scene.notes.push(self.cx.at(
+            d.line,
+            format!(
+                "{}: kalos has no diffuse transmission; stand-in: diffuse reflection with its \
+                 reflectance (transmittance {:?} dropped)",
+                ps.what,
+                t.mean()
+            ),
+        ));
+        Ok(two_sided(Material::Diffuse {
+            reflectance: scale_texture(&r, scale.clamp(0.0, 1.0)),
+        }))
+    }
+
+    /// `mix` of two named materials: exact for two constant diffuse ones,
+    /// otherwise the likelier stands in (with a note). Returns the index,
+    /// after checking the parameters.
+    fn mix(&mut self, ps: &mut Params<'_>, d: &Directive) -> Result<Option<u32>> {
+        let names = ps.strings(&self.cx, "materials")?.ok_or_else(|| {
+            self.cx.err(
+                d.line,
+                format!("{} needs \"string materials\" [ \"a\" \"b\" ]", ps.what),
+            )
+        })?;
+        let [a, b] = names else {
+            return Err(self.cx.err(
+                d.line,
+                format!("{}: `materials` names two materials", ps.what),
+            ));
+        };
+        let amount = self.cx.scalar(
+            ps,
+            "amount",
+            0.5,
+            &self.float_textures,
+            &mut self.scene.warnings,
+        )?;
+        let get = |n: &str| -> Result<Option<u32>> {
+            self.named_materials.get(n).copied().ok_or_else(|| {
+                self.cx.err(
+                    d.line,
+                    format!(
+                        "{}: no material named \"{n}\" is defined before this line",
+                        ps.what
+                    ),
+                )
+            })
+        };
+        let (ia, ib) = (get(a)?, get(b)?);
+        ps.finish(&self.cx)?;
+        // pbrt picks `b` with probability `amount`. Two constant
+        // diffuse materials mix exactly into one; otherwise the
+        // likelier one stands in.
+        let (ma, mb) = (
+            ia.map(|i| self.scene.materials[i as usize].clone()),
+            ib.map(|i| self.scene.materials[i as usize].clone()),
+        );
+        if let (Some(ma), Some(mb)) = (&ma, &mb) {
+            if let (Some(ra), Some(rb)) = (const_diffuse(ma), const_diffuse(mb)) {
+                let m = two_sided(Material::Diffuse {
+                    reflectance: Texture::Constant(ra * (1.0 - amount) + rb * amount),
+                });
+                return Ok(Some(self.scene.add_material(m)));
+            }
+        }
+        let (pick, name) = if amount > 0.5 { (ib, b) } else { (ia, a) };
+        self.scene.notes.push(self.cx.at(
+            d.line,
+            format!("{}: kalos cannot mix these materials; stand-in: \"{name}\" (the likelier, amount {amount})", ps.what),
+        ));
+        Ok(pick)
     }
 
     /// A `Texture "name" "spectrum"|"float" "class" ...` directive.

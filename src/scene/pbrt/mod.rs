@@ -308,8 +308,43 @@ impl Builder {
         Ok(())
     }
 
+    /// Runs one directive: checks that it takes the parameters it was
+    /// given, then hands it to the function of its family.
     fn directive(&mut self, d: &Directive, depth: usize) -> Result<()> {
-        let line = d.line;
+        self.check_params(d)?;
+        match d.name.as_str() {
+            "Include" | "Import" => self.include(d, depth),
+            "Identity" | "Translate" | "Scale" | "Rotate" | "LookAt" | "Transform"
+            | "ConcatTransform" | "CoordinateSystem" | "CoordSysTransform" | "TransformBegin"
+            | "TransformEnd" | "ActiveTransform" | "TransformTimes" | "ReverseOrientation" => {
+                self.transform_directive(d)
+            }
+            "Camera" => self.camera(d),
+            "Film" => self.film(d),
+            "Sampler" => self.sampler(d),
+            "Integrator" | "PixelFilter" | "ColorSpace" | "Accelerator" | "Option"
+            | "WorldBegin" | "WorldEnd" | "MakeNamedMedium" | "MediumInterface" => {
+                self.option_directive(d)
+            }
+            "AttributeBegin" | "AttributeEnd" | "Attribute" => self.attribute_directive(d),
+            "ObjectBegin" | "ObjectEnd" | "ObjectInstance" => self.object_directive(d),
+            "LightSource" => self.light(d),
+            "AreaLightSource" => self.area_light(d),
+            "Material" | "MakeNamedMaterial" | "NamedMaterial" => self.material_directive(d),
+            "Texture" => self.texture(d),
+            "Shape" => self.shape(d),
+            _ => Err(self.unsupported(d)),
+        }
+    }
+
+    /// The error for a directive kalos does not know.
+    fn unsupported(&self, d: &Directive) -> SceneError {
+        self.cx
+            .err(d.line, format!("unsupported directive `{}`", d.name))
+    }
+
+    /// Refuses parameters on a directive that takes none.
+    fn check_params(&self, d: &Directive) -> Result<()> {
         const WITH_PARAMS: &[&str] = &[
             "Accelerator",
             "AreaLightSource",
@@ -340,38 +375,45 @@ impl Builder {
                 ),
             ));
         }
-        match d.name.as_str() {
-            // Files
-            "Include" | "Import" => {
-                let name = self.strs(d, 1)?[0];
-                if depth + 1 > MAX_INCLUDE_DEPTH {
-                    return Err(self.cx.err(
-                        line,
-                        format!("includes nest more than {MAX_INCLUDE_DEPTH} deep (a cycle?)"),
-                    ));
-                }
-                self.includes += 1;
-                if self.includes > MAX_INCLUDES {
-                    return Err(self.cx.err(
-                        line,
-                        format!("more than {MAX_INCLUDES} includes in one scene"),
-                    ));
-                }
-                let path = self.cx.resolve(name);
-                if !path.is_file() {
-                    return Err(self.cx.err(
-                        line,
-                        format!(
-                            "{} file `{name}` not found (looked for {})",
-                            d.name,
-                            path.display()
-                        ),
-                    ));
-                }
-                self.read_file(&path, depth + 1, line)
-            }
+        Ok(())
+    }
 
-            // Transforms
+    /// `Include` and `Import`: reads the named file, `depth + 1` deep.
+    fn include(&mut self, d: &Directive, depth: usize) -> Result<()> {
+        let line = d.line;
+        let name = self.strs(d, 1)?[0];
+        if depth + 1 > MAX_INCLUDE_DEPTH {
+            return Err(self.cx.err(
+                line,
+                format!("includes nest more than {MAX_INCLUDE_DEPTH} deep (a cycle?)"),
+            ));
+        }
+        self.includes += 1;
+        if self.includes > MAX_INCLUDES {
+            return Err(self.cx.err(
+                line,
+                format!("more than {MAX_INCLUDES} includes in one scene"),
+            ));
+        }
+        let path = self.cx.resolve(name);
+        if !path.is_file() {
+            return Err(self.cx.err(
+                line,
+                format!(
+                    "{} file `{name}` not found (looked for {})",
+                    d.name,
+                    path.display()
+                ),
+            ));
+        }
+        self.read_file(&path, depth + 1, line)
+    }
+
+    /// The transform directives: they set, compose, name, push and pop the
+    /// current transformation matrix, or flip the orientation.
+    fn transform_directive(&mut self, d: &Directive) -> Result<()> {
+        let line = d.line;
+        match d.name.as_str() {
             "Identity" => {
                 self.nums(d, 0)?;
                 self.g.ctm = Mat4::IDENTITY;
@@ -449,11 +491,16 @@ impl Builder {
                 self.g.reverse_orientation = !self.g.reverse_orientation;
                 Ok(())
             }
+            _ => Err(self.unsupported(d)),
+        }
+    }
 
-            // Scene-wide options
-            "Camera" => self.camera(d),
-            "Film" => self.film(d),
-            "Sampler" => self.sampler(d),
+    /// The scene-wide options kalos reads or skips with a warning
+    /// (`Integrator`, `PixelFilter`, `ColorSpace`, `Accelerator`, `Option`,
+    /// media), and `WorldBegin`/`WorldEnd`.
+    fn option_directive(&mut self, d: &Directive) -> Result<()> {
+        let line = d.line;
+        match d.name.as_str() {
             "Integrator" => {
                 let ty = self.strs(d, 1)?[0];
                 self.warn(
@@ -504,8 +551,15 @@ impl Builder {
                 );
                 Ok(())
             }
+            _ => Err(self.unsupported(d)),
+        }
+    }
 
-            // Attributes
+    /// `AttributeBegin`, `AttributeEnd` and `Attribute`: the graphics
+    /// state's stack and its parameter defaults.
+    fn attribute_directive(&mut self, d: &Directive) -> Result<()> {
+        let line = d.line;
+        match d.name.as_str() {
             "AttributeBegin" => {
                 self.stack.push((self.g.clone(), line));
                 Ok(())
@@ -534,8 +588,15 @@ impl Builder {
                 }
                 Ok(())
             }
+            _ => Err(self.unsupported(d)),
+        }
+    }
 
-            // Objects
+    /// `ObjectBegin`, `ObjectEnd` and `ObjectInstance`: defining an object
+    /// and placing copies of it.
+    fn object_directive(&mut self, d: &Directive) -> Result<()> {
+        let line = d.line;
+        match d.name.as_str() {
             "ObjectBegin" => {
                 let name = self.strs(d, 1)?[0].to_string();
                 if self.defining.is_some() {
@@ -568,10 +629,15 @@ impl Builder {
                 let name = self.strs(d, 1)?[0];
                 self.instance(name, line)
             }
+            _ => Err(self.unsupported(d)),
+        }
+    }
 
-            // Lights, materials, textures, shapes
-            "LightSource" => self.light(d),
-            "AreaLightSource" => self.area_light(d),
+    /// `Material`, `MakeNamedMaterial` and `NamedMaterial`: building a
+    /// material, naming it, or making a named one current.
+    fn material_directive(&mut self, d: &Directive) -> Result<()> {
+        let line = d.line;
+        match d.name.as_str() {
             "Material" => {
                 let ty = self.strs(d, 1)?[0];
                 let m = self.material(d, ty, format!("Material \"{ty}\""))?;
@@ -600,11 +666,7 @@ impl Builder {
                 self.g.material = Some(m);
                 Ok(())
             }
-            "Texture" => self.texture(d),
-            "Shape" => self.shape(d),
-            other => Err(self
-                .cx
-                .err(line, format!("unsupported directive `{other}`"))),
+            _ => Err(self.unsupported(d)),
         }
     }
 }

@@ -131,6 +131,9 @@ fn triangles(
 }
 
 impl Builder {
+    /// A `Shape` directive: reads its geometry in object space, puts it in
+    /// world space, and adds it to the scene (or to the object being
+    /// defined) with the current material and area light.
     pub(super) fn shape(&mut self, d: &Directive) -> Result<()> {
         let ty = self.strs(d, 1)?[0];
         let defaults = self.g.attrs[0].clone();
@@ -147,81 +150,9 @@ impl Builder {
 
         // Geometry in object space
         let geom = match ty {
-            "trianglemesh" | "loopsubdiv" => {
-                let p = ps.vec3s(&self.cx, "P", &[ParamType::Point3])?.ok_or_else(|| {
-                    self.cx.err(d.line, format!("{} needs \"point3 P\"", ps.what))
-                })?;
-                let idx = match ps.ints(&self.cx, "indices")? {
-                    Some(i) => i,
-                    None if p.len() == 3 && ty == "trianglemesh" => vec![0, 1, 2],
-                    None => return Err(self.cx.err(d.line, format!("{} needs \"integer indices\"", ps.what))),
-                };
-                let tris = triangles(self, &ps, &idx, 3, p.len())?;
-                let (n, uv) = per_vertex(self, &mut ps, d.line, p.len())?;
-                if ty == "loopsubdiv" {
-                    ps.ignore(&["levels"]);
-                    self.warn(d.line, "loopsubdiv drawn as its control mesh (kalos does not subdivide)");
-                }
-                ps.ignore(&["S", "faceIndices"]);
-                Geom::Mesh(MeshData {
-                    positions: p,
-                    normals: n,
-                    uvs: uv,
-                    indices: tris.iter().map(|t| [t[0], t[1], t[2]]).collect(),
-                })
-            }
-            "bilinearmesh" => {
-                let p = ps.vec3s(&self.cx, "P", &[ParamType::Point3])?.ok_or_else(|| {
-                    self.cx.err(d.line, format!("{} needs \"point3 P\"", ps.what))
-                })?;
-                let idx = match ps.ints(&self.cx, "indices")? {
-                    Some(i) => i,
-                    None if p.len() == 4 => vec![0, 1, 2, 3],
-                    None => return Err(self.cx.err(d.line, format!("{} needs \"integer indices\"", ps.what))),
-                };
-                let quads = triangles(self, &ps, &idx, 4, p.len())?;
-                let (n, uv) = per_vertex(self, &mut ps, d.line, p.len())?;
-                ps.ignore(&["faceIndices"]);
-                // pbrt's patch corners are p00 p10 p01 p11; two triangles
-                // are exact for a planar patch
-                let mut curved = false;
-                let mut indices = Vec::with_capacity(2 * quads.len());
-                for q in &quads {
-                    let [a, b, c, e] = [q[0], q[1], q[2], q[3]];
-                    let (pa, pb, pc, pe) = (p[a as usize], p[b as usize], p[c as usize], p[e as usize]);
-                    let nrm = (pb - pa).cross(pc - pa);
-                    let size = (pe - pa).length().max(f32::MIN_POSITIVE);
-                    if nrm.length() > 0.0 && ((pe - pa).dot(nrm.normalize())).abs() > 1e-4 * size {
-                        curved = true;
-                    }
-                    indices.push([a, b, e]);
-                    indices.push([a, e, c]);
-                }
-                if curved {
-                    self.warn(d.line, "bilinearmesh: non-planar patches approximated by two triangles each");
-                }
-                Geom::Mesh(MeshData { positions: p, normals: n, uvs: uv, indices })
-            }
-            "plymesh" => {
-                let file = ps.string(&self.cx, "filename")?.ok_or_else(|| {
-                    self.cx.err(d.line, format!("{} needs a \"string filename\"", ps.what))
-                })?;
-                for n in ["displacement", "edgelength"] {
-                    if ps.has(n) {
-                        self.warn(d.line, format!("`{n}` of {} ignored: kalos does not displace meshes", ps.what));
-                        ps.ignore(&[n]);
-                    }
-                }
-                let path = self.cx.resolve(file);
-                if !path.is_file() {
-                    return Err(self.cx.err(d.line, format!("PLY file `{file}` not found (looked for {})", path.display())));
-                }
-                let bytes = super::spectra::read_file(&path)
-                    .map_err(|e| self.cx.err(d.line, format!("cannot read PLY file `{file}`: {e}")))?;
-                let mesh = crate::scene::ply::parse_ply(&bytes, &path)
-                    .map_err(|e| self.cx.err(d.line, format!("in the mesh of this shape: {e}")))?;
-                Geom::Mesh(mesh)
-            }
+            "trianglemesh" | "loopsubdiv" => self.triangle_mesh(&mut ps, d, ty)?,
+            "bilinearmesh" => self.bilinear_mesh(&mut ps, d)?,
+            "plymesh" => self.ply_mesh(&mut ps, d)?,
             "sphere" => {
                 let radius = ps.float(&self.cx, "radius", 1.0)?;
                 if !(radius.is_finite() && radius > 0.0) {
@@ -270,6 +201,12 @@ impl Builder {
             }
             s => s,
         };
+        self.place_shape(d, ty, geom)
+    }
+
+    /// Gives a shape in world space the current material and area light,
+    /// then adds it to the object being defined, or to the scene.
+    fn place_shape(&mut self, d: &Directive, ty: &str, geom: Geom) -> Result<()> {
         let Some(material) = self.current_material() else {
             self.warn_once(
                 "interface",
@@ -300,6 +237,131 @@ impl Builder {
             return Ok(());
         }
         self.add_built(built, d.line)
+    }
+
+    /// `trianglemesh`, and `loopsubdiv` as its control mesh (with a
+    /// warning), in object space.
+    fn triangle_mesh(&mut self, ps: &mut Params<'_>, d: &Directive, ty: &str) -> Result<Geom> {
+        let p = ps
+            .vec3s(&self.cx, "P", &[ParamType::Point3])?
+            .ok_or_else(|| {
+                self.cx
+                    .err(d.line, format!("{} needs \"point3 P\"", ps.what))
+            })?;
+        let idx = match ps.ints(&self.cx, "indices")? {
+            Some(i) => i,
+            None if p.len() == 3 && ty == "trianglemesh" => vec![0, 1, 2],
+            None => {
+                return Err(self
+                    .cx
+                    .err(d.line, format!("{} needs \"integer indices\"", ps.what)))
+            }
+        };
+        let tris = triangles(self, ps, &idx, 3, p.len())?;
+        let (n, uv) = per_vertex(self, ps, d.line, p.len())?;
+        if ty == "loopsubdiv" {
+            ps.ignore(&["levels"]);
+            self.warn(
+                d.line,
+                "loopsubdiv drawn as its control mesh (kalos does not subdivide)",
+            );
+        }
+        ps.ignore(&["S", "faceIndices"]);
+        Ok(Geom::Mesh(MeshData {
+            positions: p,
+            normals: n,
+            uvs: uv,
+            indices: tris.iter().map(|t| [t[0], t[1], t[2]]).collect(),
+        }))
+    }
+
+    /// `bilinearmesh`: each patch as two triangles (exact when planar; a
+    /// warning when some are not), in object space.
+    fn bilinear_mesh(&mut self, ps: &mut Params<'_>, d: &Directive) -> Result<Geom> {
+        let p = ps
+            .vec3s(&self.cx, "P", &[ParamType::Point3])?
+            .ok_or_else(|| {
+                self.cx
+                    .err(d.line, format!("{} needs \"point3 P\"", ps.what))
+            })?;
+        let idx = match ps.ints(&self.cx, "indices")? {
+            Some(i) => i,
+            None if p.len() == 4 => vec![0, 1, 2, 3],
+            None => {
+                return Err(self
+                    .cx
+                    .err(d.line, format!("{} needs \"integer indices\"", ps.what)))
+            }
+        };
+        let quads = triangles(self, ps, &idx, 4, p.len())?;
+        let (n, uv) = per_vertex(self, ps, d.line, p.len())?;
+        ps.ignore(&["faceIndices"]);
+        // pbrt's patch corners are p00 p10 p01 p11; two triangles
+        // are exact for a planar patch
+        let mut curved = false;
+        let mut indices = Vec::with_capacity(2 * quads.len());
+        for q in &quads {
+            let [a, b, c, e] = [q[0], q[1], q[2], q[3]];
+            let (pa, pb, pc, pe) = (p[a as usize], p[b as usize], p[c as usize], p[e as usize]);
+            let nrm = (pb - pa).cross(pc - pa);
+            let size = (pe - pa).length().max(f32::MIN_POSITIVE);
+            if nrm.length() > 0.0 && ((pe - pa).dot(nrm.normalize())).abs() > 1e-4 * size {
+                curved = true;
+            }
+            indices.push([a, b, e]);
+            indices.push([a, e, c]);
+        }
+        if curved {
+            self.warn(
+                d.line,
+                "bilinearmesh: non-planar patches approximated by two triangles each",
+            );
+        }
+        Ok(Geom::Mesh(MeshData {
+            positions: p,
+            normals: n,
+            uvs: uv,
+            indices,
+        }))
+    }
+
+    /// `plymesh`: the mesh of its PLY file, in object space.
+    fn ply_mesh(&mut self, ps: &mut Params<'_>, d: &Directive) -> Result<Geom> {
+        let file = ps.string(&self.cx, "filename")?.ok_or_else(|| {
+            self.cx
+                .err(d.line, format!("{} needs a \"string filename\"", ps.what))
+        })?;
+        for n in ["displacement", "edgelength"] {
+            if ps.has(n) {
+                self.warn(
+                    d.line,
+                    format!(
+                        "`{n}` of {} ignored: kalos does not displace meshes",
+                        ps.what
+                    ),
+                );
+                ps.ignore(&[n]);
+            }
+        }
+        let path = self.cx.resolve(file);
+        if !path.is_file() {
+            return Err(self.cx.err(
+                d.line,
+                format!(
+                    "PLY file `{file}` not found (looked for {})",
+                    path.display()
+                ),
+            ));
+        }
+        let bytes = super::spectra::read_file(&path).map_err(|e| {
+            self.cx
+                .err(d.line, format!("cannot read PLY file `{file}`: {e}"))
+        })?;
+        let mesh = crate::scene::ply::parse_ply(&bytes, &path).map_err(|e| {
+            self.cx
+                .err(d.line, format!("in the mesh of this shape: {e}"))
+        })?;
+        Ok(Geom::Mesh(mesh))
     }
 
     /// Adds a shape now (a mesh) or at the end (a sphere).
