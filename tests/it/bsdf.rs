@@ -363,6 +363,7 @@ fn chi_square_rejects_a_slightly_wrong_pdf() {
 }
 
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn chi_square_sample_matches_pdf() {
     // One test per (BSDF, wo). Each is run at significance 1 %; with m tests
     // the Šidák-corrected per-test level is 1 − (1 − 0.01)^(1/m), so that the

@@ -334,6 +334,7 @@ fn check_against(
 /// cbox against the Mitsuba reference, in the default form (first shot,
 /// jittered positions).
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn cbox() {
     let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
     let reference = read_image(&root().join("refs/cbox.pfm")).expect("reference");
@@ -355,6 +356,7 @@ fn cbox() {
 /// light carried by the bundles, the visible points traced once, no final
 /// gather.
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn cbox_paper_form() {
     let scene = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
     let reference = read_image(&root().join("refs/cbox.pfm")).expect("reference");
@@ -533,6 +535,7 @@ fn tilted_floor() -> Scene {
 /// Measured when written: bundle 0.1047 ± 0.0016, path 0.1030; without
 /// the shading correction bundle gave 0.0795 (−23 %), and the test failed.
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn shading_normals_vs_path() {
     mean_matches_path("tilted floor", &tilted_floor(), (21, 22, 4096), 200, 2000);
 }
@@ -754,6 +757,7 @@ fn glossy_pixels(scene: &Scene) -> Vec<bool> {
 /// glow's own light-sample noise, which the gather does not touch, would
 /// hide the gather's effect). See [`check_gather`].
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn gather_glossy_vs_path() {
     check_gather("glowing wall", &glossy_floor_wall(0.3), false);
 }
@@ -762,6 +766,7 @@ fn gather_glossy_vs_path() {
 /// bounced light goes through the gather: the same bounds on the mean,
 /// and the variance on glossy pixels must fall.
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn gather_glossy_variance() {
     check_gather("dark wall", &glossy_floor_wall(0.0), true);
 }

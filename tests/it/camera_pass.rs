@@ -89,11 +89,13 @@ fn camera_pass_matches_path_and_raw_does_not(method: &str) {
 }
 
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn light_with_camera_pass_matches_path_everywhere_and_raw_light_does_not() {
     camera_pass_matches_path_and_raw_does_not("light");
 }
 
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn plb_with_camera_pass_matches_path_everywhere_and_raw_plb_does_not() {
     camera_pass_matches_path_and_raw_does_not("plb");
 }

@@ -5,6 +5,13 @@
 //! `methods.rs` is the method × scene table: furnace, longest path and
 //! determinism for every method of `kalos::methods::all()`;
 //! `reference.rs` iterates the same table against the Mitsuba references.
+//!
+//! Two tiers. `cargo test --release` runs the quick one; the statistical
+//! renders and the long runs carry
+//! `#[ignore = "slow tier: cargo test --release -- --ignored"]`, and that
+//! command runs them alone (CI runs both). `#[ignore]` means the slow tier
+//! and nothing else: a test that needs what CI lacks must skip itself by
+//! another check, or `--ignored` would run it there.
 
 mod common;
 

@@ -190,6 +190,7 @@ fn check_mean(
 /// White furnace: a closed box of albedo a = 0.5 emitting Le = 1 gives
 /// L = Le/(1 − a) = 2 in every pixel, with every method.
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn furnace_every_method() {
     let scene = common::furnace(0.5, 1.0, RES);
     let mut failed = Vec::new();
@@ -210,6 +211,7 @@ fn furnace_every_method() {
 /// Every method that honours the flag must give these, as `path` does; a
 /// method that cannot must refuse it.
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn max_depth_every_method() {
     let scene = common::furnace(0.5, 1.0, RES);
     let world = kalos::world::World::new(scene.clone());
@@ -248,6 +250,7 @@ fn max_depth_every_method() {
 /// A seed gives the same image whatever the thread count, for every method;
 /// another seed gives another image (so the check can fail).
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn same_seed_same_image_whatever_the_thread_count() {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut cbox = kalos::scene::load(&root.join("scenes/cbox/cbox.xml")).expect("scene");

@@ -120,11 +120,13 @@ fn every_method(scene_file: &str, ref_name: &str) {
 }
 
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn cbox_every_method() {
     every_method("scenes/cbox/cbox.xml", "cbox");
 }
 
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn cornell_box_every_method() {
     every_method("scenes/cornell-box/scene.xml", "cornell-box");
 }

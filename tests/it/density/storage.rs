@@ -154,6 +154,7 @@ fn floor_with_ball(rings: u32) -> Scene {
 /// above rounding and far below any real change, which would be of the
 /// order of one kernel term, ≥ 1e-3 of the sum).
 #[test]
+#[ignore = "slow tier: cargo test --release -- --ignored"]
 fn phase_two_hit_memory_does_not_grow_with_n() {
     let world = World::new(floor_with_ball(16));
     let chunk = 20_000usize;
