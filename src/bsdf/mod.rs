@@ -324,15 +324,7 @@ impl Bsdf {
                 }
                 // Choose the lobe by luminance, then warp u onto it
                 let wi = if uc < phong_specular_probability(kd, ks) {
-                    let r = reflect_local(wo);
-                    let cos_a = u.x.powf(1.0 / (n + 1.0));
-                    let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
-                    let phi = 2.0 * PI * u.y;
-                    Frame::from_normal(r).to_world(Vec3::new(
-                        sin_a * phi.cos(),
-                        sin_a * phi.sin(),
-                        cos_a,
-                    ))
+                    phong_lobe_sample(wo, n, u)
                 } else {
                     cosine_hemisphere(u)
                 };
@@ -393,65 +385,8 @@ impl Bsdf {
                 };
                 self.smooth_sample(wo, wi, mode)
             }
-            Bsdf::Dielectric { eta, r, t } => {
-                if wo.z == 0.0 {
-                    return None;
-                }
-                let (f, cos_t, eta_it, eta_ti) = fresnel_dielectric(wo.z, eta);
-                if uc < f {
-                    // Specular reflection, chosen with probability F
-                    Some(BsdfSample {
-                        wi: reflect_local(wo),
-                        f: r * (f / wo.z.abs()),
-                        pdf: f,
-                        delta: true,
-                        eta: 1.0,
-                    })
-                } else {
-                    // Refraction, chosen with probability 1 − F; radiance is
-                    // scaled by (1/η)² = eta_ti², importance is not
-                    let wi = Vec3::new(-eta_ti * wo.x, -eta_ti * wo.y, cos_t);
-                    let scale = match mode {
-                        Mode::Radiance => eta_ti * eta_ti,
-                        Mode::Importance => 1.0,
-                    };
-                    if cos_t == 0.0 {
-                        return None;
-                    }
-                    Some(BsdfSample {
-                        wi,
-                        f: t * ((1.0 - f) * scale / cos_t.abs()),
-                        pdf: 1.0 - f,
-                        delta: true,
-                        eta: eta_it,
-                    })
-                }
-            }
-            Bsdf::ThinDielectric { eta, r, t } => {
-                if wo.z == 0.0 {
-                    return None;
-                }
-                let rr = thin_reflectance(wo.z.abs(), eta);
-                let c = wo.z.abs();
-                if uc < rr {
-                    Some(BsdfSample {
-                        wi: reflect_local(wo),
-                        f: r * (rr / c),
-                        pdf: rr,
-                        delta: true,
-                        eta: 1.0,
-                    })
-                } else {
-                    // Straight through: the two refractions cancel
-                    Some(BsdfSample {
-                        wi: -wo,
-                        f: t * ((1.0 - rr) / c),
-                        pdf: 1.0 - rr,
-                        delta: true,
-                        eta: 1.0,
-                    })
-                }
-            }
+            Bsdf::Dielectric { eta, r, t } => sample_dielectric(wo, uc, eta, r, t, mode),
+            Bsdf::ThinDielectric { eta, r, t } => sample_thin_dielectric(wo, uc, eta, r, t),
         }
     }
 
@@ -774,6 +709,92 @@ fn internal_scattering(rho: Rgb, f_int: f32, nonlinear: bool) -> Rgb {
         rho / (Rgb::ONE - rho * f_int)
     } else {
         rho / (1.0 - f_int)
+    }
+}
+
+/// Samples the Phong lobe around the mirror direction of `wo`: cos α =
+/// u.x^(1/(n+1)), φ = 2π u.y, the density ∝ cosⁿα (Lafortune and Willems
+/// 1994).
+#[inline(always)]
+fn phong_lobe_sample(wo: Vec3, n: f32, u: Vec2) -> Vec3 {
+    let r = reflect_local(wo);
+    let cos_a = u.x.powf(1.0 / (n + 1.0));
+    let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    Frame::from_normal(r).to_world(Vec3::new(sin_a * phi.cos(), sin_a * phi.sin(), cos_a))
+}
+
+/// [`Bsdf::sample`] for `dielectric`: specular reflection with probability
+/// F, else refraction, both delta (pbrt-v4's `DielectricBxDF::Sample_f`).
+#[inline(always)]
+fn sample_dielectric(
+    wo: Vec3,
+    uc: f32,
+    eta: f32,
+    r: Rgb,
+    t: Rgb,
+    mode: Mode,
+) -> Option<BsdfSample> {
+    if wo.z == 0.0 {
+        return None;
+    }
+    let (f, cos_t, eta_it, eta_ti) = fresnel_dielectric(wo.z, eta);
+    if uc < f {
+        // Specular reflection, chosen with probability F
+        Some(BsdfSample {
+            wi: reflect_local(wo),
+            f: r * (f / wo.z.abs()),
+            pdf: f,
+            delta: true,
+            eta: 1.0,
+        })
+    } else {
+        // Refraction, chosen with probability 1 − F; radiance is
+        // scaled by (1/η)² = eta_ti², importance is not
+        let wi = Vec3::new(-eta_ti * wo.x, -eta_ti * wo.y, cos_t);
+        let scale = match mode {
+            Mode::Radiance => eta_ti * eta_ti,
+            Mode::Importance => 1.0,
+        };
+        if cos_t == 0.0 {
+            return None;
+        }
+        Some(BsdfSample {
+            wi,
+            f: t * ((1.0 - f) * scale / cos_t.abs()),
+            pdf: 1.0 - f,
+            delta: true,
+            eta: eta_it,
+        })
+    }
+}
+
+/// [`Bsdf::sample`] for `thindielectric`: reflection with probability R'
+/// (both faces' interreflections summed), else straight through.
+#[inline(always)]
+fn sample_thin_dielectric(wo: Vec3, uc: f32, eta: f32, r: Rgb, t: Rgb) -> Option<BsdfSample> {
+    if wo.z == 0.0 {
+        return None;
+    }
+    let rr = thin_reflectance(wo.z.abs(), eta);
+    let c = wo.z.abs();
+    if uc < rr {
+        Some(BsdfSample {
+            wi: reflect_local(wo),
+            f: r * (rr / c),
+            pdf: rr,
+            delta: true,
+            eta: 1.0,
+        })
+    } else {
+        // Straight through: the two refractions cancel
+        Some(BsdfSample {
+            wi: -wo,
+            f: t * ((1.0 - rr) / c),
+            pdf: 1.0 - rr,
+            delta: true,
+            eta: 1.0,
+        })
     }
 }
 

@@ -6,6 +6,7 @@
 use std::fmt::Write as _;
 
 use glam::{Vec2, Vec3};
+use image::RgbImage;
 
 use super::mesh::Mesh;
 use super::{textures, SceneFiles};
@@ -25,15 +26,53 @@ fn quad(mesh: &mut Mesh, p: [Vec3; 4], tile: Option<f32>, axes: [usize; 2]) {
     }
 }
 
+/// Room width (x), height (y) and depth (z), in metres.
+const ROOM: (f32, f32, f32) = (16.0, 3.0, 12.0);
+
 /// The scene: `meshes/*.obj` and `scene.xml` (and `textures/*.png` when
 /// `textured`), the furniture laid out by `seed` alike either way.
 pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
     let mut rng = Pcg32::keyed(&[seed, 0xB16_0000]);
-    let (w, h, d) = (16.0f32, 3.0f32, 12.0f32);
+    let (room, ceiling, walls) = shell(textured);
+    let (wood, chairs) = tables(&mut rng);
+    let (shelves, books) = shelves(textured, &mut rng);
+
+    // One mesh file per material
+    let [red, green, blue] = books;
+    let walls_mat = if textured { "wallpaper" } else { "white" };
+    let mut parts: Vec<(&str, Mesh, &str)> = vec![
+        ("floor", room, "floor"),
+        ("ceiling", ceiling, "white"),
+        ("walls", walls, walls_mat),
+        ("wood", wood, "wood"),
+        ("chairs", chairs, "dark"),
+        ("shelves", shelves, "white"),
+    ];
+    if textured {
+        parts.push(("books", red, "books"));
+    } else {
+        parts.extend([
+            ("books-red", red, "red"),
+            ("books-green", green, "green"),
+            ("books-blue", blue, "blue"),
+        ]);
+    }
+    let (shapes, meshes, tris) = shapes(parts);
+    let (name, floor, images) = materials(textured);
+    SceneFiles {
+        meshes,
+        images,
+        xml: scene_xml(name, seed, tris, &floor, &shapes),
+    }
+}
+
+/// The inward-facing floor (planks along x), ceiling and walls (u along
+/// the wall, v up), with uvs when `textured`.
+fn shell(textured: bool) -> (Mesh, Mesh, Mesh) {
+    let (w, h, d) = ROOM;
     let floor_tile = textured.then_some(WOOD_TILE);
     let wall_tile = textured.then_some(WALLPAPER_TILE);
     let mut room = Mesh::default();
-    // inward-facing floor, ceiling and walls; planks along x
     quad(
         &mut room,
         [
@@ -53,7 +92,6 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
         Vec3::new(0.0, h, d),
     ]);
     let mut walls = Mesh::default();
-    // u along the wall, v up
     for (p, along) in [
         (
             [
@@ -94,13 +132,14 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
     ] {
         quad(&mut walls, p, wall_tile, [along, 1]);
     }
+    (room, ceiling, walls)
+}
 
+/// Tables with four chairs each, on a 6 × 4 grid in the middle of the
+/// room, the chairs jittered by `rng`: (the tables' wood, the chairs).
+fn tables(rng: &mut Pcg32) -> (Mesh, Mesh) {
     let mut wood = Mesh::default();
     let mut chairs = Mesh::default();
-    let mut shelves = Mesh::default();
-    let mut books = [Mesh::default(), Mesh::default(), Mesh::default()];
-
-    // Tables with four chairs each, on a grid in the middle of the room
     for i in 0..6 {
         for j in 0..4 {
             let c = Vec3::new(3.5 + i as f32 * 1.9, 0.0, 2.6 + j as f32 * 2.3);
@@ -121,140 +160,125 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
                 let off = if k < 2 { -0.3 } else { 0.3 };
                 let s = c + Vec3::new(off, 0.0, side * (td / 2.0 + 0.25));
                 let jitter = Vec3::new(rng.next_f32() - 0.5, 0.0, rng.next_f32() - 0.5) * 0.1;
-                let s = s + jitter;
-                chairs.cuboid(
-                    s + Vec3::new(-0.22, 0.44, -0.22),
-                    s + Vec3::new(0.22, 0.48, 0.22),
-                );
-                for (lx, lz) in [(-0.19, -0.19), (0.19, -0.19), (-0.19, 0.19), (0.19, 0.19)] {
-                    let l = s + Vec3::new(lx, 0.0, lz);
-                    chairs.cuboid(
-                        l - Vec3::new(0.02, 0.0, 0.02),
-                        l + Vec3::new(0.02, 0.44, 0.02),
-                    );
-                }
-                let bz = s.z + side * 0.2;
-                chairs.cuboid(
-                    Vec3::new(s.x - 0.22, 0.48, bz - 0.02),
-                    Vec3::new(s.x + 0.22, 0.95, bz + 0.02),
-                );
+                chair(&mut chairs, s + jitter, side);
             }
         }
     }
+    (wood, chairs)
+}
 
-    // Shelf units along the four walls, filled with books. A unit is built
-    // in wall coordinates (a along the wall, y up, depth from the wall) and
-    // mapped to the room by `map`.
-    let shelf = |a0: f32,
-                 map: &dyn Fn(f32, f32, f32) -> Vec3,
-                 shelves: &mut Mesh,
-                 books: &mut [Mesh; 3],
-                 rng: &mut Pcg32| {
-        let put = |o: &mut Mesh, lo: Vec3, hi: Vec3| {
-            let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
-            o.cuboid(p.min(q), p.max(q));
-        };
-        let (uw, ud, uh) = (0.9f32, 0.35f32, 2.2f32);
-        put(
-            shelves,
-            Vec3::new(a0, 0.0, 0.0),
-            Vec3::new(a0 + 0.02, uh, ud),
+/// A chair standing at `s` (floor level), its back on the `side` (±1) of
+/// z away from the table.
+fn chair(chairs: &mut Mesh, s: Vec3, side: f32) {
+    chairs.cuboid(
+        s + Vec3::new(-0.22, 0.44, -0.22),
+        s + Vec3::new(0.22, 0.48, 0.22),
+    );
+    for (lx, lz) in [(-0.19, -0.19), (0.19, -0.19), (-0.19, 0.19), (0.19, 0.19)] {
+        let l = s + Vec3::new(lx, 0.0, lz);
+        chairs.cuboid(
+            l - Vec3::new(0.02, 0.0, 0.02),
+            l + Vec3::new(0.02, 0.44, 0.02),
         );
-        put(
-            shelves,
-            Vec3::new(a0 + uw - 0.02, 0.0, 0.0),
-            Vec3::new(a0 + uw, uh, ud),
-        );
-        for b in 0..7 {
-            let y = 0.05 + b as f32 * 0.36;
-            put(
-                shelves,
-                Vec3::new(a0 + 0.02, y, 0.0),
-                Vec3::new(a0 + uw - 0.02, y + 0.02, ud),
-            );
-            if b == 6 {
-                break;
-            }
-            let mut x = a0 + 0.025;
-            loop {
-                let t = 0.012 + 0.018 * rng.next_f32();
-                if x + t > a0 + uw - 0.025 {
-                    break;
-                }
-                let bh = 0.2 + 0.12 * rng.next_f32();
-                let bd = 0.18 + 0.12 * rng.next_f32();
-                let k = (rng.next_u32() % 3) as usize;
-                let (lo, hi) = (
-                    Vec3::new(x, y + 0.02, 0.01),
-                    Vec3::new(x + t, y + 0.02 + bh, 0.01 + bd),
-                );
-                if textured {
-                    // one mesh, the spine drawn from the book's place (the
-                    // random draws stay those of the untextured room)
-                    let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
-                    let cell = spine_cell(lo);
-                    books[0].cuboid_uv(p.min(q), p.max(q), cell);
-                } else {
-                    put(&mut books[k], lo, hi);
-                }
-                x += t + 0.001;
-            }
-        }
+    }
+    let bz = s.z + side * 0.2;
+    chairs.cuboid(
+        Vec3::new(s.x - 0.22, 0.48, bz - 0.02),
+        Vec3::new(s.x + 0.22, 0.95, bz + 0.02),
+    );
+}
+
+/// Shelf units along the four walls, filled with books drawn by `rng`:
+/// (the shelves, the books by colour; textured, all books in the first).
+fn shelves(textured: bool, rng: &mut Pcg32) -> (Mesh, [Mesh; 3]) {
+    let (w, _, d) = ROOM;
+    let mut shelves = Mesh::default();
+    let mut books = [Mesh::default(), Mesh::default(), Mesh::default()];
+    let mut unit = |a0: f32, map: &dyn Fn(f32, f32, f32) -> Vec3| {
+        shelf_unit(a0, map, textured, &mut shelves, &mut books, rng);
     };
     for i in 0..16 {
         let a0 = 0.4 + i as f32 * 0.95;
-        shelf(
-            a0,
-            &|a, y, p| Vec3::new(a, y, p),
-            &mut shelves,
-            &mut books,
-            &mut rng,
-        );
-        shelf(
-            a0,
-            &|a, y, p| Vec3::new(a, y, d - p),
-            &mut shelves,
-            &mut books,
-            &mut rng,
-        );
+        unit(a0, &|a, y, p| Vec3::new(a, y, p));
+        unit(a0, &|a, y, p| Vec3::new(a, y, d - p));
     }
     for i in 0..11 {
         let a0 = 0.55 + i as f32 * 0.95;
-        shelf(
-            a0,
-            &|a, y, p| Vec3::new(p, y, a),
-            &mut shelves,
-            &mut books,
-            &mut rng,
-        );
-        shelf(
-            a0,
-            &|a, y, p| Vec3::new(w - p, y, a),
-            &mut shelves,
-            &mut books,
-            &mut rng,
-        );
+        unit(a0, &|a, y, p| Vec3::new(p, y, a));
+        unit(a0, &|a, y, p| Vec3::new(w - p, y, a));
     }
+    (shelves, books)
+}
 
-    let [red, green, blue] = books;
-    let walls_mat = if textured { "wallpaper" } else { "white" };
-    let mut parts: Vec<(&str, Mesh, &str)> = vec![
-        ("floor", room, "floor"),
-        ("ceiling", ceiling, "white"),
-        ("walls", walls, walls_mat),
-        ("wood", wood, "wood"),
-        ("chairs", chairs, "dark"),
-        ("shelves", shelves, "white"),
-    ];
-    if textured {
-        parts.push(("books", red, "books"));
-    } else {
-        parts.extend([
-            ("books-red", red, "red"),
-            ("books-green", green, "green"),
-            ("books-blue", blue, "blue"),
-        ]);
+/// One shelf unit starting at `a0` along its wall, with its books. The
+/// unit is built in wall coordinates (a along the wall, y up, depth from
+/// the wall) and mapped to the room by `map`.
+fn shelf_unit(
+    a0: f32,
+    map: &dyn Fn(f32, f32, f32) -> Vec3,
+    textured: bool,
+    shelves: &mut Mesh,
+    books: &mut [Mesh; 3],
+    rng: &mut Pcg32,
+) {
+    let put = |o: &mut Mesh, lo: Vec3, hi: Vec3| {
+        let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
+        o.cuboid(p.min(q), p.max(q));
+    };
+    let (uw, ud, uh) = (0.9f32, 0.35f32, 2.2f32);
+    put(
+        shelves,
+        Vec3::new(a0, 0.0, 0.0),
+        Vec3::new(a0 + 0.02, uh, ud),
+    );
+    put(
+        shelves,
+        Vec3::new(a0 + uw - 0.02, 0.0, 0.0),
+        Vec3::new(a0 + uw, uh, ud),
+    );
+    for b in 0..7 {
+        let y = 0.05 + b as f32 * 0.36;
+        put(
+            shelves,
+            Vec3::new(a0 + 0.02, y, 0.0),
+            Vec3::new(a0 + uw - 0.02, y + 0.02, ud),
+        );
+        if b == 6 {
+            break;
+        }
+        // Books side by side until the board is full
+        let mut x = a0 + 0.025;
+        loop {
+            let t = 0.012 + 0.018 * rng.next_f32();
+            if x + t > a0 + uw - 0.025 {
+                break;
+            }
+            let bh = 0.2 + 0.12 * rng.next_f32();
+            let bd = 0.18 + 0.12 * rng.next_f32();
+            let k = (rng.next_u32() % 3) as usize;
+            let (lo, hi) = (
+                Vec3::new(x, y + 0.02, 0.01),
+                Vec3::new(x + t, y + 0.02 + bh, 0.01 + bd),
+            );
+            if textured {
+                // one mesh, the spine drawn from the book's place (the
+                // random draws stay those of the untextured room)
+                let (p, q) = (map(lo.x, lo.y, lo.z), map(hi.x, hi.y, hi.z));
+                let cell = spine_cell(lo);
+                books[0].cuboid_uv(p.min(q), p.max(q), cell);
+            } else {
+                put(&mut books[k], lo, hi);
+            }
+            x += t + 0.001;
+        }
     }
+}
+
+/// The `<shape>` elements of `parts` (name, mesh, material) and of the
+/// 4 × 3 lattice of ceiling panels facing down; the mesh files; the
+/// triangle count.
+fn shapes(parts: Vec<(&str, Mesh, &str)>) -> (String, Vec<(String, Mesh)>, usize) {
+    let (_, h, _) = ROOM;
     let mut tris = 0;
     let mut shapes = String::new();
     let mut meshes = Vec::new();
@@ -266,7 +290,6 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
             "    <shape type=\"obj\" id=\"mesh-{name}\">\n        <string name=\"filename\" value=\"meshes/{name}.obj\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <ref id=\"{mat}\"/>\n    </shape>"
         );
     }
-    // A 4 × 3 lattice of ceiling panels, facing down
     for i in 0..4 {
         for j in 0..3 {
             let (x, z) = (2.0 + i as f32 * 4.0, 2.0 + j as f32 * 4.0);
@@ -278,7 +301,14 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
             tris += 2;
         }
     }
-    let (name, floor, images) = if textured {
+    (shapes, meshes, tris)
+}
+
+/// The scene's name, the rest of the floor's `<bsdf>` and the materials
+/// after it, and the texture images: bitmaps with `textured`, plain
+/// colours (and the three book colours) without.
+fn materials(textured: bool) -> (&'static str, String, Vec<(String, RgbImage)>) {
+    if textured {
         let bitmap = |f: &str| {
             format!("<texture type=\"bitmap\" name=\"reflectance\"><string name=\"filename\" value=\"textures/{f}\"/></texture>")
         };
@@ -304,8 +334,13 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
     <bsdf type="twosided" id="blue"><bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.15, 0.55"/></bsdf></bsdf>
 "#;
         ("big-room", floor.to_string(), Vec::new())
-    };
-    let xml = format!(
+    }
+}
+
+/// `scene.xml`: the camera and the materials, then `floor` (the floor's
+/// reflectance and the materials after it) and `shapes`.
+fn scene_xml(name: &str, seed: u64, tris: usize, floor: &str, shapes: &str) -> String {
+    format!(
         r#"<scene version="3.0.0">
     <!-- {name}: generated by `kalos gen {name}` (seed {seed}), {tris} triangles -->
     <integrator type="path"/>
@@ -326,12 +361,7 @@ pub(super) fn build(seed: u64, textured: bool) -> SceneFiles {
     <bsdf type="twosided" id="dark"><bsdf type="diffuse"><rgb name="reflectance" value="0.15, 0.15, 0.17"/></bsdf></bsdf>
     <bsdf type="twosided" id="floor"><bsdf type="diffuse">{floor}{shapes}</scene>
 "#
-    );
-    SceneFiles {
-        meshes,
-        images,
-        xml,
-    }
+    )
 }
 
 /// The spine of the book whose near lower corner (in wall coordinates) is

@@ -474,66 +474,31 @@ impl Method for Bundle {
     }
 
     fn step(&mut self, world: &World, _pass: u64) -> StepStats {
-        let seed = self.settings.seed;
         // The setup, if the caller skipped prepare (its rays count here)
         let mut rays = self.build(world);
         let setup = self.setup.as_ref().expect("built above");
         let patches = &setup.patches;
-        let nee = self.settings.direct == Direct::Nee;
-        // What patch i sends along ±dir in iteration `it` before any
-        // reflection: its emission (the paper) or the first shot's direct
-        // light, with the rays that took
-        let source = |i: usize, p: &patches::Patch, dir: Vec3, it: u64| {
-            if nee {
-                transfer::direct(world, p, dir, &mut first_shot_rng(seed, i, it))
-            } else {
-                (p.le(dir), p.le(-dir), 0)
-            }
+        let source = Source {
+            world,
+            nee: self.settings.direct == Direct::Nee,
+            seed: self.settings.seed,
         };
         if self.iter == 0 {
             // ω_1 and L[i] = L_i^e(±ω_1), or the first shot's direct light
             self.d = self.dirs.next_dir();
-            let d = self.d;
-            rays += self
-                .l_plus
-                .par_iter_mut()
-                .zip(self.l_minus.par_iter_mut())
-                .zip(patches.p.par_iter())
-                .enumerate()
-                .map(|(i, ((lp, lm), p))| {
-                    let (sp, sm, r) = source(i, p, d, 0);
-                    (*lp, *lm) = (sp, sm);
-                    r
-                })
-                .sum::<u64>();
+            rays += source.first(patches, self.d, &mut self.l_plus, &mut self.l_minus);
         }
         let d = self.d;
-        // With the first shot the sky is direct light, taken by the light samples
-        let sky = |w: Vec3| {
-            if nee {
-                Rgb::ZERO
-            } else {
-                world.lights.le_env(w)
-            }
-        };
 
         // Transfer along ±ω_m through the visibility map (its projection
         // was made during the last iteration, unless this is the first)
-        let plane = |d: Vec3, iter: u64| visibility::Plane {
-            d,
-            res: setup.res,
-            center: world.lights.center,
-            radius: world.lights.radius,
-            keys: [seed, iter],
-            visibility: self.settings.visibility,
-            centre_rr: self.settings.centre_rr,
-        };
+        let plane = |d: Vec3, iter: u64| sweep_plane(world, &self.settings, setup.res, d, iter);
         let inp = SweepInput {
             plane: plane(d, self.iter),
             l_plus: &self.l_plus,
             l_minus: &self.l_minus,
-            sky_plus: sky(-d),
-            sky_minus: sky(d),
+            sky_plus: source.sky(-d),
+            sky_minus: source.sky(d),
         };
         let inc = &mut self.incoming;
         visibility::scan_into(patches, &inp, &mut self.scratch, inc);
@@ -545,7 +510,14 @@ impl Method for Bundle {
         // is still in cache
         let dn = self.dirs.next_dir();
         let next = self.iter + 1;
-        let dark = &setup.dark;
+        let reflect = Reflect {
+            source,
+            patches,
+            dark: &setup.dark,
+            d,
+            dn,
+            next,
+        };
         let t = Instant::now();
         let transfer_rays = visibility::sum_into(
             patches,
@@ -554,28 +526,7 @@ impl Method for Bundle {
             &mut self.l_plus,
             &mut self.l_minus,
             |first, e_plus, e_minus, l_plus, l_minus| {
-                let mut r = 0;
-                for (k, ((lp, lm), (&ep, &em))) in l_plus
-                    .iter_mut()
-                    .zip(l_minus.iter_mut())
-                    .zip(e_plus.iter().zip(e_minus))
-                    .enumerate()
-                {
-                    let i = first + k;
-                    // With the paper's operator a dark patch that received
-                    // nothing sends L^e = +0 and reflects nothing: skip
-                    // reading it (the bits are those of the general line)
-                    if !nee && dark[i] && ep == Rgb::ZERO && em == Rgb::ZERO {
-                        (*lp, *lm) = (Rgb::ZERO, Rgb::ZERO);
-                        continue;
-                    }
-                    let p = &patches.p[i];
-                    let (sp, sm, rays) = source(i, p, dn, next);
-                    *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
-                    *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
-                    r += rays;
-                }
-                r
+                reflect.chunk(first, e_plus, e_minus, l_plus, l_minus)
             },
         );
         let t_sum = t.elapsed().as_secs_f64();
@@ -597,16 +548,9 @@ impl Method for Bundle {
             || {
                 let t = Instant::now();
                 let r = if iter >= discard {
-                    setup.view.accumulate(
-                        world,
-                        patches,
-                        mode,
-                        d,
-                        &inc.e_plus,
-                        &inc.e_minus,
-                        iter,
-                        sum,
-                    )
+                    let (e_plus, e_minus) = (&inc.e_plus, &inc.e_minus);
+                    let view = &setup.view;
+                    view.accumulate(world, patches, mode, d, e_plus, e_minus, iter, sum)
                 } else {
                     0
                 };
@@ -671,5 +615,129 @@ impl Method for Bundle {
             state,
             transient
         ))
+    }
+}
+
+/// The visibility map of [`Bundle`]'s sweep along `d` in iteration `iter`:
+/// resolution `res` over the scene's bounding sphere, its random streams
+/// keyed by the seed and the iteration.
+fn sweep_plane(
+    world: &World,
+    settings: &Settings,
+    res: u32,
+    d: Vec3,
+    iter: u64,
+) -> visibility::Plane {
+    visibility::Plane {
+        d,
+        res,
+        center: world.lights.center,
+        radius: world.lights.radius,
+        keys: [settings.seed, iter],
+        visibility: settings.visibility,
+        centre_rr: settings.centre_rr,
+    }
+}
+
+/// What a patch sends along ±ω before any reflection: its emission (the
+/// paper's operator) or, with the first shot (`nee`), the direct light of
+/// one light sample from a uniform point of the patch.
+#[derive(Clone, Copy)]
+struct Source<'a> {
+    world: &'a World,
+    nee: bool,
+    seed: u64,
+}
+
+impl Source<'_> {
+    /// Patch `i`'s (L(+dir), L(−dir), rays traced) in iteration `it`.
+    #[inline]
+    fn at(&self, i: usize, p: &patches::Patch, dir: Vec3, it: u64) -> (Rgb, Rgb, u64) {
+        if self.nee {
+            transfer::direct(self.world, p, dir, &mut first_shot_rng(self.seed, i, it))
+        } else {
+            (p.le(dir), p.le(-dir), 0)
+        }
+    }
+
+    /// The sky's radiance flowing along −`w` into the sweep: none with the
+    /// first shot, where the sky is direct light, taken by the light samples.
+    fn sky(&self, w: Vec3) -> Rgb {
+        if self.nee {
+            Rgb::ZERO
+        } else {
+            self.world.lights.le_env(w)
+        }
+    }
+
+    /// L\[i\](±ω_1) for every patch, before the first sweep; returns the
+    /// rays traced.
+    fn first(&self, patches: &Patches, d: Vec3, l_plus: &mut [Rgb], l_minus: &mut [Rgb]) -> u64 {
+        l_plus
+            .par_iter_mut()
+            .zip(l_minus.par_iter_mut())
+            .zip(patches.p.par_iter())
+            .enumerate()
+            .map(|(i, ((lp, lm), p))| {
+                let (sp, sm, r) = self.at(i, p, d, 0);
+                (*lp, *lm) = (sp, sm);
+                r
+            })
+            .sum::<u64>()
+    }
+}
+
+/// The transfer into ω_{m+1} (§5 of the paper): L_new\[i\] = S_i(ω_{m+1}) +
+/// 4π Σ_j f̃_i(ω_m, ω_{m+1}) A(i, j, ω_m)/A_i · L\[j\], S_i from [`Source`]
+/// (and the same for −ω_{m+1}), for a chunk of patches once what they
+/// received, E_±, is summed.
+struct Reflect<'a> {
+    source: Source<'a>,
+    patches: &'a Patches,
+    /// [`Setup::dark`].
+    dark: &'a [bool],
+    /// ω_m.
+    d: Vec3,
+    /// ω_{m+1}.
+    dn: Vec3,
+    /// The iteration m + 1 (the key of the first shot's streams).
+    next: u64,
+}
+
+impl Reflect<'_> {
+    /// L(±ω_{m+1}) of patches `first..` from what they received, E_±;
+    /// returns the rays the first shot traced.
+    #[inline]
+    fn chunk(
+        &self,
+        first: usize,
+        e_plus: &[Rgb],
+        e_minus: &[Rgb],
+        l_plus: &mut [Rgb],
+        l_minus: &mut [Rgb],
+    ) -> u64 {
+        let (d, dn) = (self.d, self.dn);
+        let mut r = 0;
+        for (k, ((lp, lm), (&ep, &em))) in l_plus
+            .iter_mut()
+            .zip(l_minus.iter_mut())
+            .zip(e_plus.iter().zip(e_minus))
+            .enumerate()
+        {
+            let i = first + k;
+            // With the paper's operator a dark patch that received
+            // nothing sends L^e = +0 and reflects nothing: skip
+            // reading it (the bits are those of the general line)
+            if !self.source.nee && self.dark[i] && ep == Rgb::ZERO && em == Rgb::ZERO {
+                (*lp, *lm) = (Rgb::ZERO, Rgb::ZERO);
+                continue;
+            }
+            let p = &self.patches.p[i];
+            let (sp, sm, rays) = self.source.at(i, p, dn, self.next);
+            *lp = transfer::reflect_onto(sp, p, d, ep, em, dn);
+            *lm = transfer::reflect_onto(sm, p, d, ep, em, -dn);
+            r += rays;
+        }
+        r
     }
 }

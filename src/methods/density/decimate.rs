@@ -223,6 +223,48 @@ pub fn decimate_planar(m: PlanarMesh, r: &[Vec3], w0: f32, eps: f32) -> (PlanarM
         tris_before: m.tris.len() as u64,
         ..Default::default()
     };
+    let mut w = height_field(&m, r, w0, eps);
+
+    // The priority queue of §4.3, smallest curvature change first
+    let mut heap = BinaryHeap::new();
+    for v in 0..w.p.len() as u32 {
+        enqueue(&mut heap, &w, v, 0, eps);
+    }
+    while let Some(Reverse((_, v, ver))) = heap.pop() {
+        if w.removed_v[v as usize] || w.version[v as usize] != ver {
+            continue;
+        }
+        let Some(ring_v) = remove_vertex(&mut w, v, eps) else {
+            continue;
+        };
+        // The ring's costs changed: queue them again, the old entries stale
+        for &x in &ring_v {
+            w.version[x as usize] += 1;
+            enqueue(&mut heap, &w, x, w.version[x as usize], eps);
+        }
+    }
+
+    let mesh = compact(m, &w, &mut report);
+    (mesh, report)
+}
+
+/// The priority queue of the decimation: (cost bits, vertex, version),
+/// smallest cost first.
+type Queue = BinaryHeap<Reverse<(u32, u32, u32)>>;
+
+/// Queues `v` at its current `version` if its cost is within `eps`.
+fn enqueue(heap: &mut Queue, w: &Work, v: u32, version: u32, eps: f32) {
+    if let Some(c) = cost(w, v) {
+        if c <= eps {
+            heap.push(Reverse((c.to_bits(), v, version)));
+        }
+    }
+}
+
+/// The over-mesh `m` as the height field of §4.3: chart coordinates scaled
+/// so that the smallest feature (the kernel width h) is `eps` wide, z the
+/// brightness of each vertex on reflectance `r` for white point `w0`.
+fn height_field(m: &PlanarMesh, r: &[Vec3], w0: f32, eps: f32) -> Work {
     let (lo, hi) = m.verts.iter().fold(
         (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY)),
         |(a, b), v| (a.min(*v), b.max(*v)),
@@ -252,7 +294,7 @@ pub fn decimate_planar(m: PlanarMesh, r: &[Vec3], w0: f32, eps: f32) -> (PlanarM
             vtris[v as usize].push(t as u32);
         }
     }
-    let mut w = Work {
+    Work {
         p,
         alive: vec![true; m.tris.len()],
         carried: vec![Vec::new(); m.tris.len()],
@@ -260,85 +302,61 @@ pub fn decimate_planar(m: PlanarMesh, r: &[Vec3], w0: f32, eps: f32) -> (PlanarM
         vtris,
         removed_v: vec![false; nv],
         version: vec![0; nv],
-    };
-
-    // The priority queue of §4.3, smallest curvature change first
-    let mut heap = BinaryHeap::new();
-    for v in 0..nv as u32 {
-        if let Some(c) = cost(&w, v) {
-            if c <= eps {
-                heap.push(Reverse((c.to_bits(), v, 0u32)));
-            }
-        }
     }
-    while let Some(Reverse((_, v, ver))) = heap.pop() {
-        if w.removed_v[v as usize] || w.version[v as usize] != ver {
-            continue;
-        }
-        let Some((ring_v, open)) = ring(&w, v) else {
-            continue;
-        };
-        let Some(new) = triangulate(&ring_v, &w.p) else {
-            continue;
-        };
-        // height field: every new triangle counter-clockwise in the chart
-        // (triangulate guarantees it); now the error bound
-        let old: Vec<u32> = w.vtris[v as usize].clone();
-        let mut pts: Vec<u32> = vec![v];
-        for &t in &old {
-            pts.extend_from_slice(&w.carried[t as usize]);
-        }
-        let mut assign = Vec::with_capacity(pts.len());
-        let mut ok = true;
-        for &q in &pts {
-            match place(&w.p, &new, w.p[q as usize]) {
-                Some((i, e)) if e <= eps => assign.push(i),
-                _ => {
-                    ok = false;
-                    break;
-                }
-            }
-        }
-        if !ok {
-            continue;
-        }
-        // Commit: drop the old fan, add the new triangles
-        for &t in &old {
-            w.alive[t as usize] = false;
-            w.carried[t as usize].clear();
-            for &x in &w.tris[t as usize] {
-                if x != v {
-                    w.vtris[x as usize].retain(|&y| y != t);
-                }
-            }
-        }
-        w.vtris[v as usize].clear();
-        w.removed_v[v as usize] = true;
-        let base = w.tris.len() as u32;
-        for (i, t) in new.iter().enumerate() {
-            w.tris.push(*t);
-            w.alive.push(true);
-            w.carried.push(Vec::new());
-            for &x in t {
-                w.vtris[x as usize].push(base + i as u32);
-            }
-        }
-        for (q, i) in pts.into_iter().zip(assign) {
-            w.carried[base as usize + i].push(q);
-        }
-        let _ = open;
-        for &x in &ring_v {
-            w.version[x as usize] += 1;
-            if let Some(c) = cost(&w, x) {
-                if c <= eps {
-                    heap.push(Reverse((c.to_bits(), x, w.version[x as usize])));
-                }
-            }
+}
+
+/// Removes `v` if its hole re-triangulates and every removed vertex the
+/// hole carries stays within `eps` of the new triangles; returns its ring.
+fn remove_vertex(w: &mut Work, v: u32, eps: f32) -> Option<Vec<u32>> {
+    let (ring_v, _open) = ring(w, v)?;
+    let new = triangulate(&ring_v, &w.p)?;
+    // height field: every new triangle counter-clockwise in the chart
+    // (triangulate guarantees it); now the error bound
+    let old: Vec<u32> = w.vtris[v as usize].clone();
+    let mut pts: Vec<u32> = vec![v];
+    for &t in &old {
+        pts.extend_from_slice(&w.carried[t as usize]);
+    }
+    let mut assign = Vec::with_capacity(pts.len());
+    for &q in &pts {
+        match place(&w.p, &new, w.p[q as usize]) {
+            Some((i, e)) if e <= eps => assign.push(i),
+            _ => return None,
         }
     }
 
-    // Compact, and measure the error at every removed vertex
-    let mut map = vec![u32::MAX; nv];
+    // Commit: drop the old fan, add the new triangles
+    for &t in &old {
+        w.alive[t as usize] = false;
+        w.carried[t as usize].clear();
+        for &x in &w.tris[t as usize] {
+            if x != v {
+                w.vtris[x as usize].retain(|&y| y != t);
+            }
+        }
+    }
+    w.vtris[v as usize].clear();
+    w.removed_v[v as usize] = true;
+    let base = w.tris.len() as u32;
+    for (i, t) in new.iter().enumerate() {
+        w.tris.push(*t);
+        w.alive.push(true);
+        w.carried.push(Vec::new());
+        for &x in t {
+            w.vtris[x as usize].push(base + i as u32);
+        }
+    }
+    for (q, i) in pts.into_iter().zip(assign) {
+        w.carried[base as usize + i].push(q);
+    }
+    Some(ring_v)
+}
+
+/// The decimated mesh: the kept vertices (with their irradiance) and the
+/// live triangles, renumbered; the error at every removed vertex against
+/// the triangle that carries it, and the triangle count, go into `report`.
+fn compact(m: PlanarMesh, w: &Work, report: &mut Report) -> PlanarMesh {
+    let mut map = vec![u32::MAX; w.p.len()];
     let mut verts = Vec::new();
     let mut h = Vec::new();
     for (v, slot) in map.iter_mut().enumerate() {
@@ -371,8 +389,5 @@ pub fn decimate_planar(m: PlanarMesh, r: &[Vec3], w0: f32, eps: f32) -> (PlanarM
         tris.push(tri.map(|i| map[i as usize]));
     }
     report.tris_after = tris.len() as u64;
-    (
-        PlanarMesh::new(m.surface, verts, tris, h, m.bandwidth, m.hits),
-        report,
-    )
+    PlanarMesh::new(m.surface, verts, tris, h, m.bandwidth, m.hits)
 }

@@ -444,6 +444,30 @@ struct Traced {
     bytes_sent: u64,
 }
 
+impl Traced {
+    /// Nothing traced yet by `tracers` (one per channel run, `chunks` chunks
+    /// each) from the luminaires `lums`: φ and the particle count set.
+    fn start(
+        tracers: &[particles::Tracer],
+        lums: &[particles::Luminaire],
+        chunks: u64,
+        s: &Settings,
+    ) -> Self {
+        let per_run = tracers
+            .first()
+            .map_or(s.particles, |t| t.particles_in(0, chunks));
+        Traced {
+            sink: None,
+            phi: particles::phi_unit(lums, per_run),
+            particles: tracers.iter().map(|t| t.particles_in(0, chunks)).sum(),
+            rays: 0,
+            hits_received: 0,
+            hits_sent: 0,
+            bytes_sent: 0,
+        }
+    }
+}
+
 /// What the receiving side of the exchange holds: the hit file, hits
 /// written, the first write error, and an abort heard from a peer.
 struct Receiver {
@@ -470,8 +494,11 @@ fn trace_exchange(
     sink: Option<super::hitfile::HitWriter>,
     ctl: &mut Control,
 ) -> Result<Traced, DataflowError> {
-    let me = worker.index();
-    let peers = worker.peers();
+    let route = Route {
+        surfaces,
+        me: worker.index(),
+        peers: worker.peers(),
+    };
     let recv = Rc::new(RefCell::new(Receiver {
         sink,
         hits: 0,
@@ -479,88 +506,13 @@ fn trace_exchange(
         abort: None,
     }));
     let failed_here = recv.borrow().sink.is_none();
-
-    // The dataflow: packets exchanged by owner, stashed by batch, written
-    // once the batch is complete everywhere (the capability held until
-    // then keeps the probe from passing it)
-    let mut input = InputHandleVec::<u64, Packet>::new();
-    let probe = ProbeHandle::new();
-    worker.dataflow::<u64, _, _>(|scope| {
-        let recv = Rc::clone(&recv);
-        input
-            .to_stream(scope)
-            .unary_frontier::<CapacityContainerBuilder<Vec<()>>, _, _, _>(
-                Exchange::new(|p: &Packet| p.0 as u64),
-                "GroupBySurface",
-                move |_cap, _info| {
-                    let mut stash: BTreeMap<u64, (_, Vec<Packet>)> = BTreeMap::new();
-                    move |(input, frontier), output| {
-                        input.for_each(|cap, data| {
-                            for p in data.drain(..) {
-                                if p.1 == ABORT {
-                                    let code = p.3.first().copied().unwrap_or(FAILED);
-                                    let why = String::from_utf8_lossy(p.3.get(1..).unwrap_or(&[]));
-                                    let mut r = recv.borrow_mut();
-                                    if r.abort.as_ref().is_none_or(|a| code < a.1 .0) {
-                                        r.abort = Some((p.2 as usize, (code, why.into_owned())));
-                                    }
-                                    continue;
-                                }
-                                let Some(&t) = cap.least() else {
-                                    continue;
-                                };
-                                stash
-                                    .entry(t)
-                                    .or_insert_with(|| {
-                                        (cap.delayed(&t, output.output_index()), Vec::new())
-                                    })
-                                    .1
-                                    .push(p);
-                            }
-                        });
-                        while let Some(entry) = stash.first_entry() {
-                            if frontier.less_equal(entry.key()) {
-                                break;
-                            }
-                            let (_cap, mut packets) = entry.remove();
-                            packets.sort_unstable_by_key(|p| (p.1, p.2));
-                            let mut r = recv.borrow_mut();
-                            for p in packets {
-                                let hits: Vec<Hit> =
-                                    p.3.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
-                                r.hits += hits.len() as u64;
-                                if r.error.is_some() {
-                                    continue;
-                                }
-                                if let Some(sink) = r.sink.as_mut() {
-                                    if let Err(e) = sink.push(&hits) {
-                                        r.error = Some(e);
-                                    }
-                                }
-                            }
-                        }
-                    }
-                },
-            )
-            .probe_with(&probe);
-    });
+    let (mut input, probe) = group_by_surface(worker, &recv);
 
     // The tracers, as in `pipeline::trace_within`
     let lums = particles::luminaires(world);
     let tracers = super::pipeline::tracers(world, surfaces, &lums, s);
     let chunks = tracers.first().map_or(0, |t| t.chunks());
-    let per_run = tracers
-        .first()
-        .map_or(s.particles, |t| t.particles_in(0, chunks));
-    let mut tr = Traced {
-        sink: None,
-        phi: particles::phi_unit(&lums, per_run),
-        particles: tracers.iter().map(|t| t.particles_in(0, chunks)).sum(),
-        rays: 0,
-        hits_received: 0,
-        hits_sent: 0,
-        bytes_sent: 0,
-    };
+    let mut tr = Traced::start(&tracers, &lums, chunks, s);
 
     // Batch by batch (the single-process batches: their order is the
     // order of the hits), this worker's slice of each
@@ -574,11 +526,7 @@ fn trace_exchange(
             break;
         }
         let c1 = (c0 + batch).min(chunks);
-        let n = c1 - c0;
-        let (a, b) = (
-            c0 + n * me as u64 / peers as u64,
-            c0 + n * (me as u64 + 1) / peers as u64,
-        );
+        let (a, b) = route.slice(c0, c1);
         for (run, t) in tracers.iter().enumerate() {
             if a == b {
                 break;
@@ -587,24 +535,7 @@ fn trace_exchange(
             if ctl.cancelled() {
                 break;
             }
-            for (k, (hits, rays)) in results.into_iter().enumerate() {
-                tr.rays += rays;
-                let mut by_owner: Vec<Vec<u8>> = vec![Vec::new(); peers];
-                for h in hits {
-                    by_owner[owner(surfaces, h.surface, peers)].extend_from_slice(&h.to_bytes());
-                }
-                for (w, bytes) in by_owner.into_iter().enumerate() {
-                    if bytes.is_empty() {
-                        continue;
-                    }
-                    let p: Packet = (w as u32, run as u32, a + k as u64, bytes);
-                    if w != me {
-                        tr.hits_sent += (p.3.len() / HIT_BYTES) as u64;
-                        tr.bytes_sent += packet_bytes(&p);
-                    }
-                    input.send(p);
-                }
-            }
+            route.send(results, run as u32, a, &mut input, &mut tr);
         }
         if ctl.cancelled() {
             break;
@@ -624,24 +555,9 @@ fn trace_exchange(
     // A stop here (cancelled, no hit file, a failed write) is told to
     // every peer before the input closes, so that they stop tracing too
     let write_error = recv.borrow_mut().error.take();
-    let stop: Option<(Status, DataflowError)> = if failed_here {
-        let st = (FAILED, "could not make its scratch directory".to_string());
-        Some((st, DataflowError::Worker("no hit file".into())))
-    } else if let Some(e) = write_error {
-        let e = DataflowError::from(DensityError::from(e));
-        Some(((FAILED, super::error_chain(&e)), e))
-    } else if ctl.cancelled() {
-        let e = DensityError::Cancelled { rays: tr.rays }.into();
-        Some(((CANCELLED, String::new()), e))
-    } else {
-        None
-    };
+    let stop = stop_here(failed_here, write_error, ctl, tr.rays);
     if let Some(((code, reason), _)) = &stop {
-        let mut why = vec![*code];
-        why.extend_from_slice(reason.as_bytes());
-        for w in 0..peers {
-            input.send((w as u32, ABORT, me as u64, why.clone()));
-        }
+        route.abort(*code, reason, &mut input);
     }
     drop(input);
     while !probe.done() {
@@ -662,6 +578,169 @@ fn trace_exchange(
     tr.sink = r.sink.take();
     tr.hits_received = r.hits;
     Ok(tr)
+}
+
+/// The exchange's operator, "sort by surface id" (§4 of the paper): packets
+/// exchanged by owner, stashed by batch, and written once the batch is
+/// complete everywhere (the capability held until then keeps the probe
+/// from passing it). Returns the input the tracers feed and the probe.
+fn group_by_surface(
+    worker: &mut Worker,
+    recv: &Rc<RefCell<Receiver>>,
+) -> (InputHandleVec<u64, Packet>, ProbeHandle<u64>) {
+    let mut input = InputHandleVec::<u64, Packet>::new();
+    let probe = ProbeHandle::new();
+    worker.dataflow::<u64, _, _>(|scope| {
+        let recv = Rc::clone(recv);
+        input
+            .to_stream(scope)
+            .unary_frontier::<CapacityContainerBuilder<Vec<()>>, _, _, _>(
+                Exchange::new(|p: &Packet| p.0 as u64),
+                "GroupBySurface",
+                move |_cap, _info| {
+                    let mut stash: BTreeMap<u64, (_, Vec<Packet>)> = BTreeMap::new();
+                    move |(input, frontier), output| {
+                        input.for_each(|cap, data| {
+                            for p in data.drain(..) {
+                                if p.1 == ABORT {
+                                    hear_abort(&mut recv.borrow_mut(), &p);
+                                    continue;
+                                }
+                                let Some(&t) = cap.least() else {
+                                    continue;
+                                };
+                                stash
+                                    .entry(t)
+                                    .or_insert_with(|| {
+                                        (cap.delayed(&t, output.output_index()), Vec::new())
+                                    })
+                                    .1
+                                    .push(p);
+                            }
+                        });
+                        while let Some(entry) = stash.first_entry() {
+                            if frontier.less_equal(entry.key()) {
+                                break;
+                            }
+                            let (_cap, packets) = entry.remove();
+                            write_batch(&mut recv.borrow_mut(), packets);
+                        }
+                    }
+                },
+            )
+            .probe_with(&probe);
+    });
+    (input, probe)
+}
+
+/// An abort packet from a peer: its status is kept unless one with a
+/// lower code was heard before.
+fn hear_abort(r: &mut Receiver, p: &Packet) {
+    let code = p.3.first().copied().unwrap_or(FAILED);
+    let why = String::from_utf8_lossy(p.3.get(1..).unwrap_or(&[]));
+    if r.abort.as_ref().is_none_or(|a| code < a.1 .0) {
+        r.abort = Some((p.2 as usize, (code, why.into_owned())));
+    }
+}
+
+/// A batch complete everywhere: its packets written to the hit file in
+/// (channel run, chunk) order, the order of the single-process bake; after
+/// a write error the hits are only counted.
+fn write_batch(r: &mut Receiver, mut packets: Vec<Packet>) {
+    packets.sort_unstable_by_key(|p| (p.1, p.2));
+    for p in packets {
+        let hits: Vec<Hit> = p.3.chunks_exact(HIT_BYTES).map(Hit::from_bytes).collect();
+        r.hits += hits.len() as u64;
+        if r.error.is_some() {
+            continue;
+        }
+        if let Some(sink) = r.sink.as_mut() {
+            if let Err(e) = sink.push(&hits) {
+                r.error = Some(e);
+            }
+        }
+    }
+}
+
+/// Where this worker's hits go: worker `me` of `peers`, the surfaces owned
+/// by [`owner`].
+struct Route<'a> {
+    surfaces: &'a Surfaces,
+    me: usize,
+    peers: usize,
+}
+
+impl Route<'_> {
+    /// This worker's slice `a..b` of the batch of chunks `c0..c1`.
+    fn slice(&self, c0: u64, c1: u64) -> (u64, u64) {
+        let n = c1 - c0;
+        let (me, peers) = (self.me as u64, self.peers as u64);
+        (c0 + n * me / peers, c0 + n * (me + 1) / peers)
+    }
+
+    /// Sends the hits of channel run `run`'s chunks from `a` on (`results`,
+    /// in chunk order) to their owners, one packet per owner and chunk, and
+    /// counts the rays and what leaves this worker in `tr`.
+    fn send(
+        &self,
+        results: Vec<(Vec<Hit>, u64)>,
+        run: u32,
+        a: u64,
+        input: &mut InputHandleVec<u64, Packet>,
+        tr: &mut Traced,
+    ) {
+        for (k, (hits, rays)) in results.into_iter().enumerate() {
+            tr.rays += rays;
+            let mut by_owner: Vec<Vec<u8>> = vec![Vec::new(); self.peers];
+            for h in hits {
+                by_owner[owner(self.surfaces, h.surface, self.peers)]
+                    .extend_from_slice(&h.to_bytes());
+            }
+            for (w, bytes) in by_owner.into_iter().enumerate() {
+                if bytes.is_empty() {
+                    continue;
+                }
+                let p: Packet = (w as u32, run, a + k as u64, bytes);
+                if w != self.me {
+                    tr.hits_sent += (p.3.len() / HIT_BYTES) as u64;
+                    tr.bytes_sent += packet_bytes(&p);
+                }
+                input.send(p);
+            }
+        }
+    }
+
+    /// Tells every peer (this worker too) that this worker stopped, with
+    /// its status `code` and `reason`.
+    fn abort(&self, code: u8, reason: &str, input: &mut InputHandleVec<u64, Packet>) {
+        let mut why = vec![code];
+        why.extend_from_slice(reason.as_bytes());
+        for w in 0..self.peers {
+            input.send((w as u32, ABORT, self.me as u64, why.clone()));
+        }
+    }
+}
+
+/// Why this worker stops after tracing, if it does: no hit file, a failed
+/// write, or a cancel; the status told to the peers and the error returned.
+fn stop_here(
+    failed_here: bool,
+    write_error: Option<super::hitfile::HitFileError>,
+    ctl: &Control,
+    rays: u64,
+) -> Option<(Status, DataflowError)> {
+    if failed_here {
+        let st = (FAILED, "could not make its scratch directory".to_string());
+        Some((st, DataflowError::Worker("no hit file".into())))
+    } else if let Some(e) = write_error {
+        let e = DataflowError::from(DensityError::from(e));
+        Some(((FAILED, super::error_chain(&e)), e))
+    } else if ctl.cancelled() {
+        let e = DensityError::Cancelled { rays }.into();
+        Some(((CANCELLED, String::new()), e))
+    } else {
+        None
+    }
 }
 
 /// The error a worker returns once a peer aborted.
