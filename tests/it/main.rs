@@ -24,6 +24,7 @@ mod driver;
 mod farm;
 mod fuzz;
 mod geometry;
+mod glb;
 mod image_io;
 mod lights;
 mod loader;

@@ -119,8 +119,11 @@ pub struct Settings {
     /// Error bound ε of the decimation, in Stevens brightness units.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.01))]
     pub epsilon: f32,
-    /// Decimate the over-mesh (phase 3); `--no-decimate` skips it.
-    #[cfg_attr(feature = "cli", arg(long = "no-decimate", action = clap::ArgAction::SetFalse))]
+    /// Whether phase 3 decimates the over-mesh (the default); false keeps
+    /// the over-mesh as the display mesh. On the command line, the switch
+    /// `--no-decimate` sets it to false.
+    #[cfg_attr(feature = "cli", arg(long = "no-decimate", action = clap::ArgAction::SetFalse,
+        help = "Keep the over-mesh as the display mesh: skip decimation (phase 3)"))]
     pub decimate: bool,
     /// One RGB particle pass (rgb), or the paper's three per-channel runs
     /// (per-channel).
