@@ -156,10 +156,8 @@ impl Meta {
             ));
         }
         if self.settings != other.settings {
-            let json = |m: &MethodConfig| {
-                serde_json::to_string(m).unwrap_or_else(|e| format!("{m:?} ({e})"))
-            };
-            return d("settings", &json(&self.settings), &json(&other.settings));
+            let (a, b) = settings_difference(&self.settings, &other.settings);
+            return d("settings", &a, &b);
         }
         if self.seed != other.seed {
             return d("seed", &self.seed, &other.seed);
@@ -173,6 +171,30 @@ impl Meta {
         }
         None
     }
+}
+
+/// The first field in which the settings `a` and `b` of one method differ,
+/// as `name: value` for each (`rr_depth: 5`, `rr_depth: 2`), read from
+/// their serde form; both whole, as JSON, when no single field tells them
+/// apart.
+fn settings_difference(a: &MethodConfig, b: &MethodConfig) -> (String, String) {
+    let value = |m: &MethodConfig| serde_json::to_value(m).unwrap_or_default();
+    let (va, vb) = (value(a), value(b));
+    let fields = |v: &serde_json::Value| {
+        v.as_object()
+            .and_then(|o| o.get(a.name()))
+            .and_then(|s| s.as_object())
+            .cloned()
+    };
+    if let (Some(fa), Some(fb)) = (fields(&va), fields(&vb)) {
+        for (k, x) in &fa {
+            let y = fb.get(k).unwrap_or(&serde_json::Value::Null);
+            if x != y {
+                return (format!("{k}: {x}"), format!("{k}: {y}"));
+            }
+        }
+    }
+    (va.to_string(), vb.to_string())
 }
 
 /// A partial result: what render it belongs to, and its state.
