@@ -20,7 +20,8 @@ use crate::scene::{luminance, EmitterDesc, Rgb, Scene, TexImage};
 use tree::LightTree;
 
 /// How next-event estimation chooses the light to sample.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum LightSelection {
     /// In proportion to power alone, wherever the shading point is

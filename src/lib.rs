@@ -14,6 +14,7 @@ pub mod emitter;
 pub mod film;
 pub mod geometry;
 pub mod image_io;
+pub mod memory;
 pub mod methods;
 pub mod metrics;
 pub mod partial;
@@ -25,5 +26,6 @@ pub mod scene;
 pub mod scenegen;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod simd8;
+pub mod state;
 pub mod transport;
 pub mod world;

@@ -29,16 +29,13 @@
 
 use std::sync::atomic::AtomicBool;
 
-use std::mem::size_of;
-
-use glam::{DVec3, Vec3};
-
 use crate::film::Image;
+pub use crate::memory::{check_memory, format_bytes, MemoryError, MemoryItem};
 use crate::methods::{
-    bundle, density, Budget, Checkpoint, Common, Driver, Hooks, MethodConfig, MethodError,
-    Progress, RenderResult, Watch,
+    Budget, Checkpoint, Common, Driver, Hooks, MethodConfig, MethodError, Progress, RenderResult,
+    Watch,
 };
-use crate::partial::{self, Shard, ShardKind, State};
+use crate::state::{shard_seed, Shard, ShardKind, State};
 use crate::world::World;
 
 /// What [`Render::watch`] calls with each image it shows.
@@ -209,16 +206,16 @@ impl<'a> Render<'a> {
         // A whole render is split in no way, but a chain method's state to
         // keep is still its image
         let kind = if self.shard == Shard::WHOLE {
-            partial::shard_kind(&self.method).ok()
+            self.method.shard_kind().ok()
         } else {
-            Some(partial::shard_kind(&self.method)?)
+            Some(self.method.shard_kind()?)
         };
         if self.checkpoint.is_some() || self.resume.is_some() {
-            partial::check_resumable(&self.method)?;
+            self.method.check_resumable()?;
         }
         let mut common = self.common.clone();
         if kind == Some(ShardKind::Chains) {
-            common.seed = partial::shard_seed(common.seed, self.shard);
+            common.seed = shard_seed(common.seed, self.shard);
         }
         let mut method = self.method.create(self.world, &common)?;
         if kind == Some(ShardKind::Exact) && self.shard != Shard::WHOLE {
@@ -262,191 +259,19 @@ impl<'a> Render<'a> {
     }
 }
 
-/// One large allocation of a render, estimated before it is made.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MemoryItem {
-    /// What it is, in the user's terms ("the film 512×512 (8 lanes)").
-    pub what: String,
-    /// Its estimated size in bytes.
-    pub bytes: u64,
-    /// How to make it smaller ("lower --res").
-    pub remedy: &'static str,
-}
-
-/// A render that would need more memory than its limit.
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error(
-    "{what} needs {}{}; the limit is {} ({source_of_limit}): {remedy} or raise --max-memory",
-    format_bytes(*bytes),
-    total_note(*bytes, *total),
-    format_bytes(*limit)
-)]
-pub struct MemoryError {
-    /// The largest item ([`MemoryItem::what`]).
-    pub what: String,
-    /// Its estimate in bytes.
-    pub bytes: u64,
-    /// The estimate of all items together.
-    pub total: u64,
-    /// The limit in bytes.
-    pub limit: u64,
-    /// Where the limit comes from ("this machine's memory").
-    pub source_of_limit: String,
-    /// How to make the largest item smaller.
-    pub remedy: &'static str,
-}
-
-impl From<MemoryError> for MethodError {
-    fn from(e: MemoryError) -> Self {
-        MethodError(e.to_string())
-    }
-}
-
-/// " (the render 10.0 GB in all)" when the total reads differently from
-/// the largest item's figure, else nothing.
-fn total_note(bytes: u64, total: u64) -> String {
-    let t = format_bytes(total);
-    if t == format_bytes(bytes) {
-        String::new()
-    } else {
-        format!(" (the render {t} in all)")
-    }
-}
-
-/// Bytes as the user reads them: decimal units with one decimal, "51.5 GB".
-pub fn format_bytes(bytes: u64) -> String {
-    let b = bytes as f64;
-    for (unit, size) in [("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)] {
-        if b >= size {
-            return format!("{:.1} {unit}", b / size);
-        }
-    }
-    format!("{bytes} B")
-}
-
 /// The large allocations that rendering a `width` × `height` film with
 /// `method` makes, before any of them is made: what the per-pixel buffers
 /// of the method hold (each lane's films, the camera pass's sums, the
 /// merged films and the final image: the peak, while the image is
 /// assembled), and the method's own big structures. Structures whose size
 /// depends on the scene are counted at the largest the settings allow
-/// (bundle's map at [`bundle::MAX_AUTO_MAP_RES`] unless `--map-res` is
-/// given; its patches only when their number is given). Smaller
-/// allocations (the scene, the BVH, per-thread scratch) are not counted.
+/// (bundle's map at [`crate::methods::bundle::MAX_AUTO_MAP_RES`] unless
+/// `--map-res` is given; its patches only when their number is given).
+/// Smaller allocations (the scene, the BVH, per-thread scratch) are not
+/// counted. Each method estimates its own, in its folder
+/// ([`crate::methods::MethodSettings::memory`]).
 pub fn memory_estimate(method: &MethodConfig, width: u32, height: u32) -> Vec<MemoryItem> {
-    let pixels = u64::from(width) * u64::from(height);
-    let film = size_of::<DVec3>() as u64; // one f64 RGB sum per pixel
-    let image = size_of::<Vec3>() as u64; // the f32 image the method returns
-                                          // The camera pass's per-pixel sum, its mask, and the pre-pass's
-                                          // (mask, rays) pairs collected before the mask is kept.
-    let camera_pass = film + (size_of::<bool>() + size_of::<(bool, u64)>()) as u64;
-    let camera = |on: bool| if on { camera_pass } else { 0 };
-    let mut items = Vec::new();
-    let mut film_item = |per_pixel: u64, detail: String| {
-        items.push(MemoryItem {
-            what: format!("the film {width}×{height}{detail}"),
-            bytes: pixels.saturating_mul(per_pixel),
-            remedy: "lower --res",
-        })
-    };
-    match method {
-        MethodConfig::Path(_) => film_item(film + image, String::new()),
-        MethodConfig::Light(s) => {
-            // one film per lane, their merge, the image
-            let lanes = s.lanes.max(1) as u64;
-            film_item(
-                (lanes + 1) * film + image + camera(s.camera_pass),
-                format!(" ({lanes} lanes)"),
-            )
-        }
-        MethodConfig::Plb(s) => {
-            // two films per lane (light and hits), their two merges and
-            // images, the final image
-            let lanes = s.lanes.max(1) as u64;
-            film_item(
-                (2 * lanes + 2) * film + 3 * image + camera(s.camera_pass),
-                format!(" ({lanes} lanes)"),
-            );
-            items.push(MemoryItem {
-                what: format!(
-                    "plb's populations ({} lanes of {} hits)",
-                    s.lanes, s.population
-                ),
-                bytes: s.population_bytes(),
-                remedy: "lower --population",
-            });
-        }
-        MethodConfig::Bundle(s) => {
-            let fixed = if s.positions == bundle::image::Positions::Fixed {
-                // the stored samples, and the (sample, rays) pairs they
-                // are collected from
-                let sample = size_of::<bundle::image::PixelSample>()
-                    + size_of::<(bundle::image::PixelSample, u64)>();
-                // and, in the paper's form, each sample's quiet part
-                let quiet =
-                    if s.direct == bundle::Direct::Bundles && s.gather == bundle::Gather::Off {
-                        bundle::image::QUIET_BYTES
-                    } else {
-                        0
-                    };
-                (bundle::image::SAMPLES * (sample + quiet)) as u64
-            } else {
-                0
-            };
-            film_item(film + image + fixed, String::new());
-            let res = s.map_res.unwrap_or(bundle::MAX_AUTO_MAP_RES);
-            items.push(MemoryItem {
-                what: format!("bundle's visibility map {res}×{res}"),
-                bytes: bundle::visibility::map_bytes(res, s.visibility),
-                remedy: "lower --map-res",
-            });
-            if s.edge.is_none() {
-                let (state, transient) = bundle::Bundle::bytes_per_patch();
-                items.push(MemoryItem {
-                    what: format!("bundle's {} patches", s.patches),
-                    bytes: (s.patches as u64).saturating_mul((state + transient) as u64),
-                    remedy: "lower --patches",
-                });
-            }
-        }
-        MethodConfig::Density(s) => {
-            film_item(film + image, String::new());
-            // a chunk of records read from the hit file, and its decoding
-            let per_hit = (density::hits::HIT_BYTES + size_of::<density::hits::Hit>()) as u64;
-            items.push(MemoryItem {
-                what: format!("density's hit chunk ({} hits)", s.chunk_hits),
-                bytes: (s.chunk_hits as u64).saturating_mul(per_hit),
-                remedy: "lower --chunk-hits",
-            });
-        }
-    }
-    items
-}
-
-/// Refuses `items` when they need more than `limit` bytes together: the
-/// error names the largest item, its estimate, the total when there are
-/// several, and the limit with where it comes from (`source_of_limit`).
-pub fn check_memory(
-    items: &[MemoryItem],
-    limit: u64,
-    source_of_limit: &str,
-) -> Result<(), MemoryError> {
-    let total = items.iter().fold(0u64, |t, i| t.saturating_add(i.bytes));
-    if total <= limit {
-        return Ok(());
-    }
-    let largest = items
-        .iter()
-        .max_by_key(|i| i.bytes)
-        .expect("a total above the limit has at least one item");
-    Err(MemoryError {
-        what: largest.what.clone(),
-        bytes: largest.bytes,
-        total,
-        limit,
-        source_of_limit: source_of_limit.to_string(),
-        remedy: largest.remedy,
-    })
+    method.memory(width, height)
 }
 
 /// The machine's memory from the text of Linux's `/proc/meminfo` (its

@@ -7,7 +7,7 @@ use std::time::Instant;
 use super::{Method, MethodError, World};
 use crate::film::Image;
 use crate::metrics;
-use crate::partial::State;
+use crate::state::State;
 
 /// When to stop. Several limits may be set; the first reached stops.
 #[derive(Clone, Copy, Debug, Default)]
@@ -170,7 +170,7 @@ pub struct Hooks<'a> {
     /// Every so many seconds, the state is handed to the function (which
     /// writes the checkpoint). The time this takes is not render time. A
     /// method without state ([`Method::state`] gives None) hands out
-    /// nothing: check first ([`crate::partial::check_resumable`]).
+    /// nothing: check first ([`super::MethodConfig::check_resumable`]).
     pub checkpoint: Option<Checkpoint<'a>>,
     /// Put the final state into [`RenderResult::state`].
     pub keep_state: bool,

@@ -40,12 +40,16 @@ use std::ops::ControlFlow;
 
 use rayon::prelude::*;
 
-use super::{Method, MethodError, StepStats, World};
+use super::{
+    camera_pass, film_item, Common, Method, MethodError, MethodSettings, StepStats, World, FILM,
+    IMAGE,
+};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
-use crate::partial::{Shard, State};
+use crate::memory::MemoryItem;
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb};
+use crate::state::{Shard, ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 use crate::transport::dispatch::dispatched;
 use crate::transport::{
@@ -54,7 +58,8 @@ use crate::transport::{
 };
 
 /// Which form of the method.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Variant {
     /// Independent walks with Russian roulette on the albedo.
@@ -64,7 +69,8 @@ pub enum Variant {
 }
 
 /// Settings of the light tracer.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
     /// Master seed (set from [`super::Common`]).
@@ -137,6 +143,70 @@ struct Chain {
     /// (if the last ray hit one): the vertex, seen from where the power came
     /// from, the power, and the segments of the walk so far.
     last: Option<Landing>,
+}
+
+impl MethodSettings for Settings {
+    fn validate(&self) -> Result<(), MethodError> {
+        Settings::validate(self)
+    }
+
+    /// Exact: a shard owns the lanes l ≡ K (mod N) (their streams are
+    /// keyed by (seed, pass, lane)) and, for the camera pass, the rows
+    /// y ≡ K (mod N).
+    fn shard_kind(&self) -> Result<ShardKind, MethodError> {
+        Ok(ShardKind::Exact)
+    }
+
+    fn check_shard_count(&self, count: u32) -> Result<(), MethodError> {
+        if count as usize > self.lanes {
+            return Err(MethodError(format!(
+                "light splits into at most {} shards (one per lane: the streams that keep its \
+                 image independent of the thread count), not {}",
+                self.lanes, count
+            )));
+        }
+        Ok(())
+    }
+
+    fn resumable(&self) -> Result<(), &'static str> {
+        match self.variant {
+            Variant::Walk => Ok(()),
+            Variant::Iteration => Err(
+                "its iteration chains carry a surface point from pass to pass (use --variant walk)",
+            ),
+        }
+    }
+
+    fn merge_exact(
+        &self,
+        states: &[&State],
+        width: u32,
+        height: u32,
+    ) -> Result<Image, MethodError> {
+        merge_image(states, width, height)
+    }
+
+    /// One film per lane, their merge, the image, and the camera pass.
+    fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
+        let lanes = self.lanes.max(1) as u64;
+        vec![film_item(
+            width,
+            height,
+            (lanes + 1) * FILM + IMAGE + camera_pass(self.camera_pass),
+            &format!(" ({lanes} lanes)"),
+        )]
+    }
+
+    fn create(&self, world: &World, common: &Common) -> Box<dyn Method> {
+        Box::new(LightTracer::new(
+            world,
+            Settings {
+                seed: common.seed,
+                max_depth: common.max_depth,
+                ..self.clone()
+            },
+        ))
+    }
 }
 
 /// The light tracer's progressive state.

@@ -6,16 +6,29 @@
 //! `light`...) and reports the rays it traced; [`Method::image`] is the
 //! current estimate. Methods never print and never touch files.
 //!
-//! Each method owns a typed `Settings` (with `Default` and `validate()`);
-//! the settings every method shares (seed, longest path) are [`Common`];
-//! [`MethodConfig`] is one method with its settings, and [`all`] is the
-//! table of methods that the command line and the tests iterate
-//! (Tungsten's integrator factory). A new method is a new folder, one
-//! variant of [`MethodConfig`] and one row of [`all`].
+//! Each method owns a typed `Settings` (with `Default`, serde and clap
+//! derives) in its own folder; the settings every method shares (seed,
+//! longest path) are [`Common`]; [`MethodConfig`] is one method with its
+//! settings, and [`all`] is the table of methods that the command line and
+//! the tests iterate (Tungsten's integrator factory).
+//!
+//! The table is the only place that knows which methods there are. Each
+//! `Settings` implements the contract [`MethodSettings`]: its checks, how
+//! it is split into shards and whether it resumes from checkpoints, its
+//! exact merge of shard states, its memory estimate, and building the
+//! method. [`MethodConfig`] hands each question to it with one dispatch
+//! (the `dispatch!` macro here), and `partial`, `render` and the command
+//! line ask [`MethodConfig`], never a method by name. A new method is
+//! therefore a new folder whose `Settings` implements [`MethodSettings`]
+//! (the compiler names every function still missing), one variant of
+//! [`MethodConfig`] with its arm of `dispatch!` and its name in
+//! [`MethodConfig::name`] (the compiler names those too), and one row of
+//! [`all`].
 
 pub mod bundle;
 #[cfg(feature = "cli")]
 pub mod cli;
+mod contract;
 pub mod density;
 mod driver;
 pub mod light;
@@ -24,8 +37,11 @@ pub mod plb;
 
 pub use driver::{Budget, Checkpoint, Driver, Hooks, LogRow, Progress, RenderResult, Setup, Watch};
 
+pub use contract::{camera_pass, film_item, no_exact_merge, MethodSettings, FILM, IMAGE};
+
 use crate::film::Image;
-use crate::partial::{Shard, State};
+use crate::memory::{MemoryError, MemoryItem};
+use crate::state::{Shard, ShardKind, State, StateError};
 pub use crate::world::World;
 
 /// What one step did.
@@ -102,6 +118,18 @@ pub trait Method: Send {
 #[error("{0}")]
 pub struct MethodError(pub String);
 
+impl From<StateError> for MethodError {
+    fn from(e: StateError) -> Self {
+        MethodError(e.0)
+    }
+}
+
+impl From<MemoryError> for MethodError {
+    fn from(e: MemoryError) -> Self {
+        MethodError(e.to_string())
+    }
+}
+
 /// Settings every method shares.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Common {
@@ -114,8 +142,11 @@ pub struct Common {
     pub max_depth: Option<u32>,
 }
 
-/// One method with its settings.
-#[derive(Clone, Debug, PartialEq)]
+/// One method with its settings. Serialised (as in a partial result's
+/// header) it is one JSON object keyed by the method's name:
+/// `{"path":{"seed":0,"max_depth":null,"rr_depth":5,...}}`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum MethodConfig {
     /// The reference path tracer.
     Path(path::Settings),
@@ -127,6 +158,21 @@ pub enum MethodConfig {
     Bundle(bundle::Settings),
     /// Density estimation.
     Density(density::Settings),
+}
+
+/// Runs `$body` with `$s` bound to the settings of whichever method
+/// `$cfg` is: the one place, with [`MethodConfig::name`], that lists the
+/// variants (a new one that is missing here is a compile error).
+macro_rules! dispatch {
+    ($cfg:expr, $s:ident => $body:expr) => {
+        match $cfg {
+            MethodConfig::Path($s) => $body,
+            MethodConfig::Light($s) => $body,
+            MethodConfig::Plb($s) => $body,
+            MethodConfig::Bundle($s) => $body,
+            MethodConfig::Density($s) => $body,
+        }
+    };
 }
 
 impl MethodConfig {
@@ -148,13 +194,7 @@ impl MethodConfig {
 
     /// Rejects settings that cannot work, naming the flag.
     pub fn validate(&self) -> Result<(), MethodError> {
-        match self {
-            MethodConfig::Path(s) => s.validate(),
-            MethodConfig::Light(s) => s.validate(),
-            MethodConfig::Plb(s) => s.validate(),
-            MethodConfig::Bundle(s) => s.validate(),
-            MethodConfig::Density(s) => s.validate(),
-        }
+        dispatch!(self, s => MethodSettings::validate(s))
     }
 
     /// Validates the settings together with the shared ones: a method that
@@ -180,44 +220,61 @@ impl MethodConfig {
     /// the work that needs the world runs in [`Method::prepare`].
     pub fn create(&self, world: &World, common: &Common) -> Result<Box<dyn Method>, MethodError> {
         self.check(common)?;
-        let (seed, max_depth) = (common.seed, common.max_depth);
-        Ok(match self.clone() {
-            MethodConfig::Path(s) => Box::new(path::PathTracer::new(
-                world,
-                path::Settings {
-                    seed,
-                    max_depth,
-                    ..s
-                },
-            )),
-            MethodConfig::Light(s) => Box::new(light::LightTracer::new(
-                world,
-                light::Settings {
-                    seed,
-                    max_depth,
-                    ..s
-                },
-            )),
-            MethodConfig::Plb(s) => Box::new(plb::Plb::new(
-                world,
-                plb::Settings {
-                    seed,
-                    max_depth,
-                    ..s
-                },
-            )),
-            MethodConfig::Bundle(s) => {
-                Box::new(bundle::Bundle::new(world, bundle::Settings { seed, ..s }))
-            }
-            MethodConfig::Density(s) => Box::new(density::Density::new(
-                world,
-                density::Settings {
-                    seed,
-                    max_depth,
-                    ..s
-                },
-            )),
-        })
+        Ok(dispatch!(self, s => s.create(world, common)))
+    }
+
+    /// How the method is split into shards, or why it cannot be (see
+    /// [`crate::partial`]).
+    pub fn shard_kind(&self) -> Result<ShardKind, MethodError> {
+        dispatch!(self, s => s.shard_kind())
+    }
+
+    /// Checks before any work that the method can be split into
+    /// `shard.count` shards, and says how.
+    pub fn check_shard(&self, shard: Shard) -> Result<ShardKind, MethodError> {
+        let kind = self.shard_kind()?;
+        dispatch!(self, s => s.check_shard_count(shard.count))?;
+        Ok(kind)
+    }
+
+    /// Checks before any work that the method can write checkpoints and
+    /// resume from them exactly; the error says why not and which methods
+    /// can.
+    pub fn check_resumable(&self) -> Result<(), MethodError> {
+        let Err(why) = dispatch!(self, s => s.resumable()) else {
+            return Ok(());
+        };
+        let able: Vec<&str> = ALL
+            .iter()
+            .filter(|m| dispatch!(&(m.default)(), s => s.resumable()).is_ok())
+            .map(|m| m.name)
+            .collect();
+        let list = match able.split_last() {
+            Some((last, [])) => last.to_string(),
+            Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
+            None => "no method".into(),
+        };
+        Err(MethodError(format!(
+            "method '{}' cannot write checkpoints or resume: {why}; checkpoints work with {list}",
+            self.name()
+        )))
+    }
+
+    /// The image of a render split exactly from the states of all its
+    /// shards, in shard order (see [`MethodSettings::merge_exact`]).
+    pub fn merge_exact(
+        &self,
+        states: &[&State],
+        width: u32,
+        height: u32,
+    ) -> Result<Image, MethodError> {
+        dispatch!(self, s => s.merge_exact(states, width, height))
+    }
+
+    /// The large allocations of a `width` × `height` render (see
+    /// [`crate::render::memory_estimate`]).
+    pub fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
+        dispatch!(self, s => s.memory(width, height))
     }
 }
 

@@ -10,21 +10,25 @@
 
 use rayon::prelude::*;
 
-use super::{Method, MethodError, StepStats, World};
+use super::{
+    film_item, Common, Method, MethodError, MethodSettings, StepStats, World, FILM, IMAGE,
+};
 use crate::accel::Hit;
 use crate::emitter::LightSelection;
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
-use crate::partial::{Shard, State};
+use crate::memory::MemoryItem;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::state::{Shard, ShardKind, State};
 use crate::transport::dispatch::dispatched;
 use crate::transport::lanes::radiance_row;
 use crate::transport::{radiance_from_hit, DepthLimits};
 use glam::DVec3;
 
 /// Settings of the path tracer.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
     /// Master seed (set from [`super::Common`]).
@@ -66,6 +70,51 @@ impl Settings {
             ));
         }
         Ok(())
+    }
+}
+
+impl MethodSettings for Settings {
+    fn validate(&self) -> Result<(), MethodError> {
+        Settings::validate(self)
+    }
+
+    /// Exact: a shard owns the pixel rows y ≡ K (mod N) of every pass (the
+    /// streams are keyed by (seed, pass, pixel)).
+    fn shard_kind(&self) -> Result<ShardKind, MethodError> {
+        Ok(ShardKind::Exact)
+    }
+
+    fn check_shard_count(&self, _count: u32) -> Result<(), MethodError> {
+        Ok(())
+    }
+
+    fn resumable(&self) -> Result<(), &'static str> {
+        Ok(())
+    }
+
+    fn merge_exact(
+        &self,
+        states: &[&State],
+        width: u32,
+        height: u32,
+    ) -> Result<Image, MethodError> {
+        merge_image(states, width, height)
+    }
+
+    /// The film and the image.
+    fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
+        vec![film_item(width, height, FILM + IMAGE, "")]
+    }
+
+    fn create(&self, world: &World, common: &Common) -> Box<dyn Method> {
+        Box::new(PathTracer::new(
+            world,
+            Settings {
+                seed: common.seed,
+                max_depth: common.max_depth,
+                ..self.clone()
+            },
+        ))
     }
 }
 

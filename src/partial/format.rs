@@ -3,10 +3,10 @@
 //! (an EXR holds f32 at most, which would lose the exactness of a merge).
 //!
 //! ```text
-//! kalos-partial 1
+//! kalos-partial 2
 //! method path
 //! kind exact
-//! settings Path(Settings { seed: 0, max_depth: None, rr_depth: 5 })
+//! settings {"path":{"seed":0,"max_depth":null,"rr_depth":5,"light_selection":"spatial"}}
 //! seed 0
 //! max_depth none
 //! scene 3f2a9c0d1b7e4410
@@ -22,6 +22,14 @@
 //! end
 //! <for each buffer in order: PIXELS × (r, g, b) as f64 little-endian>
 //! ```
+//!
+//! `settings` is the [`MethodConfig`] as one line of JSON (serde's form:
+//! an object keyed by the method's name, holding every field of its
+//! `Settings`), read back into the equal value, so that the parts of one
+//! render are recognised by their settings and a misspelt or foreign
+//! field is an error. `method` repeats the name for `head` and must agree.
+//! Version 1 stored the settings as Rust `Debug` text, which cannot be
+//! read back: such a file is refused with the advice to re-render it.
 
 use std::io::Write;
 use std::path::Path;
@@ -30,13 +38,19 @@ use glam::DVec3;
 
 use super::{Meta, Partial, PartialError, Shard, ShardKind, State};
 use crate::image_io::{write_atomic, ImageIoError};
+use crate::methods::MethodConfig;
 
-const MAGIC: &str = "kalos-partial 1";
+/// The first line's key and the format's version.
+const MAGIC_KEY: &str = "kalos-partial";
+const VERSION: u32 = 2;
 
 /// Writes the partial result of `state` in the render `meta` to `path`,
 /// atomically (a temporary file, then a rename).
 pub fn write(path: &Path, meta: &Meta, state: &State) -> Result<(), PartialError> {
-    let head = header(meta, state);
+    let head = header(meta, state).map_err(|reason| PartialError::Malformed {
+        path: path.to_path_buf(),
+        reason,
+    })?;
     write_atomic(path, |w| {
         encode(&head, state, w).map_err(|source| ImageIoError::Io {
             path: path.to_path_buf(),
@@ -46,8 +60,11 @@ pub fn write(path: &Path, meta: &Meta, state: &State) -> Result<(), PartialError
     Ok(())
 }
 
-/// The text header of a partial result, up to and with its `end` line.
-fn header(m: &Meta, s: &State) -> String {
+/// The text header of a partial result, up to and with its `end` line, or
+/// why the settings cannot be written (a path that is not UTF-8).
+fn header(m: &Meta, s: &State) -> Result<String, String> {
+    let settings = serde_json::to_string(&m.settings)
+        .map_err(|e| format!("cannot write the method's settings: {e}"))?;
     let mut head = String::new();
     let mut line = |k: &str, v: String| {
         head += k;
@@ -55,10 +72,11 @@ fn header(m: &Meta, s: &State) -> String {
         head += &v;
         head += "\n";
     };
-    line("kalos-partial", "1".into());
-    line("method", m.method.clone());
+    line(MAGIC_KEY, VERSION.to_string());
+    line("method", m.method().into());
     line("kind", m.kind.word().into());
-    line("settings", one_line(&m.settings));
+    // serde_json escapes line breaks inside strings: the JSON is one line
+    line("settings", settings);
     line("seed", m.seed.to_string());
     line(
         "max_depth",
@@ -79,7 +97,7 @@ fn header(m: &Meta, s: &State) -> String {
         line("buffer", format!("{k} {}", b.len()));
     }
     head += "end\n";
-    head
+    Ok(head)
 }
 
 /// Writes the header `head` and the buffers of `state` to `w`, a buffer at
@@ -118,11 +136,32 @@ pub fn read(path: &Path) -> Result<Partial, PartialError> {
 
 /// Parses the bytes of a partial-result file.
 fn decode(bytes: &[u8]) -> Result<Partial, String> {
-    if !bytes.starts_with(MAGIC.as_bytes()) {
-        return Err(format!(
-            "not a kalos partial result (expected a first line '{MAGIC}', as `kalos render --shard` \
-             and `--checkpoint` write)"
-        ));
+    let first = bytes.split(|&b| b == b'\n').next().unwrap_or_default();
+    let version = std::str::from_utf8(first)
+        .ok()
+        .and_then(|l| l.strip_prefix(MAGIC_KEY))
+        .and_then(|v| v.strip_prefix(' '));
+    match version.map(str::trim) {
+        Some(v) if v == VERSION.to_string() => {}
+        Some("1") => {
+            return Err(
+                "written by an older kalos (partial format 1, whose settings cannot be read \
+                 back): re-render the shard"
+                    .into(),
+            )
+        }
+        Some(v) => {
+            return Err(format!(
+                "partial format '{v}', but this kalos reads format {VERSION} \
+                 (written by a newer kalos?)"
+            ))
+        }
+        None => {
+            return Err(format!(
+                "not a kalos partial result (expected a first line '{MAGIC_KEY} {VERSION}', as \
+                 `kalos render --shard` and `--checkpoint` write)"
+            ))
+        }
     }
     let end = find(bytes, b"\nend\n").ok_or("the header has no 'end' line (truncated file?)")?;
     let head = std::str::from_utf8(&bytes[..end]).map_err(|_| "the header is not UTF-8")?;
@@ -194,9 +233,19 @@ fn decode(bytes: &[u8]) -> Result<Partial, String> {
     let (scene, scene_line) = get("scene")?;
     let scene_hash = u64::from_str_radix(scene, 16)
         .map_err(|_| format!("header line {scene_line}: 'scene' expects 16 hex digits"))?;
+    let (settings, settings_line) = get("settings")?;
+    let settings: MethodConfig = serde_json::from_str(settings).map_err(|e| {
+        format!("header line {settings_line}: the method's settings do not parse: {e}")
+    })?;
+    let (method, method_line) = get("method")?;
+    if method != settings.name() {
+        return Err(format!(
+            "header line {method_line}: 'method' is {method} but the settings are {}'s",
+            settings.name()
+        ));
+    }
     let meta = Meta {
-        method: get("method")?.0.to_string(),
-        settings: get("settings")?.0.to_string(),
+        settings,
         seed: num("seed", get("seed")?)?,
         max_depth,
         scene_hash,
@@ -265,11 +314,14 @@ fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::methods::{bundle, density, light, path, plb};
 
     fn sample() -> (Meta, State) {
         let meta = Meta {
-            method: "path".into(),
-            settings: "Path(Settings { rr_depth: 5 })".into(),
+            settings: MethodConfig::Path(path::Settings {
+                rr_depth: 3,
+                ..Default::default()
+            }),
             seed: 7,
             max_depth: Some(3),
             scene_hash: 0x0123_4567_89ab_cdef,
@@ -297,7 +349,8 @@ mod tests {
 
     fn bytes(meta: &Meta, state: &State) -> Vec<u8> {
         let mut v = Vec::new();
-        encode(&header(meta, state), state, &mut v).expect("in memory");
+        let head = header(meta, state).expect("the settings serialise");
+        encode(&head, state, &mut v).expect("in memory");
         v
     }
 
@@ -306,6 +359,146 @@ mod tests {
         let (meta, state) = sample();
         let back = decode(&bytes(&meta, &state)).expect("decodes");
         assert_eq!(back, Partial { meta, state });
+    }
+
+    /// Every method's default settings, and some far from the defaults
+    /// (every enum off its default, options set, floats that are not
+    /// short decimals), read back into the equal settings.
+    #[test]
+    fn every_methods_settings_read_back_equal() {
+        let mut configs: Vec<MethodConfig> = crate::methods::all()
+            .iter()
+            .map(|m| (m.default)())
+            .collect();
+        assert_eq!(configs.len(), crate::methods::names().len());
+        configs.extend([
+            MethodConfig::Path(path::Settings {
+                seed: 42,
+                max_depth: Some(4),
+                rr_depth: 2,
+                light_selection: crate::emitter::LightSelection::Power,
+            }),
+            MethodConfig::Light(light::Settings {
+                variant: light::Variant::Iteration,
+                lanes: 3,
+                paths_per_pass: 12345,
+                discard: 2,
+                camera_pass: false,
+                ..Default::default()
+            }),
+            MethodConfig::Plb(plb::Settings {
+                lambda: 0.1,
+                phase_len: 17,
+                variant: plb::Variant::Paper,
+                measure: Some(plb::Measure::Birth),
+                camera_pass: false,
+                ..Default::default()
+            }),
+            MethodConfig::Bundle(bundle::Settings {
+                edge: Some(1.0 / 3.0),
+                map_res: Some(777),
+                budget: bundle::PatchBudget::Projected,
+                sequence: bundle::sequence::Sequence::Halton,
+                image: bundle::image::ImageMode::Gouraud,
+                visibility: bundle::visibility::Visibility::ZBuffer,
+                centre_rr: false,
+                positions: bundle::image::Positions::Fixed,
+                direct: bundle::Direct::Bundles,
+                gather: bundle::Gather::Off,
+                glass: bundle::Glass::Off,
+                ..Default::default()
+            }),
+            MethodConfig::Density(density::Settings {
+                c1: std::f32::consts::PI,
+                epsilon: 1e-7,
+                decimate: false,
+                per_channel: true,
+                scratch: Some("a dir/with \"quotes\"\nand a line break".into()),
+                keep_hits: Some("hits.bin".into()),
+                ..Default::default()
+            }),
+        ]);
+        for settings in configs {
+            let (mut meta, state) = sample();
+            meta.settings = settings.clone();
+            let b = bytes(&meta, &state);
+            let head = String::from_utf8_lossy(&b[..find(&b, b"\nend\n").expect("end")]);
+            let line = head
+                .lines()
+                .find(|l| l.starts_with("settings "))
+                .expect("a settings line");
+            assert!(
+                line.starts_with(&format!("settings {{\"{}\":{{", settings.name())),
+                "{line}"
+            );
+            assert!(head.starts_with("kalos-partial 2\nmethod "), "{head}");
+            let back = decode(&b).unwrap_or_else(|e| panic!("{}: {e}", settings.name()));
+            assert_eq!(back.meta.settings, settings);
+            assert_eq!(back, Partial { meta, state });
+        }
+    }
+
+    #[test]
+    fn a_file_reads_back_through_write_and_read() {
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let file = dir.path().join("part.kpart");
+        let (mut meta, state) = sample();
+        meta.settings = MethodConfig::Light(light::Settings {
+            lanes: 5,
+            ..Default::default()
+        });
+        write(&file, &meta, &state).expect("writes");
+        assert_eq!(read(&file).expect("reads"), Partial { meta, state });
+    }
+
+    #[test]
+    fn settings_that_do_not_parse_are_refused_naming_the_file_and_line() {
+        let (meta, state) = sample();
+        let good = String::from_utf8_lossy(&bytes(&meta, &state)[..]).into_owned();
+        let e = decode(good.replace("\"rr_depth\"", "\"rr_dpth\"").as_bytes()).unwrap_err();
+        assert!(
+            e.contains("header line 4") && e.contains("rr_dpth") && e.contains("settings"),
+            "{e}"
+        );
+        let e = decode(
+            good.replace("settings {\"path\"", "settings {\"paths\"")
+                .as_bytes(),
+        )
+        .unwrap_err();
+        assert!(e.contains("header line 4") && e.contains("paths"), "{e}");
+        let e = decode(good.replace("method path", "method light").as_bytes()).unwrap_err();
+        assert!(e.contains("header line 2") && e.contains("light"), "{e}");
+
+        // read() puts the file's name in front
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let file = dir.path().join("bad.kpart");
+        std::fs::write(&file, good.replace("\"rr_depth\":3", "\"rr_depth\":\"3\"")).unwrap();
+        let e = read(&file).unwrap_err().to_string();
+        assert!(e.starts_with(&file.display().to_string()), "{e}");
+        assert!(e.contains("do not parse"), "{e}");
+    }
+
+    #[test]
+    fn a_version_1_file_is_refused_as_older() {
+        let (meta, state) = sample();
+        let good = String::from_utf8_lossy(&bytes(&meta, &state)[..]).into_owned();
+        let old = good
+            .replacen("kalos-partial 2", "kalos-partial 1", 1)
+            .replace(
+                good.lines().nth(3).expect("settings line"),
+                "settings Path(Settings { seed: 0, max_depth: None, rr_depth: 5 })",
+            );
+        let e = decode(old.as_bytes()).unwrap_err();
+        assert!(
+            e.contains("older kalos") && e.contains("re-render the shard"),
+            "{e}"
+        );
+        let e = decode(
+            good.replacen("kalos-partial 2", "kalos-partial 3", 1)
+                .as_bytes(),
+        )
+        .unwrap_err();
+        assert!(e.contains("newer kalos"), "{e}");
     }
 
     #[test]

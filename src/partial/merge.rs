@@ -4,7 +4,6 @@ use std::path::PathBuf;
 
 use super::{Partial, PartialError, ShardKind, State};
 use crate::film::Image;
-use crate::methods::{light, path};
 
 /// The outcome of a merge.
 #[derive(Debug)]
@@ -79,23 +78,14 @@ pub fn merge(parts: &[(PathBuf, Partial)]) -> Result<Merged, PartialError> {
                      --shard",
                     missing.len(),
                     list.join(", "),
-                    meta.method
+                    meta.method()
                 )));
             }
             let states: Vec<&State> = owner
                 .iter()
                 .map(|i| &parts[i.expect("no shard is missing")].1.state)
                 .collect();
-            let image = match meta.method.as_str() {
-                "path" => path::merge_image(&states, w, h).map_err(fail)?,
-                "light" => light::merge_image(&states, w, h).map_err(fail)?,
-                m => {
-                    return Err(PartialError::Incompatible(format!(
-                        "{}: method '{m}' has no exact merge",
-                        first_path.display()
-                    )))
-                }
-            };
+            let image = meta.settings.merge_exact(&states, w, h).map_err(fail)?;
             (image, first.state.spp)
         }
         ShardKind::Chains => average(parts, w, h).map_err(fail)?,
@@ -105,7 +95,7 @@ pub fn merge(parts: &[(PathBuf, Partial)]) -> Result<Merged, PartialError> {
     Ok(Merged {
         uneven,
         image,
-        method: meta.method.clone(),
+        method: meta.method().to_string(),
         count: n,
         missing,
         spp,

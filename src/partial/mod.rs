@@ -3,7 +3,20 @@
 //! gives shards on a farm (`kalos render --shard K/N`, `kalos merge`) and
 //! checkpoints (`--checkpoint`, `--resume`).
 //!
-//! How a method is split into shards ([`ShardKind`]):
+//! This module knows no method: each method's settings answer, through the
+//! method contract ([`crate::methods::MethodSettings`], asked through
+//! [`MethodConfig`]), how the method is split into shards
+//! ([`MethodConfig::shard_kind`], [`MethodConfig::check_shard`]), whether
+//! it resumes from checkpoints ([`MethodConfig::check_resumable`]) and how
+//! the states of an exact split merge into its image
+//! ([`MethodConfig::merge_exact`]); the average of chains is the same for
+//! every method and lives here. A partial result's header holds the
+//! [`MethodConfig`] itself, as one line of JSON that reads back into the
+//! equal value (see [`write`]). The types a method fills ([`Shard`],
+//! [`State`]) live below the methods, in [`crate::state`], and are
+//! re-exported here.
+//!
+//! How the methods are split into shards today ([`ShardKind`]):
 //!
 //! - **Exact** (`path`, `light`): a shard owns a fixed part of the random
 //!   streams for *every* pass: `path` the pixel rows y ≡ K (mod N) (its
@@ -40,210 +53,37 @@ pub use merge::merge;
 use std::fmt;
 use std::path::PathBuf;
 
-use glam::DVec3;
+pub use crate::state::{shard_seed, Shard, ShardKind, State, StateError};
 
 use crate::methods::{Common, MethodConfig, MethodError};
 use crate::scene::Scene;
 
-/// Shard K of N (K counts from 0, as Slurm's `--array=0-3` and Kubernetes'
-/// completion index do).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Shard {
-    /// This shard, in 0..count.
-    pub index: u32,
-    /// How many shards make the whole render.
-    pub count: u32,
-}
-
-impl Shard {
-    /// The whole render: shard 0 of 1.
-    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
-
-    /// Parses `K/N` with 0 ≤ K < N.
-    pub fn parse(s: &str) -> Result<Shard, String> {
-        let (k, n) = s
-            .split_once('/')
-            .ok_or_else(|| format!("expected K/N (e.g. 0/4), got '{s}'"))?;
-        let k: u32 = k
-            .trim()
-            .parse()
-            .map_err(|_| format!("K in K/N must be a whole number, got '{k}'"))?;
-        let n: u32 = n
-            .trim()
-            .parse()
-            .map_err(|_| format!("N in K/N must be a whole number, got '{n}'"))?;
-        if n == 0 {
-            return Err("N in K/N must be at least 1".into());
-        }
-        if k >= n {
-            return Err(format!(
-                "K in K/N counts from 0 and must be below N: got {k}/{n} (the shards of {n} are 0/{n} to {}/{n})",
-                n - 1
-            ));
-        }
-        Ok(Shard { index: k, count: n })
-    }
-
-    /// True when this shard owns item `i` (a row, a lane) of a split by
-    /// residue: i ≡ K (mod N).
-    #[inline]
-    pub fn owns(&self, i: u64) -> bool {
-        i % self.count as u64 == self.index as u64
-    }
-}
-
-impl fmt::Display for Shard {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-/// How a method is split into shards (see the module docs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ShardKind {
-    /// Each shard owns part of the random streams of every pass; merged,
-    /// the bytes of one run.
-    Exact,
-    /// Each shard is an independent chain; merged, their average.
-    Chains,
-}
-
-impl ShardKind {
-    /// The word in a partial file.
-    pub fn word(self) -> &'static str {
-        match self {
-            ShardKind::Exact => "exact",
-            ShardKind::Chains => "chains",
-        }
-    }
-}
-
-/// How `method` is split into shards, or why it cannot be.
+/// How `method` is split into shards, or why it cannot be: the method's
+/// own answer ([`MethodConfig::shard_kind`]).
 pub fn shard_kind(method: &MethodConfig) -> Result<ShardKind, MethodError> {
-    match method {
-        MethodConfig::Path(_) | MethodConfig::Light(_) => Ok(ShardKind::Exact),
-        MethodConfig::Plb(_) | MethodConfig::Bundle(_) => Ok(ShardKind::Chains),
-        MethodConfig::Density(_) => Err(MethodError(
-            "method 'density' cannot be split into shards: averaging N particle sets keeps \
-             the kernel blur of one set, so it would not converge to the image of N times \
-             the particles; raise --particles instead"
-                .into(),
-        )),
-    }
+    method.shard_kind()
 }
 
 /// Checks before any work that `method` can be split into `shard.count`
-/// shards, and says how.
+/// shards, and says how ([`MethodConfig::check_shard`]).
 pub fn check_shard(method: &MethodConfig, shard: Shard) -> Result<ShardKind, MethodError> {
-    let kind = shard_kind(method)?;
-    if let MethodConfig::Light(s) = method {
-        if shard.count as usize > s.lanes {
-            return Err(MethodError(format!(
-                "light splits into at most {} shards (one per lane: the streams that keep its \
-                 image independent of the thread count), not {}",
-                s.lanes, shard.count
-            )));
-        }
-    }
-    Ok(kind)
+    method.check_shard(shard)
 }
 
 /// Checks before any work that `method` can write checkpoints and resume
-/// from them: `path` and `light --variant walk` restore their state
-/// exactly; the others keep state that is not saved (plb's population,
-/// bundle's patch radiances, density's hit file, light's iteration chains).
+/// from them ([`MethodConfig::check_resumable`]): a method resumes when it
+/// restores its state exactly; the others keep state that is not saved.
 pub fn check_resumable(method: &MethodConfig) -> Result<(), MethodError> {
-    let why = match method {
-        MethodConfig::Path(_) => return Ok(()),
-        MethodConfig::Light(s) if s.variant == crate::methods::light::Variant::Walk => {
-            return Ok(())
-        }
-        MethodConfig::Light(_) => {
-            "its iteration chains carry a surface point from pass to pass (use --variant walk)"
-        }
-        MethodConfig::Plb(_) => "its population of photon hits is not saved",
-        MethodConfig::Bundle(_) => "its patches' radiance is not saved",
-        MethodConfig::Density(_) => "its bake (hit file, display mesh) is not saved",
-    };
-    Err(MethodError(format!(
-        "method '{}' cannot write checkpoints or resume: {why}; checkpoints work with path and light",
-        method.name()
-    )))
-}
-
-/// The seed of chain shard `shard` of a render seeded with `seed`: shard 0
-/// keeps it (so that one shard of one is the plain render); the others get
-/// unrelated streams, hashed like every other stream key.
-pub fn shard_seed(seed: u64, shard: Shard) -> u64 {
-    if shard.index == 0 {
-        seed
-    } else {
-        crate::sampling::mix64(seed ^ crate::sampling::mix64(0x5AA2D ^ shard.index as u64))
-    }
-}
-
-/// The progressive state of a method, as [`crate::methods::Method::state`]
-/// gives it and [`crate::methods::Method::restore`] takes it back: named
-/// counters and named per-pixel sums, plus the driver's own counts.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct State {
-    /// Passes run.
-    pub passes: u64,
-    /// Rays traced.
-    pub rays: u64,
-    /// Seconds of rendering.
-    pub seconds: f64,
-    /// Samples per pixel (or the method's equivalent) so far.
-    pub spp: f64,
-    /// The method's counters, by name.
-    pub counters: Vec<(String, u64)>,
-    /// The method's per-pixel sums, by name (row-major, top row first).
-    pub buffers: Vec<(String, Vec<DVec3>)>,
-}
-
-impl State {
-    /// The counter called `name`.
-    pub fn counter(&self, name: &str) -> Option<u64> {
-        self.counters.iter().find(|c| c.0 == name).map(|c| c.1)
-    }
-
-    /// The buffer called `name`.
-    pub fn buffer(&self, name: &str) -> Option<&[DVec3]> {
-        self.buffers
-            .iter()
-            .find(|b| b.0 == name)
-            .map(|b| b.1.as_slice())
-    }
-
-    /// The counter called `name`, or an error naming it.
-    pub fn need_counter(&self, name: &str) -> Result<u64, MethodError> {
-        self.counter(name)
-            .ok_or_else(|| MethodError(format!("the saved state has no counter '{name}'")))
-    }
-
-    /// The buffer called `name` with `len` pixels, or an error naming it.
-    pub fn need_buffer(&self, name: &str, len: usize) -> Result<&[DVec3], MethodError> {
-        let b = self
-            .buffer(name)
-            .ok_or_else(|| MethodError(format!("the saved state has no buffer '{name}'")))?;
-        if b.len() != len {
-            return Err(MethodError(format!(
-                "the saved buffer '{name}' has {} pixels, expected {len}",
-                b.len()
-            )));
-        }
-        Ok(b)
-    }
+    method.check_resumable()
 }
 
 /// What identifies a render, so that parts of it can be told apart from
 /// parts of another: compared field by field before a merge or a resume.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Meta {
-    /// The method's name.
-    pub method: String,
-    /// The method's settings as text (its `Debug` form).
-    pub settings: String,
+    /// The method with its settings (the shared ones are the fields
+    /// below).
+    pub settings: MethodConfig,
     /// The master seed.
     pub seed: u64,
     /// `--max-depth`, when given.
@@ -272,8 +112,7 @@ impl Meta {
         shard: Shard,
     ) -> Result<Meta, MethodError> {
         Ok(Meta {
-            method: method.name().to_string(),
-            settings: format!("{method:?}"),
+            settings: method.clone(),
             seed: common.seed,
             max_depth: common.max_depth,
             scene_hash: scene_hash(scene),
@@ -281,8 +120,13 @@ impl Meta {
             width: scene.camera.width,
             height: scene.camera.height,
             shard,
-            kind: shard_kind(method).unwrap_or(ShardKind::Exact),
+            kind: method.shard_kind().unwrap_or(ShardKind::Exact),
         })
+    }
+
+    /// The method's name.
+    pub fn method(&self) -> &'static str {
+        self.settings.name()
     }
 
     /// The first field in which `other` (called `other_name` in the
@@ -292,8 +136,8 @@ impl Meta {
         let d = |what: &str, a: &dyn fmt::Display, b: &dyn fmt::Display| {
             Some(format!("{other_name} has {what} {b}, but {name} has {a}"))
         };
-        if self.method != other.method {
-            return d("method", &self.method, &other.method);
+        if self.method() != other.method() {
+            return d("method", &self.method(), &other.method());
         }
         if self.scene_hash != other.scene_hash
             || (self.width, self.height) != (other.width, other.height)
@@ -312,7 +156,8 @@ impl Meta {
             ));
         }
         if self.settings != other.settings {
-            return d("settings", &self.settings, &other.settings);
+            let (a, b) = settings_difference(&self.settings, &other.settings);
+            return d("settings", &a, &b);
         }
         if self.seed != other.seed {
             return d("seed", &self.seed, &other.seed);
@@ -326,6 +171,30 @@ impl Meta {
         }
         None
     }
+}
+
+/// The first field in which the settings `a` and `b` of one method differ,
+/// as `name: value` for each (`rr_depth: 5`, `rr_depth: 2`), read from
+/// their serde form; both whole, as JSON, when no single field tells them
+/// apart.
+fn settings_difference(a: &MethodConfig, b: &MethodConfig) -> (String, String) {
+    let value = |m: &MethodConfig| serde_json::to_value(m).unwrap_or_default();
+    let (va, vb) = (value(a), value(b));
+    let fields = |v: &serde_json::Value| {
+        v.as_object()
+            .and_then(|o| o.get(a.name()))
+            .and_then(|s| s.as_object())
+            .cloned()
+    };
+    if let (Some(fa), Some(fb)) = (fields(&va), fields(&vb)) {
+        for (k, x) in &fa {
+            let y = fb.get(k).unwrap_or(&serde_json::Value::Null);
+            if x != y {
+                return (format!("{k}: {x}"), format!("{k}: {y}"));
+            }
+        }
+    }
+    (va.to_string(), vb.to_string())
 }
 
 /// A partial result: what render it belongs to, and its state.

@@ -66,9 +66,9 @@ use crate::bsdf::{Bsdf, Mode};
 use crate::emitter::LightSelection;
 use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
-use crate::partial::Shard;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::state::Shard;
 use crate::world::World;
 
 /// Probability with which an unmarked pixel is sampled in a pass.

@@ -59,7 +59,8 @@ const NO_SAMPLE: PixelSample = PixelSample {
 const MAX_DELTA: u32 = 8;
 
 /// Where the sub-pixel positions come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Positions {
     /// A fresh jittered position per pixel and iteration (the default).
@@ -70,7 +71,8 @@ pub enum Positions {
 }
 
 /// Which image estimate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum ImageMode {
     /// Per-pixel BRDF (the default).

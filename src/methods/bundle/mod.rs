@@ -98,16 +98,22 @@ use std::time::Instant;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-use super::{Method, MethodError, StepStats, World};
+use super::{
+    film_item, no_exact_merge, Common, Method, MethodError, MethodSettings, StepStats, World, FILM,
+    IMAGE,
+};
 use crate::film::Image;
+use crate::memory::MemoryItem;
 use crate::scene::Rgb;
+use crate::state::{ShardKind, State};
 use image::{ImageMode, Positions, View};
 use patches::Patches;
 use sequence::{Directions, Sequence};
 use visibility::{SweepInput, Visibility};
 
 /// Settings of the ray-bundle iteration.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
     /// Master seed (set from [`super::Common`]).
@@ -174,7 +180,8 @@ pub struct Settings {
 }
 
 /// How the patch count is spread over the surfaces ([`budget`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum PatchBudget {
     /// One uniform edge length: patches in proportion to area (the paper,
@@ -186,7 +193,8 @@ pub enum PatchBudget {
 }
 
 /// How glass (smooth and thin dielectrics) takes part in the transfer.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Glass {
     /// Fresnel reflection and refraction, each widened to a narrow lobe
@@ -198,7 +206,8 @@ pub enum Glass {
 }
 
 /// Which pixels take their bounced light by a final gather.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Gather {
     /// Pixels whose visible point has a glossy lobe (`Bsdf::has_glossy`):
@@ -210,7 +219,8 @@ pub enum Gather {
 }
 
 /// How light that arrives straight from the emitters is computed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Direct {
     /// The first shot: per pixel and per patch, one light sample per
@@ -274,6 +284,78 @@ impl Default for Settings {
             gather: Gather::Glossy,
             glass: Glass::Lobes,
         }
+    }
+}
+
+impl MethodSettings for Settings {
+    fn validate(&self) -> Result<(), MethodError> {
+        Settings::validate(self)
+    }
+
+    /// Chains: each shard is an independent iteration with its own seed.
+    fn shard_kind(&self) -> Result<ShardKind, MethodError> {
+        Ok(ShardKind::Chains)
+    }
+
+    fn check_shard_count(&self, _count: u32) -> Result<(), MethodError> {
+        Ok(())
+    }
+
+    fn resumable(&self) -> Result<(), &'static str> {
+        Err("its patches' radiance is not saved")
+    }
+
+    fn merge_exact(&self, _: &[&State], _: u32, _: u32) -> Result<Image, MethodError> {
+        Err(no_exact_merge("bundle"))
+    }
+
+    /// The film, the image and the stored pixel samples; the visibility
+    /// map at [`MAX_AUTO_MAP_RES`] unless `--map-res` is given; the patches
+    /// only when their number is given.
+    fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
+        let fixed = if self.positions == Positions::Fixed {
+            // the stored samples, and the (sample, rays) pairs they
+            // are collected from
+            let sample = std::mem::size_of::<image::PixelSample>()
+                + std::mem::size_of::<(image::PixelSample, u64)>();
+            // and, in the paper's form, each sample's quiet part
+            let quiet = if self.direct == Direct::Bundles && self.gather == Gather::Off {
+                image::QUIET_BYTES
+            } else {
+                0
+            };
+            (image::SAMPLES * (sample + quiet)) as u64
+        } else {
+            0
+        };
+        let mut items = vec![film_item(width, height, FILM + IMAGE + fixed, "")];
+        let res = self.map_res.unwrap_or(MAX_AUTO_MAP_RES);
+        items.push(MemoryItem {
+            what: format!("bundle's visibility map {res}×{res}"),
+            bytes: visibility::map_bytes(res, self.visibility),
+            remedy: "lower --map-res",
+        });
+        if self.edge.is_none() {
+            let (state, transient) = Bundle::bytes_per_patch();
+            items.push(MemoryItem {
+                what: format!("bundle's {} patches", self.patches),
+                bytes: (self.patches as u64).saturating_mul((state + transient) as u64),
+                remedy: "lower --patches",
+            });
+        }
+        items
+    }
+
+    /// Stochastic iteration cannot limit the path length (see its row), so
+    /// only the seed is taken from `common`.
+    fn create(&self, world: &World, common: &Common) -> Box<dyn Method> {
+        Box::new(Bundle::new(
+            world,
+            Settings {
+                seed: common.seed,
+                ..self.clone()
+            },
+        ))
     }
 }
 

@@ -24,7 +24,8 @@ use crate::sampling::{uniform_sphere, Pcg32};
 pub const HAMMERSLEY_N: u64 = 4096;
 
 /// Which sequence generates the directions.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Sequence {
     /// Pseudo-random (PCG32); the default.

@@ -76,12 +76,17 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::{Method, MethodError, Setup, StepStats, World};
+use super::{
+    film_item, no_exact_merge, Common, Method, MethodError, MethodSettings, Setup, StepStats,
+    World, FILM, IMAGE,
+};
 use crate::bsdf::{Bsdf, Mode};
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
+use crate::memory::MemoryItem;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::state::{ShardKind, State};
 use crate::transport::orient;
 use control::{Control, Phase};
 use hitfile::HitFileError;
@@ -93,7 +98,8 @@ use surfaces::Surfaces;
 pub use baked::BakedMesh;
 
 /// Settings of the density method (defaults inside the paper's ranges).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
     /// Master seed (set from [`super::Common`]).
@@ -173,6 +179,60 @@ impl Default for Settings {
             keep_hits: None,
             chunk_hits: 1 << 21,
         }
+    }
+}
+
+impl MethodSettings for Settings {
+    fn validate(&self) -> Result<(), MethodError> {
+        Settings::validate(self)
+    }
+
+    /// Refused (see [`crate::partial`]): the kernel's width follows the
+    /// particle count of one shard.
+    fn shard_kind(&self) -> Result<ShardKind, MethodError> {
+        Err(MethodError(
+            "method 'density' cannot be split into shards: averaging N particle sets keeps \
+             the kernel blur of one set, so it would not converge to the image of N times \
+             the particles; raise --particles instead"
+                .into(),
+        ))
+    }
+
+    fn check_shard_count(&self, _count: u32) -> Result<(), MethodError> {
+        Ok(())
+    }
+
+    fn resumable(&self) -> Result<(), &'static str> {
+        Err("its bake (hit file, display mesh) is not saved")
+    }
+
+    fn merge_exact(&self, _: &[&State], _: u32, _: u32) -> Result<Image, MethodError> {
+        Err(no_exact_merge("density"))
+    }
+
+    /// The film and the image, and a chunk of records read from the hit
+    /// file with its decoding.
+    fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
+        let per_hit = (HIT_BYTES + std::mem::size_of::<hits::Hit>()) as u64;
+        vec![
+            film_item(width, height, FILM + IMAGE, ""),
+            MemoryItem {
+                what: format!("density's hit chunk ({} hits)", self.chunk_hits),
+                bytes: (self.chunk_hits as u64).saturating_mul(per_hit),
+                remedy: "lower --chunk-hits",
+            },
+        ]
+    }
+
+    fn create(&self, world: &World, common: &Common) -> Box<dyn Method> {
+        Box::new(Density::new(
+            world,
+            Settings {
+                seed: common.seed,
+                max_depth: common.max_depth,
+                ..self.clone()
+            },
+        ))
     }
 }
 

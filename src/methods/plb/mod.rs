@@ -101,9 +101,14 @@
 
 use rayon::prelude::*;
 
-use super::{Method, MethodError, StepStats, World};
+use super::{
+    camera_pass, film_item, no_exact_merge, Common, Method, MethodError, MethodSettings, StepStats,
+    World, FILM, IMAGE,
+};
 use crate::film::{Film, Image};
+use crate::memory::MemoryItem;
 use crate::sampling::Pcg32;
+use crate::state::{ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 
 mod guide;
@@ -118,7 +123,8 @@ use importance::{share_grids, CellStats, ImportanceGrid, SLOTS};
 use iterate::{iterate, Form, Lane};
 
 /// Settings of progressive light path building.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
     /// Master seed (set from [`super::Common`]).
@@ -173,7 +179,8 @@ pub struct Settings {
 }
 
 /// The form of the method.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Variant {
     /// §3.1 as the paper gives it: potential impact (eq. (9)) plus λ times
@@ -196,7 +203,8 @@ pub enum Variant {
 }
 
 /// When a hit's camera contribution is measured.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Measure {
     /// At every phase end, at the hit's current power (§5): the phase image
@@ -268,6 +276,62 @@ impl Settings {
         let per_hit = (std::mem::size_of::<iterate::Hit>() + std::mem::size_of::<f64>()) as u64;
         let hits = self.population as u64 + u64::from(self.phase_len);
         self.lanes as u64 * hits * per_hit
+    }
+}
+
+impl MethodSettings for Settings {
+    fn validate(&self) -> Result<(), MethodError> {
+        Settings::validate(self)
+    }
+
+    /// Chains: each shard is an independent population with its own seed.
+    fn shard_kind(&self) -> Result<ShardKind, MethodError> {
+        Ok(ShardKind::Chains)
+    }
+
+    fn check_shard_count(&self, _count: u32) -> Result<(), MethodError> {
+        Ok(())
+    }
+
+    fn resumable(&self) -> Result<(), &'static str> {
+        Err("its population of photon hits is not saved")
+    }
+
+    fn merge_exact(&self, _: &[&State], _: u32, _: u32) -> Result<Image, MethodError> {
+        Err(no_exact_merge("plb"))
+    }
+
+    /// Two films per lane (light and hits), their two merges and images,
+    /// the final image, the camera pass; and the populations.
+    fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
+        let lanes = self.lanes.max(1) as u64;
+        vec![
+            film_item(
+                width,
+                height,
+                (2 * lanes + 2) * FILM + 3 * IMAGE + camera_pass(self.camera_pass),
+                &format!(" ({lanes} lanes)"),
+            ),
+            MemoryItem {
+                what: format!(
+                    "plb's populations ({} lanes of {} hits)",
+                    self.lanes, self.population
+                ),
+                bytes: self.population_bytes(),
+                remedy: "lower --population",
+            },
+        ]
+    }
+
+    fn create(&self, world: &World, common: &Common) -> Box<dyn Method> {
+        Box::new(Plb::new(
+            world,
+            Settings {
+                seed: common.seed,
+                max_depth: common.max_depth,
+                ..self.clone()
+            },
+        ))
     }
 }
 

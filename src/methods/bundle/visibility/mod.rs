@@ -86,13 +86,15 @@ pub const SKY: u32 = u32::MAX;
 const NONE: u32 = u32::MAX - 1;
 
 /// How visibility is resolved.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Visibility {
     /// Sorting plus scan conversion into an id buffer (§6).
     Painter,
     /// Depth peeling with a z-buffer.
     #[cfg_attr(feature = "cli", value(name = "zbuffer"))]
+    #[serde(rename = "zbuffer")]
     ZBuffer,
 }
 
