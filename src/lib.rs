@@ -14,8 +14,10 @@ pub mod emitter;
 pub mod film;
 pub mod geometry;
 pub mod image_io;
+pub mod job;
 pub mod methods;
 pub mod metrics;
+pub mod outputs;
 pub mod partial;
 #[cfg(feature = "cli")]
 pub mod plot;
