@@ -14,9 +14,11 @@ pub mod emitter;
 pub mod film;
 pub mod geometry;
 pub mod image_io;
+pub mod job;
 pub mod memory;
 pub mod methods;
 pub mod metrics;
+pub mod outputs;
 pub mod partial;
 #[cfg(feature = "cli")]
 pub mod plot;

@@ -286,3 +286,7 @@ pub fn mem_total(meminfo: &str) -> Option<u64> {
         Some(_) => None,
     }
 }
+
+// The whole sequence of a render (check, load, size, build, run, write),
+// for the front ends: see [`crate::job`].
+pub use crate::job::{CheckedRender, JobError, RenderEvent, RenderJob, RenderOutcome};

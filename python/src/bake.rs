@@ -3,7 +3,6 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
-use std::time::Instant;
 
 use glam::Vec3;
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
@@ -11,13 +10,14 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use kalos::bake::job::{BakeError, BakeEvent, BakeJob, Baked};
 use kalos::bake::{self as kbake, BakedMesh as Mesh};
-use kalos::methods::density::control::{Control, Limits, Tick};
-use kalos::methods::density::{self, DensityError, Storage};
+use kalos::job::SceneInput;
+use kalos::methods::density;
 use kalos::methods::MethodConfig;
 use kalos::scene::CameraDesc;
 
-use crate::render::{count, memory_limit, method_config, Progress, Watch};
+use crate::render::{count, method_config, Progress, Watch};
 use crate::scene::Scene;
 use crate::{ImageError, RenderError};
 
@@ -199,52 +199,47 @@ pub fn bake(
     let MethodConfig::Density(s) = method_config("density", settings)? else {
         unreachable!("the density row builds density settings")
     };
-    if max_depth == Some(0) {
-        return Err(PyValueError::new_err(
-            "--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)",
-        ));
-    }
-    let s = density::Settings {
-        seed,
-        max_depth,
-        ..s
-    };
-    if let Some((limit, source)) = memory_limit(count("max_memory", max_memory)?) {
-        // no film: only the bake's own buffers
-        let items = kalos::render::memory_estimate(&MethodConfig::Density(s.clone()), 0, 0);
-        kalos::render::check_memory(&items, limit, &source)
-            .map_err(|e| RenderError::new_err(e.to_string()))?;
-    }
     let world = scene.get().world.clone();
-    if world.lights.is_empty() {
-        return Err(RenderError::new_err(format!(
-            "{}: the scene has no emitters that emit light: nothing to bake",
-            world.scene.source
-        )));
-    }
+    let mut job = BakeJob::new(
+        SceneInput::World(world.clone()),
+        density::Settings {
+            seed,
+            max_depth,
+            ..s
+        },
+    );
+    job.max_memory = count("max_memory", max_memory)?;
+    job.max_memory_flag = "max_memory";
+    let checked = job.check().map_err(bake_error)?;
 
     let cancel = AtomicBool::new(false);
     let mut watch = Watch::new(progress.as_ref(), &cancel);
-    let baked = py.detach(|| {
-        let mut on_tick = |t: &Tick| {
-            watch.report(Progress {
-                passes: 0,
-                rays: t.rays,
-                elapsed: t.elapsed,
-                fraction: t.bake_fraction(),
-                phase: Some(t.phase.name().to_string()),
-            })
-        };
-        let mut ctl =
-            Control::new(Instant::now(), Limits::default(), Some(&cancel)).on_tick(&mut on_tick);
-        let b = density::bake_within(&world, &s, Storage::Disk, &mut ctl)?;
-        let meshes = b.baked_meshes(&world.scene);
-        Ok::<_, DensityError>((b, meshes))
+    let outcome = py.detach(|| {
+        checked.run(None, Some(&cancel), &mut |e| {
+            if let BakeEvent::Tick(t) = e {
+                watch.report(Progress {
+                    passes: 0,
+                    rays: t.rays,
+                    elapsed: t.elapsed,
+                    fraction: t.bake_fraction(),
+                    phase: Some(t.phase.name().to_string()),
+                })
+            }
+        })
     });
     if let Some(e) = watch.failure() {
         return Err(e);
     }
-    let (b, meshes) = baked.map_err(|e| RenderError::new_err(e.to_string()))?;
+    // a bake in this process (no dataflow) always gives its meshes
+    let Baked {
+        bake: b,
+        lit,
+        unlit,
+    } = outcome
+        .map_err(bake_error)?
+        .baked
+        .ok_or_else(|| RenderError::new_err("the bake gave no meshes"))?;
+    let meshes = (lit, unlit);
     let st = &b.stats;
     let stats = PyDict::new(py);
     stats.set_item("particles", st.particles)?;
@@ -266,4 +261,18 @@ pub fn bake(
         meshes,
         camera: world.scene.camera.clone(),
     })
+}
+
+/// A bake job's error as Python raises it: ValueError for bad settings,
+/// RenderError when the bake cannot run (with the package's own words for
+/// a scene whose emitters emit nothing).
+fn bake_error(e: BakeError) -> PyErr {
+    match e {
+        BakeError::Settings(e) => PyValueError::new_err(e.0),
+        BakeError::MaxDepth => PyValueError::new_err(e.to_string()),
+        BakeError::NoLight { scene } => RenderError::new_err(format!(
+            "{scene}: the scene has no emitters that emit light: nothing to bake"
+        )),
+        e => RenderError::new_err(e.to_string()),
+    }
 }

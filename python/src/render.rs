@@ -1,6 +1,6 @@
 //! `kalos.render`: a method with its settings (keyword arguments read by
 //! the command line's own parsers), a budget, a progress callback and
-//! Ctrl-C, through `kalos::render::Render`.
+//! Ctrl-C, through the library's render job (`kalos::job::RenderJob`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -9,8 +9,8 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyString};
 
+use kalos::job::{JobError, Reference, RenderEvent, RenderJob, SceneInput};
 use kalos::methods::{self as kmethods, cli as mcli, Budget, Common, MethodConfig};
-use kalos::render::{self as krender, Render};
 
 use crate::images::{image_from_array, image_to_array};
 use crate::scene::Scene;
@@ -204,16 +204,6 @@ pub(crate) fn count(name: &str, v: Option<&Bound<'_, PyAny>>) -> PyResult<Option
         .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))
 }
 
-/// The memory limit and where it comes from: `max_memory` when given,
-/// else this machine's memory (as the command line).
-pub(crate) fn memory_limit(max_memory: Option<u64>) -> Option<(u64, String)> {
-    if let Some(m) = max_memory {
-        return Some((m, "max_memory".into()));
-    }
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    Some((krender::mem_total(&text)?, "this machine's memory".into()))
-}
-
 /// Renders `scene` with `method` and returns the image as a float32 numpy
 /// array of shape (height, width, 3), linear radiance.
 ///
@@ -260,76 +250,52 @@ pub fn render<'py>(
 ) -> PyResult<Py<PyAny>> {
     // Check what can be checked before any work, as `kalos render` does
     let cfg = method_config(method, settings)?;
-    let common = Common { seed, max_depth };
-    cfg.check(&common).map_err(|e| PyValueError::new_err(e.0))?;
-    let world = scene.get().world.clone();
-    let mut budget = Budget {
-        spp,
-        time,
-        rays: count("rays", rays)?,
-        passes: None,
-    };
-    if budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none() {
-        budget.spp = Some(world.scene.sample_count.map_or(16.0, f64::from));
-    }
-    budget.validate().map_err(|e| PyValueError::new_err(e.0))?;
+    let rays = count("rays", rays)?;
+    let max_memory = count("max_memory", max_memory)?;
     if !(log_every.is_finite() && log_every >= 0.0) {
         return Err(PyValueError::new_err(format!(
             "log_every must be a finite number ≥ 0, got {log_every}"
         )));
     }
-    let (w, h) = (world.camera.width, world.camera.height);
     let reference = match reference {
-        Some(r) if !r.is_none() => {
-            let r = image_from_array("reference", r)?;
-            if (r.width, r.height) != (w, h) {
-                return Err(PyValueError::new_err(format!(
-                    "reference is {}x{} but the render is {w}x{h}",
-                    r.width, r.height
-                )));
-            }
-            Some(r)
-        }
+        Some(r) if !r.is_none() => Some(Reference::Image(image_from_array("reference", r)?)),
         _ => None,
     };
-    if let Some((limit, source)) = memory_limit(count("max_memory", max_memory)?) {
-        krender::check_memory(&krender::memory_estimate(&cfg, w, h), limit, &source)
-            .map_err(|e| RenderError::new_err(e.to_string()))?;
-    }
-    if world.lights.is_empty() {
-        return Err(RenderError::new_err(format!(
-            "{}: the scene has no emitters that emit light, so the image would be black",
-            world.scene.source
-        )));
-    }
+    let mut job = RenderJob::new(SceneInput::World(scene.get().world.clone()), cfg);
+    job.common = Common { seed, max_depth };
+    job.budget = Budget {
+        spp,
+        time,
+        rays,
+        passes: None,
+    };
+    job.reference = reference;
+    job.log_every = log_every;
+    job.max_memory = max_memory;
+    job.max_memory_flag = "max_memory";
+    let checked = job.check().map_err(job_error)?;
 
     // Render with the interpreter released; the progress path runs the
     // callback and the signal handlers
     let cancel = AtomicBool::new(false);
     let mut watch = Watch::new(progress.as_ref(), &cancel);
-    let result = py.detach(|| {
-        let mut r = Render::new(&world)
-            .method(cfg)
-            .common(common)
-            .budget(budget)
-            .cancel(&cancel);
-        if let Some(img) = &reference {
-            r = r.reference(img, log_every);
-        }
-        r.run(|p| {
-            watch.report(Progress {
-                passes: p.passes,
-                rays: p.rays,
-                elapsed: p.elapsed,
-                fraction: p.fraction,
-                phase: p.phase.map(str::to_string),
-            })
+    let outcome = py.detach(|| {
+        checked.run(Some(&cancel), &mut |e| {
+            if let RenderEvent::Progress(p) = e {
+                watch.report(Progress {
+                    passes: p.passes,
+                    rays: p.rays,
+                    elapsed: p.elapsed,
+                    fraction: p.fraction,
+                    phase: p.phase.map(str::to_string),
+                })
+            }
         })
     });
     if let Some(e) = watch.failure() {
         return Err(e);
     }
-    let result = result.map_err(|e| RenderError::new_err(e.0))?;
+    let result = outcome.map_err(job_error)?.result;
     let image = image_to_array(py, &result.image)?;
     if !full {
         return Ok(image.into_any().unbind());
@@ -357,6 +323,21 @@ pub fn render<'py>(
         report: result.report,
     };
     Ok(Py::new(py, full)?.into_any())
+}
+
+/// A render job's error as Python raises it: ValueError for bad arguments
+/// and settings, RenderError when the render cannot run (with the
+/// package's own words for a scene whose emitters emit nothing).
+fn job_error(e: JobError) -> PyErr {
+    match e {
+        JobError::Settings(e) => PyValueError::new_err(e.0),
+        JobError::ReferenceSize { .. } => PyValueError::new_err(e.to_string()),
+        JobError::NoLight { scene, .. } => RenderError::new_err(format!(
+            "{scene}: the scene has no emitters that emit light, so the image would be black"
+        )),
+        JobError::Render(e) => RenderError::new_err(e.0),
+        e => RenderError::new_err(e.to_string()),
+    }
 }
 
 /// The names of the methods, as `method=` takes them.
@@ -387,12 +368,9 @@ pub fn settings<'py>(py: Python<'py>, method: &str) -> PyResult<Bound<'py, PyDic
 /// it.
 #[pyfunction]
 pub fn set_threads(threads: usize) -> PyResult<()> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads.max(1))
-        .build_global()
-        .map_err(|_| {
-            PyValueError::new_err(
-                "the thread count can be set only once, before the first render or bake",
-            )
-        })
+    kalos::job::set_threads(threads).map_err(|_| {
+        PyValueError::new_err(
+            "the thread count can be set only once, before the first render or bake",
+        )
+    })
 }

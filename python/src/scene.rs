@@ -8,8 +8,9 @@ use pyo3::exceptions::{PyUserWarning, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use kalos::scene::{self, Summary};
-use kalos::world::World;
+use kalos::job;
+use kalos::scene::Summary;
+use kalos::world::{BuildEvent, World};
 
 use crate::SceneError;
 
@@ -155,27 +156,23 @@ pub fn load(
             )));
         }
     }
-    let builtin = path.as_ref().is_none_or(|p| p.as_os_str() == "builtin");
-    let world = py.detach(|| {
-        let mut s = match &path {
-            Some(p) if !builtin => scene::load_with(p, &defines),
-            _ => scene::builtin::cornell_box_with(&defines),
-        }
-        .map_err(|e| e.to_string())?;
+    let loaded = py.detach(|| {
+        let loaded = job::load_scene(path.as_deref(), &defines)?;
+        let mut s = loaded.scene;
         if let Some((w, h)) = res {
             s.set_resolution(w, h);
         }
-        Ok::<_, String>(World::new(s))
+        // the loader's warnings the user should see, then the build's
+        let mut warnings = loaded.warnings;
+        let world = World::build(s, &mut |e| {
+            if let BuildEvent::Warning(w) = e {
+                warnings.push(w);
+            }
+        });
+        Ok::<_, kalos::scene::SceneError>((world, warnings))
     });
-    let world = world.map_err(SceneError::new_err)?;
-    // the built-in scene's own warnings (its skipped integrator) are known
-    // and not the user's concern, as on the command line
-    for w in world
-        .scene
-        .warnings
-        .iter()
-        .filter(|w| !builtin || w.contains(": -D "))
-    {
+    let (world, warnings) = loaded.map_err(|e| SceneError::new_err(e.to_string()))?;
+    for w in &warnings {
         PyErr::warn(
             py,
             &py.get_type::<PyUserWarning>(),

@@ -8,12 +8,14 @@ use anyhow::{bail, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use kalos::methods::density::control::{Control, Limits, Phase, Tick};
-use kalos::methods::density::dataflow::{self, DataflowError, Workers};
-use kalos::methods::density::{DensityError, Storage};
-use kalos::methods::{density, MethodConfig};
+use kalos::bake::job::{BakeError, BakeEvent, BakeJob, BakeOutcome, Baked};
+use kalos::job::SceneInput;
+use kalos::methods::density;
+use kalos::methods::density::control::{Phase, Tick};
+use kalos::methods::density::dataflow::Workers;
+use kalos::methods::density::DensityError;
 
-use crate::{check_output, load_scene, say, set_threads};
+use crate::{progress, say, signals};
 
 /// The flags of `kalos bake`.
 #[derive(Args)]
@@ -99,121 +101,109 @@ fn peak_memory() -> Option<u64> {
     Some(kb * 1024)
 }
 
-/// Runs `kalos bake`.
+/// Runs `kalos bake`: the library's [`BakeJob`] does the work; this shows
+/// its progress and prints its figures.
 pub fn run(a: BakeArgs) -> Result<()> {
-    check_output(&a.output, &["glb"])?;
-    if let Some(p) = &a.ply {
-        check_output(p, &["ply"])?;
-    }
-    let s = density::Settings {
-        seed: a.seed,
-        max_depth: a.max_depth,
-        ..a.density.clone()
-    };
-    s.validate()?;
-    if let Some((limit, source)) = crate::memory_limit(a.max_memory) {
-        // no film: only the bake's own buffers
-        let items = kalos::render::memory_estimate(&MethodConfig::Density(s.clone()), 0, 0);
-        kalos::render::check_memory(&items, limit, &source)?;
-    }
-    if a.max_depth == Some(0) {
-        bail!("--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)");
-    }
+    let checked = job(&a).check()?;
     let layout = a.dataflow.layout()?;
-    set_threads(a.threads)?;
-    let t0 = Instant::now();
-    let world = std::sync::Arc::new(crate::progress::build_world(load_scene(
-        a.scene.as_deref(),
-        &a.defines,
-    )?));
-    let load_s = t0.elapsed().as_secs_f64();
-    if world.lights.is_empty() {
-        bail!("the scene has no emitters: nothing to bake");
-    }
-
-    // Ctrl-C and SIGTERM stop the bake between units of work, so that its
-    // scratch directory is removed before the process exits (with 128 + the
-    // signal); a second one exits at once
-    crate::signals::install();
-    let cancel = crate::signals::cancel_flag();
+    let mut setup = progress::Setup::default();
     let mut bars = PhaseBars::new(a.quiet);
-    let mut on_tick = |t: &Tick| bars.tick(t);
-    let mut ctl =
-        Control::new(Instant::now(), Limits::default(), Some(cancel)).on_tick(&mut on_tick);
-    let baked = match &layout {
-        None => density::bake_within(&world, &s, Storage::Disk, &mut ctl).map(Some),
-        Some(w) => match dataflow::bake_dataflow(world.clone(), &s, w, &mut ctl) {
-            Ok(d) => {
-                if a.stats && d.hits_sent > 0 {
+    let outcome = checked.run(
+        layout.as_ref(),
+        Some(signals::cancel_flag()),
+        &mut |e| match e {
+            BakeEvent::Setup(s) => setup.event(s),
+            BakeEvent::Started => {
+                setup.finish();
+                // Ctrl-C and SIGTERM stop the bake between units of work,
+                // so that its scratch directory is removed before the
+                // process exits (with 128 + the signal); a second one
+                // exits at once
+                signals::install();
+            }
+            BakeEvent::Tick(t) => bars.tick(t),
+            BakeEvent::Exchanged { hits, bytes } => {
+                if a.stats && hits > 0 {
                     say!(
-                        "exchanged        {} hits to other workers, {:.2} bytes per hit",
-                        d.hits_sent,
-                        d.bytes_sent as f64 / d.hits_sent as f64
+                        "exchanged        {hits} hits to other workers, {:.2} bytes per hit",
+                        bytes as f64 / hits as f64
                     );
                 }
-                Ok(d.bake)
             }
-            Err(DataflowError::Density(e)) => Err(e),
-            Err(e) => {
-                bars.clear();
-                return Err(e.into());
-            }
+            BakeEvent::Writing => bars.start("writing", 0, ""),
         },
-    };
-    let b = match baked {
-        Ok(Some(b)) => b,
-        Ok(None) => {
-            bars.finish();
-            say!(
-                "this process's part of the bake is done; process 0 writes {}",
-                a.output.display()
-            );
-            return Ok(());
-        }
-        Err(DensityError::Cancelled { .. }) => {
+    );
+    setup.finish();
+    let outcome = match outcome {
+        Ok(o) => o,
+        Err(BakeError::Density(DensityError::Cancelled { .. })) => {
             bars.clear();
             eprintln!(
                 "interrupted: the bake was stopped and its scratch files removed; nothing written"
             );
-            std::process::exit(crate::signals::exit_code().unwrap_or(130));
+            std::process::exit(signals::exit_code().unwrap_or(130));
         }
         Err(e) => {
             bars.clear();
             return Err(e.into());
         }
     };
-    bars.start("writing", 0, "");
-    let t1 = Instant::now();
-    let (lit, other) = b.baked_meshes(&world.scene);
-    kalos::bake::gltf::write_glb(&a.output, &lit, &other, b.w0, Some(&world.scene.camera))?;
-    if let Some(p) = &a.ply {
-        kalos::bake::ply::write_ply(p, &lit)?;
-    }
-    let write_s = t1.elapsed().as_secs_f64();
     bars.finish();
-    let st = &b.stats;
+    match &outcome.baked {
+        Some(b) => print_figures(&a, b, &outcome),
+        None => say!(
+            "this process's part of the bake is done; process 0 writes {}",
+            a.output.display()
+        ),
+    }
+    Ok(())
+}
+
+/// The bake the arguments ask for.
+fn job(a: &BakeArgs) -> BakeJob {
+    BakeJob {
+        scene: SceneInput::File {
+            path: a.scene.clone(),
+            defines: a.defines.define.clone(),
+            res: None,
+        },
+        settings: density::Settings {
+            seed: a.seed,
+            max_depth: a.max_depth,
+            ..a.density.clone()
+        },
+        glb: Some(a.output.clone()),
+        ply: a.ply.clone(),
+        threads: a.threads,
+        max_memory: a.max_memory,
+        max_memory_flag: "--max-memory",
+    }
+}
+
+/// The bake's line, and with `--stats` its figures.
+fn print_figures(a: &BakeArgs, b: &Baked, o: &BakeOutcome) {
+    let st = &b.bake.stats;
     say!(
         "{}: {} triangles ({} before decimation), white point {:.4e} W/(m²·sr)",
         a.output.display(),
         st.tris_after,
         st.tris_before,
-        b.w0
+        b.bake.w0
     );
     if a.stats {
         say!("{st}");
         say!(
             "settings         epsilon {}, chunk {} hits",
-            s.epsilon,
-            s.chunk_hits
+            a.density.epsilon,
+            a.density.chunk_hits
         );
-        say!("load + BVH       {load_s:.2} s");
-        say!("write            {write_s:.2} s");
+        say!("load + BVH       {:.2} s", o.load_seconds);
+        say!("write            {:.2} s", o.write_seconds);
         match peak_memory() {
             Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),
             None => say!("peak memory      unknown"),
         }
     }
-    Ok(())
 }
 
 /// One progress bar per phase of the bake, on stderr (hidden with `-q` or

@@ -12,12 +12,13 @@ mod view;
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use kalos::image_io::{self, PngOptions, Tonemap};
-use kalos::methods;
+use kalos::job;
 use kalos::metrics;
+use kalos::outputs::{check_output, extension, read_hdr};
 use kalos::plot::{self, PlotOptions, XAxis};
 use kalos::scene::{self, Scene};
 
@@ -184,27 +185,24 @@ fn parse_define(s: &str) -> Result<(String, String), String> {
     }
 }
 
+/// Loads a scene for `info` and `bench` (a spinner while a file loads),
+/// printing its warnings and notes.
 fn load_scene(path: Option<&Path>, defines: &Defines) -> Result<Scene> {
-    let builtin = path.is_none_or(|p| p.as_os_str() == "builtin");
-    let s = match path {
-        Some(p) if !builtin => progress::with_spinner(&format!("loading {}", p.display()), |_| {
-            scene::load_with(p, &defines.define)
-        })?,
-        _ => scene::builtin::cornell_box_with(&defines.define)?,
+    let loaded = match path {
+        Some(p) if !job::is_builtin(path) => {
+            progress::with_spinner(&format!("loading {}", p.display()), |_| {
+                job::load_scene(path, &defines.define)
+            })?
+        }
+        _ => job::load_scene(path, &defines.define)?,
     };
-    // the built-in scene's own warnings (its skipped integrator) are known
-    // and not the user's concern; an unused -D is
-    for w in s
-        .warnings
-        .iter()
-        .filter(|w| !builtin || w.contains(": -D "))
-    {
+    for w in &loaded.warnings {
         eprintln!("warning: {w}");
     }
-    for n in &s.notes {
+    for n in &loaded.notes {
         eprintln!("note: {n}");
     }
-    Ok(s)
+    Ok(loaded.scene)
 }
 
 fn main() {
@@ -248,101 +246,6 @@ fn error_text(e: &anyhow::Error) -> String {
         text += &s;
     }
     text
-}
-
-/// The memory limit of a render and where it comes from: `--max-memory`
-/// when given, else the machine's memory (Linux's `/proc/meminfo`), else
-/// none.
-fn memory_limit(flag: Option<u64>) -> Option<(u64, String)> {
-    if let Some(m) = flag {
-        return Some((m, "--max-memory".into()));
-    }
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let total = kalos::render::mem_total(&text)?;
-    Some((total, "this machine's memory".into()))
-}
-
-/// Checks an output file before any work: its extension is one of `exts`
-/// (lower case, without the dot), and it can be written there
-/// ([`image_io::check_writable`]).
-fn check_output(path: &Path, exts: &[&str]) -> Result<()> {
-    let ext = extension(path);
-    if !exts.contains(&ext.as_str()) {
-        let list: Vec<String> = exts.iter().map(|e| format!(".{e}")).collect();
-        let list = match list.split_last() {
-            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
-            _ => list.join(""),
-        };
-        bail!("output '{}' must end in {list}", path.display());
-    }
-    image_io::check_writable(path)?;
-    Ok(())
-}
-
-/// The lower-case extension of `path` ("" when it has none).
-fn extension(path: &Path) -> String {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default()
-}
-
-/// Sizes the global thread pool when `--threads` is given.
-fn set_threads(threads: Option<usize>) -> Result<()> {
-    if let Some(t) = threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t.max(1))
-            .build_global()
-            .context("setting the thread count")?;
-    }
-    Ok(())
-}
-
-fn write_log(path: &Path, rows: &[methods::LogRow]) -> Result<()> {
-    let mut text = String::from("time_s,rays,spp,rel_mse\n");
-    for r in rows {
-        text += &format!(
-            "{:.4},{},{:.3},{}\n",
-            r.time_s,
-            r.rays,
-            r.spp,
-            r.rel_mse.map(|e| format!("{e:.6e}")).unwrap_or_default()
-        );
-    }
-    // atomic, like the images: a temporary file beside the target, then a rename
-    image_io::write_atomic(path, |w| {
-        use std::io::Write as _;
-        w.write_all(text.as_bytes())
-            .map_err(|source| image_io::ImageIoError::Io {
-                path: path.to_path_buf(),
-                source,
-            })
-    })?;
-    Ok(())
-}
-
-/// Reads an image to measure or to measure against: linear radiance only
-/// (EXR, PFM, Radiance HDR; a PNG or JPEG holds tone-mapped display values,
-/// whose error against radiance means nothing), every pixel finite.
-fn read_hdr(path: &Path) -> Result<kalos::film::Image> {
-    let ext = extension(path);
-    if !matches!(ext.as_str(), "exr" | "pfm" | "hdr") {
-        bail!(
-            "{}: not a linear HDR image; comparisons need .exr, .pfm or .hdr (a .{ext} holds \
-             tone-mapped display values, not radiance)",
-            path.display()
-        );
-    }
-    let img = image_io::read_image(path)?;
-    let bad = metrics::non_finite_pixels(&img);
-    if bad > 0 {
-        bail!(
-            "{}: {bad} of its {} pixels are NaN or infinite, so every figure would be NaN",
-            path.display(),
-            img.data.len()
-        );
-    }
-    Ok(img)
 }
 
 fn compare(a: CompareArgs) -> Result<()> {

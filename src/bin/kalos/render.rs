@@ -4,22 +4,19 @@
 
 use std::ffi::OsString;
 use std::path::PathBuf;
-use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
 use clap::error::{ContextKind, ContextValue, ErrorKind};
 use clap::{Args, Command, FromArgMatches};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use kalos::image_io::{self, PngOptions};
+use kalos::image_io::PngOptions;
+use kalos::job::{Reference, RenderEvent, RenderJob, RenderOutcome, SceneInput};
 use kalos::methods::{self, cli as mcli, Budget, Common};
-use kalos::metrics;
-use kalos::partial::{self, Meta, Partial, Shard};
-use kalos::render::{self, Render};
+use kalos::partial::Shard;
 
-use crate::{
-    check_output, load_scene, memory_limit, parse_res, read_hdr, set_threads, write_log, TonemapArg,
-};
+use crate::view::Live;
+use crate::{parse_res, progress, signals, TonemapArg};
 
 /// The flags every method shares.
 #[derive(Args)]
@@ -157,302 +154,224 @@ pub fn parse(args: Vec<OsString>) -> Result<(RenderArgs, methods::MethodConfig)>
     Ok((a, cfg))
 }
 
-/// Runs `kalos render`.
+/// Runs `kalos render`: the library's [`RenderJob`] does the work; this
+/// shows its progress and prints its figures.
 pub fn run(a: RenderArgs, cfg: methods::MethodConfig) -> Result<()> {
-    // Check what can be checked before spending any time: the settings,
-    // the budget, the files to write (format, folder, permissions) and the
-    // reference, so that a bad path fails now and not after the render.
-    let common = Common {
-        seed: a.seed,
-        max_depth: a.max_depth,
-    };
-    cfg.check(&common)?;
-    let mut budget = Budget {
-        spp: a.spp,
-        time: a.time,
-        rays: a.rays,
-        passes: None,
-    };
-    // Without a budget on the command line: the scene's own sample count
-    // (Mitsuba's <sampler>, known once it is loaded), else 16 spp
-    let default_budget = budget.spp.is_none() && budget.time.is_none() && budget.rays.is_none();
-    if default_budget {
-        budget.spp = Some(16.0);
-    }
-    budget.validate()?;
-    // An image, or a partial result (what --shard writes)
-    let partial_out = crate::extension(&a.output) == "kpart";
-    if partial_out {
-        check_output(&a.output, &["kpart"])?;
-    } else {
-        check_output(&a.output, &["exr", "pfm", "png"])?;
-    }
-    let shard = a.shard.unwrap_or(Shard::WHOLE);
-    if partial_out {
-        partial::check_shard(&cfg, shard)?;
-    }
-    if let Some(s) = a.shard {
-        partial::check_shard(&cfg, s)?;
-        if !partial_out {
-            bail!(
-                "--shard {s} writes a partial result: -o must end in .kpart (got '{}'); \
-                 `kalos merge` makes the image from the parts",
-                a.output.display()
-            );
-        }
-    }
-    if let Some(c) = &a.checkpoint {
-        partial::check_resumable(&cfg)?;
-        check_output(c, &["kpart"])?;
-    }
-    let resume = match &a.resume {
-        Some(p) => {
-            partial::check_resumable(&cfg)?;
-            Some(partial::read(p)?)
-        }
-        None => None,
-    };
-    if let Some(log) = &a.log {
-        check_output(log, &["csv"])?;
-    }
-    let reference = match &a.reference {
-        Some(p) => Some(read_hdr(p)?),
-        None => None,
-    };
+    let name = cfg.name();
+    let checked = job(&a, cfg).check()?;
     if a.dry_run {
-        crate::say!("{}: arguments accepted", cfg.name());
+        crate::say!("{name}: arguments accepted");
         return Ok(());
     }
     // The viewer's port is taken before the scene loads, so that a port in
     // use fails at once
     let mut live = match a.view {
-        true => Some(crate::view::Live::start(
+        true => Some(Live::start(
             a.port.unwrap_or(0),
             &a.output.display().to_string(),
         )?),
         false => None,
     };
-    set_threads(a.threads)?;
-    let t0 = Instant::now();
-    let mut scene = load_scene(a.scene.as_deref(), &a.defines)?;
-    if scene.emitters.is_empty() {
-        bail!(
-            "{}: the scene has no emitters, so the image would be black; add an <emitter> \
-             (an area light on a shape, or <emitter type=\"constant\"/> for a white sky)",
-            scene.source
-        );
-    }
-    if let Some((w, h)) = a.res {
-        scene.set_resolution(w, h);
-    }
-    let (w, h) = (scene.camera.width, scene.camera.height);
-    if w == 0 || h == 0 {
-        bail!("the film is {w}x{h}: an image needs at least one pixel (set --res)");
-    }
-    if let Some((limit, source)) = memory_limit(a.max_memory) {
-        render::check_memory(&render::memory_estimate(&cfg, w, h), limit, &source)?;
-    }
-    if let (Some(r), Some(p)) = (&reference, &a.reference) {
-        if (r.width, r.height) != (w, h) {
-            bail!(
-                "reference {} is {}x{} but the render is {w}x{h}",
-                p.display(),
-                r.width,
-                r.height,
-            );
-        }
-    }
-    let world = crate::progress::build_world(scene);
-    let load_s = t0.elapsed().as_secs_f64();
-    // From here on the first SIGINT or SIGTERM saves what is rendered;
-    // while loading there is nothing to save, and they end kalos at once.
-    crate::signals::install();
-    let cancel = crate::signals::cancel_flag();
-    if world.lights.is_empty() {
-        bail!(
-            "{}: the scene's {} emitters emit no light (zero radiance, or on shapes with no area), \
-             so the image would be black",
-            world.scene.source,
-            world.scene.emitters.len()
-        );
-    }
-    let mut budget_note = None;
-    if let (true, Some(n)) = (default_budget, world.scene.sample_count) {
-        budget.spp = Some(n as f64);
-        budget.validate()?;
-        budget_note = Some(format!(" (the scene's sample_count {n})"));
-    }
-    let bar = if a.quiet {
-        ProgressBar::hidden()
-    } else {
-        let b = ProgressBar::new(1000);
-        b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg} (ETA {eta})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        b
-    };
     if let Some(l) = &mut live {
-        l.set_reference(reference.clone());
+        l.set_reference(checked.reference().cloned());
     }
-    // The render's identity (the scene hash reads every vertex): only
-    // when a partial result is written or read
-    let meta = if partial_out || a.checkpoint.is_some() || resume.is_some() {
-        Some(Meta::new(&world.scene, &cfg, &common, shard)?)
-    } else {
-        None
-    };
-    if let (Some(r), Some(p), Some(m)) = (&resume, &a.resume, &meta) {
-        check_resume(m, r, p)?;
-    }
-    // checkpoints written during the render, and the seconds they took
-    let written = std::cell::Cell::new((0u32, 0.0f64));
-    let mut save = |state: &partial::State| {
-        if let (Some(c), Some(meta)) = (&a.checkpoint, &meta) {
-            let t0 = Instant::now();
-            // A failed checkpoint does not stop the render: the image is
-            // still written at the end
-            match partial::write(c, meta, state) {
-                Ok(()) => {
-                    let (n, s) = written.get();
-                    written.set((n + 1, s + t0.elapsed().as_secs_f64()));
-                }
-                Err(e) => eprintln!("warning: checkpoint not written: {e}"),
-            }
-        }
-    };
-    let mut render = Render::new(&world)
-        .method(cfg)
-        .common(common)
-        .budget(budget)
-        .cancel(cancel)
-        .shard(shard);
-    if partial_out || a.checkpoint.is_some() {
-        render = render.keep_state();
-    }
-    if a.checkpoint.is_some() {
-        render = render.checkpoint(a.checkpoint_every, &mut save);
-    }
-    if let Some(r) = &resume {
-        render = render.resume(&r.state);
-    }
-    if let Some(r) = &reference {
-        render = render.reference(r, if a.log.is_some() { a.log_every } else { 0.0 });
-    }
-    if let Some(l) = &live {
-        render = render.watch(1.0, |img, p| l.image(img, p));
-    }
-    let result = render.run(|p| {
-        bar.set_position((p.fraction * 1000.0) as u64);
-        let mrays = if p.elapsed > 0.0 {
-            p.rays as f64 / p.elapsed / 1e6
-        } else {
-            0.0
-        };
-        bar.set_message(match p.phase {
-            Some(phase) => format!("{phase}, {:.2} Mrays/s", mrays),
-            None => format!("{} passes, {:.2} Mrays/s", p.passes, mrays),
-        });
-        if let Some(l) = &live {
-            l.progress(p);
-        }
-    });
-    bar.finish_and_clear();
-    let result = result.context("rendering")?;
-    if let Some(l) = &live {
-        l.finish(
-            &result.image,
-            &methods::Progress {
-                passes: result.passes,
-                rays: result.rays,
-                elapsed: result.seconds,
-                fraction: 1.0,
-                phase: None,
-            },
-        );
-    }
-    if result.interrupted && result.passes == 0 {
+    let mut shown = Shown::new(a.quiet, live.as_ref());
+    let outcome = checked.run(Some(signals::cancel_flag()), &mut |e| shown.event(e));
+    shown.clear();
+    let outcome = outcome?;
+    if !outcome.written {
         // Nothing to save, and a black image must not replace a good one.
         eprintln!("interrupted before the first pass: nothing written");
         return Ok(());
     }
-
-    let png = PngOptions {
-        exposure: a.exposure,
-        tonemap: a.tonemap.into(),
-    };
-    let state = result.state.as_ref();
-    if let (Some(c), Some(state), Some(meta)) = (&a.checkpoint, state, &meta) {
-        partial::write(c, meta, state)?;
-    }
-    if let (true, Some(meta)) = (partial_out, &meta) {
-        let state = state.context("the method gave no state to write as a partial result")?;
-        partial::write(&a.output, meta, state)?;
-    } else {
-        image_io::write_image(&a.output, &result.image, &png)?;
-    }
-    if let Some(log) = &a.log {
-        write_log(log, &result.log)?;
-    }
-    let mut line = format!(
-        "{}: {} {}x{}, {:.1} spp{}, {} passes, {:.2} s (+{:.2} s load/build), {:.1} M rays, {:.2} Mrays/s",
-        a.output.display(),
-        result.method,
-        result.image.width,
-        result.image.height,
-        result.spp,
-        budget_note.as_deref().unwrap_or(""),
-        result.passes,
-        result.seconds,
-        load_s,
-        result.rays as f64 / 1e6,
-        result.rays as f64 / result.seconds.max(1e-9) / 1e6
-    );
-    if let Some(r) = &reference {
-        line += &format!(", relMSE {:.4e}", metrics::rel_mse(&result.image, r)?);
-    }
-    if a.shard.is_some() {
-        line += &format!(", shard {shard}");
-    }
-    if let Some(p) = &a.resume {
-        line += &format!(", resumed from {}", p.display());
-    }
-    if let Some(c) = &a.checkpoint {
-        let (n, s) = written.get();
-        line += &format!(", checkpoint {}", c.display());
-        if n > 0 {
-            line += &format!(
-                " ({n} written during the render, {:.1} ms each)",
-                s / n as f64 * 1e3
-            );
-        }
-    }
-    if result.interrupted {
-        line += " (interrupted: saved what was rendered)";
-    }
-    crate::say!("{line}");
-    if let Some(r) = &result.report {
+    crate::say!("{}", summary(&a, &outcome));
+    if let Some(r) = &outcome.result.report {
         crate::say!("{r}");
     }
     Ok(())
 }
 
-/// Refuses a checkpoint `r` (read from `path`) that is not of this render,
-/// naming what differs.
-fn check_resume(meta: &Meta, r: &Partial, path: &std::path::Path) -> Result<()> {
-    let name = format!("checkpoint {}", path.display());
-    if let Some(d) = meta.difference("this render", &r.meta, &name) {
-        bail!("{d}: a checkpoint resumes only the render that wrote it");
+/// The render the arguments ask for.
+fn job(a: &RenderArgs, method: methods::MethodConfig) -> RenderJob {
+    RenderJob {
+        scene: SceneInput::File {
+            path: a.scene.clone(),
+            defines: a.defines.define.clone(),
+            res: a.res,
+        },
+        method,
+        common: Common {
+            seed: a.seed,
+            max_depth: a.max_depth,
+        },
+        budget: Budget {
+            spp: a.spp,
+            time: a.time,
+            rays: a.rays,
+            passes: None,
+        },
+        output: Some(a.output.clone()),
+        png: PngOptions {
+            exposure: a.exposure,
+            tonemap: a.tonemap.into(),
+        },
+        shard: a.shard,
+        checkpoint: a.checkpoint.clone(),
+        checkpoint_every: a.checkpoint_every,
+        resume: a.resume.clone(),
+        reference: a.reference.clone().map(Reference::File),
+        log: a.log.clone(),
+        log_every: if a.log.is_some() { a.log_every } else { 0.0 },
+        watch_every: a.view.then_some(1.0),
+        threads: a.threads,
+        max_memory: a.max_memory,
+        max_memory_flag: "--max-memory",
     }
-    if r.meta.shard != meta.shard {
-        bail!(
-            "{name} is of shard {}, but this render is shard {}: a checkpoint resumes only the \
-             render that wrote it",
-            r.meta.shard,
-            meta.shard
-        );
+}
+
+/// What `kalos render` shows while its job runs: the setup's spinners, a
+/// progress bar on stderr (hidden with `-q`), and the live viewer's updates.
+struct Shown<'l> {
+    quiet: bool,
+    setup: progress::Setup,
+    bar: Option<ProgressBar>,
+    live: Option<&'l Live>,
+}
+
+impl<'l> Shown<'l> {
+    fn new(quiet: bool, live: Option<&'l Live>) -> Self {
+        Shown {
+            quiet,
+            setup: progress::Setup::default(),
+            bar: None,
+            live,
+        }
     }
-    Ok(())
+
+    fn event(&mut self, e: RenderEvent) {
+        match e {
+            RenderEvent::Setup(s) => self.setup.event(s),
+            RenderEvent::Started => {
+                self.setup.finish();
+                // From here on the first SIGINT or SIGTERM saves what is
+                // rendered; while loading there is nothing to save, and
+                // they end kalos at once.
+                signals::install();
+                self.bar = Some(progress_bar(self.quiet));
+            }
+            RenderEvent::Progress(p) => {
+                if let Some(bar) = &self.bar {
+                    show_progress(bar, p);
+                }
+                if let Some(l) = self.live {
+                    l.progress(p);
+                }
+            }
+            RenderEvent::Image(img, p) => {
+                if let Some(l) = self.live {
+                    l.image(img, p);
+                }
+            }
+            RenderEvent::CheckpointFailed(e) => {
+                eprintln!("warning: checkpoint not written: {e}")
+            }
+            RenderEvent::Rendered(r) => {
+                self.clear();
+                if let Some(l) = self.live {
+                    let p = methods::Progress {
+                        passes: r.passes,
+                        rays: r.rays,
+                        elapsed: r.seconds,
+                        fraction: 1.0,
+                        phase: None,
+                    };
+                    l.finish(&r.image, &p);
+                }
+            }
+        }
+    }
+
+    /// Clears the spinner or the bar.
+    fn clear(&mut self) {
+        self.setup.finish();
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// The render's progress bar on stderr (hidden with `-q`).
+fn progress_bar(quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(1000);
+    b.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg} (ETA {eta})",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    b
+}
+
+/// Moves the bar to `p`: the fraction of the budget, the phase or the
+/// passes, and the ray rate.
+fn show_progress(bar: &ProgressBar, p: &methods::Progress) {
+    bar.set_position((p.fraction * 1000.0) as u64);
+    let mrays = if p.elapsed > 0.0 {
+        p.rays as f64 / p.elapsed / 1e6
+    } else {
+        0.0
+    };
+    bar.set_message(match p.phase {
+        Some(phase) => format!("{phase}, {:.2} Mrays/s", mrays),
+        None => format!("{} passes, {:.2} Mrays/s", p.passes, mrays),
+    });
+}
+
+/// The line printed once the outputs are written: the render's figures,
+/// and what it wrote or read besides the image.
+fn summary(a: &RenderArgs, o: &RenderOutcome) -> String {
+    let r = &o.result;
+    let budget_note = o
+        .scene_sample_count
+        .map(|n| format!(" (the scene's sample_count {n})"));
+    let mut line = format!(
+        "{}: {} {}x{}, {:.1} spp{}, {} passes, {:.2} s (+{:.2} s load/build), {:.1} M rays, {:.2} Mrays/s",
+        a.output.display(),
+        r.method,
+        r.image.width,
+        r.image.height,
+        r.spp,
+        budget_note.as_deref().unwrap_or(""),
+        r.passes,
+        r.seconds,
+        o.load_seconds,
+        r.rays as f64 / 1e6,
+        r.rays as f64 / r.seconds.max(1e-9) / 1e6
+    );
+    if let Some(e) = o.rel_mse {
+        line += &format!(", relMSE {e:.4e}");
+    }
+    if let Some(s) = a.shard {
+        line += &format!(", shard {s}");
+    }
+    if let Some(p) = &a.resume {
+        line += &format!(", resumed from {}", p.display());
+    }
+    if let Some(c) = &a.checkpoint {
+        line += &format!(", checkpoint {}", c.display());
+        let n = o.checkpoints;
+        if n > 0 {
+            line += &format!(
+                " ({n} written during the render, {:.1} ms each)",
+                o.checkpoint_seconds / n as f64 * 1e3
+            );
+        }
+    }
+    if r.interrupted {
+        line += " (interrupted: saved what was rendered)";
+    }
+    line
 }

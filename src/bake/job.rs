@@ -1,0 +1,310 @@
+//! The whole sequence of a density bake, owned by the library as
+//! [`crate::job::RenderJob`] owns a render's ([`BakeJob`]): check the
+//! outputs, the settings and the memory before any work, load the scene,
+//! build the world, bake (in this process, or on a timely dataflow of
+//! threads or processes), write the display mesh atomically. The command
+//! line (`kalos bake`) and the Python package (`kalos.bake`) only translate
+//! their arguments and show progress.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::bake::{gltf, ply, BakedMesh};
+use crate::image_io::ImageIoError;
+use crate::job::{self, SceneInput, SetupEvent};
+use crate::methods::density::control::{Control, Limits, Tick};
+use crate::methods::density::dataflow::{self, DataflowError, Workers};
+use crate::methods::density::{self, DensityError, Storage};
+use crate::methods::{MethodConfig, MethodError};
+use crate::outputs::{self, OutputError};
+use crate::render::{self, MemoryError};
+use crate::scene::SceneError;
+use crate::world::World;
+
+/// A bake from start to finish: what to bake, how, and what to write. Its
+/// fields are plain settings; [`BakeJob::check`] checks them and the files
+/// before any work, [`CheckedBake::run`] does the work.
+pub struct BakeJob {
+    /// The scene.
+    pub scene: SceneInput,
+    /// The density method's settings, seed and longest path included.
+    pub settings: density::Settings,
+    /// The display mesh to write (.glb); None writes none.
+    pub glb: Option<PathBuf>,
+    /// The irradiance mesh to write (.ply); None writes none.
+    pub ply: Option<PathBuf>,
+    /// Size the thread pool ([`job::set_threads`]) before loading.
+    pub threads: Option<usize>,
+    /// The most memory the bake may plan to use ([`job::memory_limit`]);
+    /// None: the machine's memory.
+    pub max_memory: Option<u64>,
+    /// The name of [`BakeJob::max_memory`] in the front end, which the
+    /// error names ("--max-memory").
+    pub max_memory_flag: &'static str,
+}
+
+impl BakeJob {
+    /// A bake of `scene` with `settings`: nothing written, no limit but
+    /// the machine's memory.
+    pub fn new(scene: SceneInput, settings: density::Settings) -> Self {
+        BakeJob {
+            scene,
+            settings,
+            glb: None,
+            ply: None,
+            threads: None,
+            max_memory: None,
+            max_memory_flag: "--max-memory",
+        }
+    }
+
+    /// Checks, before any work, the files to write (format, folder,
+    /// permissions), the settings and the bake's own buffers against the
+    /// memory limit.
+    pub fn check(self) -> Result<CheckedBake, BakeError> {
+        if let Some(p) = &self.glb {
+            outputs::check_output(p, &["glb"])?;
+        }
+        if let Some(p) = &self.ply {
+            outputs::check_output(p, &["ply"])?;
+        }
+        self.settings.validate()?;
+        if self.settings.max_depth == Some(0) {
+            return Err(BakeError::MaxDepth);
+        }
+        if let Some((limit, source)) = job::memory_limit(self.max_memory, self.max_memory_flag) {
+            // no film: only the bake's own buffers
+            let config = MethodConfig::Density(self.settings.clone());
+            render::check_memory(&render::memory_estimate(&config, 0, 0), limit, &source)?;
+        }
+        Ok(CheckedBake { job: self })
+    }
+}
+
+/// What a bake reports while it runs, for a progress display.
+pub enum BakeEvent<'e> {
+    /// Loading the scene and building the world.
+    Setup(SetupEvent<'e>),
+    /// The world is built and holds light: the bake begins, and from now
+    /// on the cancel flag stops it (its scratch files removed).
+    Started,
+    /// Progress within a phase of the bake.
+    Tick(&'e Tick),
+    /// A bake on a dataflow exchanged `hits` hit records with other
+    /// workers, in `bytes` bytes as serialized.
+    Exchanged {
+        /// Hit records sent.
+        hits: u64,
+        /// Their bytes.
+        bytes: u64,
+    },
+    /// The bake is done; its meshes are made and written next.
+    Writing,
+}
+
+/// A bake with its meshes.
+pub struct Baked {
+    /// The bake: surfaces, display mesh, white point, figures.
+    pub bake: density::Bake,
+    /// The lit display mesh (the diffuse surfaces).
+    pub lit: BakedMesh,
+    /// The surfaces with no diffuse part (glass, metal), unlit.
+    pub unlit: BakedMesh,
+}
+
+/// What a bake gave, once its outputs are written.
+pub struct BakeOutcome {
+    /// The bake; None in a bake across processes, except in process 0,
+    /// which writes the outputs.
+    pub baked: Option<Baked>,
+    /// Seconds spent loading the scene and building the world.
+    pub load_seconds: f64,
+    /// Seconds spent making and writing the meshes.
+    pub write_seconds: f64,
+}
+
+/// A [`BakeJob`] whose arguments and files are checked, ready to run.
+pub struct CheckedBake {
+    job: BakeJob,
+}
+
+impl CheckedBake {
+    /// Runs the bake: loads the scene and builds the world (unless it is
+    /// built), bakes in this process (`workers` None) or on a dataflow,
+    /// until done or `cancel` is set, then makes the meshes and writes the
+    /// outputs atomically. `on_event` hears each step.
+    pub fn run(
+        self,
+        workers: Option<&Workers>,
+        cancel: Option<&AtomicBool>,
+        on_event: &mut dyn FnMut(BakeEvent),
+    ) -> Result<BakeOutcome, BakeError> {
+        let j = &self.job;
+        if let Some(t) = j.threads {
+            job::set_threads(t).map_err(BakeError::Threads)?;
+        }
+        let t0 = Instant::now();
+        let world = match &j.scene {
+            SceneInput::World(w) => w.clone(),
+            SceneInput::File { path, defines, res } => {
+                let on = &mut |e: SetupEvent| on_event(BakeEvent::Setup(e));
+                job::build_step(job::load_step(path.as_deref(), defines, *res, on)?, on)
+            }
+        };
+        let load_seconds = t0.elapsed().as_secs_f64();
+        if world.lights.is_empty() {
+            return Err(BakeError::NoLight {
+                scene: world.scene.source.clone(),
+            });
+        }
+        on_event(BakeEvent::Started);
+        let Some(bake) = self.bake(&world, workers, cancel, on_event)? else {
+            return Ok(BakeOutcome {
+                baked: None,
+                load_seconds,
+                write_seconds: 0.0,
+            });
+        };
+
+        // Make the meshes and write them
+        on_event(BakeEvent::Writing);
+        let t1 = Instant::now();
+        let (lit, unlit) = bake.baked_meshes(&world.scene);
+        if let Some(p) = &j.glb {
+            gltf::write_glb(p, &lit, &unlit, bake.w0, Some(&world.scene.camera))?;
+        }
+        if let Some(p) = &j.ply {
+            ply::write_ply(p, &lit)?;
+        }
+        Ok(BakeOutcome {
+            baked: Some(Baked { bake, lit, unlit }),
+            load_seconds,
+            write_seconds: t1.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The bake itself, here or on a dataflow; None in a process other
+    /// than the one that writes.
+    fn bake(
+        &self,
+        world: &Arc<World>,
+        workers: Option<&Workers>,
+        cancel: Option<&AtomicBool>,
+        on_event: &mut dyn FnMut(BakeEvent),
+    ) -> Result<Option<density::Bake>, BakeError> {
+        let s = &self.job.settings;
+        let mut on_tick = |t: &Tick| on_event(BakeEvent::Tick(t));
+        let mut ctl = Control::new(Instant::now(), Limits::default(), cancel).on_tick(&mut on_tick);
+        let Some(w) = workers else {
+            return Ok(Some(density::bake_within(
+                world,
+                s,
+                Storage::Disk,
+                &mut ctl,
+            )?));
+        };
+        let d = match dataflow::bake_dataflow(world.clone(), s, w, &mut ctl) {
+            Ok(d) => d,
+            Err(DataflowError::Density(e)) => return Err(e.into()),
+            Err(e) => return Err(BakeError::Dataflow(e)),
+        };
+        on_event(BakeEvent::Exchanged {
+            hits: d.hits_sent,
+            bytes: d.bytes_sent,
+        });
+        Ok(d.bake)
+    }
+}
+
+/// Why a bake job stopped; each message names the file, the setting or the
+/// scene at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    /// An output that cannot be written.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// Settings the density method refuses.
+    #[error(transparent)]
+    Settings(#[from] MethodError),
+    /// A longest path of 0 segments.
+    #[error("--max-depth must be at least 1 (1 shows only the emitters, 2 adds direct light)")]
+    MaxDepth,
+    /// A bake past the memory limit.
+    #[error(transparent)]
+    Memory(#[from] MemoryError),
+    /// The thread pool could not be sized.
+    #[error("setting the thread count")]
+    Threads(#[source] rayon::ThreadPoolBuildError),
+    /// A scene that cannot be loaded.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// A scene with no emitter that emits light.
+    #[error("the scene has no emitters: nothing to bake")]
+    NoLight {
+        /// Where the scene came from.
+        scene: String,
+    },
+    /// The bake failed or was cancelled.
+    #[error(transparent)]
+    Density(#[from] DensityError),
+    /// The dataflow failed (its layout, its network).
+    #[error(transparent)]
+    Dataflow(DataflowError),
+    /// A mesh that cannot be written.
+    #[error(transparent)]
+    Write(#[from] ImageIoError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn settings(particles: u64) -> density::Settings {
+        density::Settings {
+            particles,
+            seed: 2,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_longest_path_of_zero_is_refused_before_any_work() {
+        let mut s = settings(1000);
+        s.max_depth = Some(0);
+        let e = BakeJob::new(SceneInput::builtin(), s).check().err();
+        assert!(matches!(e, Some(BakeError::MaxDepth)));
+    }
+
+    #[test]
+    fn an_output_of_another_format_is_refused() {
+        let mut job = BakeJob::new(SceneInput::builtin(), settings(1000));
+        job.glb = Some("out.gltf".into());
+        let e = job.check().err().expect("refused");
+        assert_eq!(e.to_string(), "output 'out.gltf' must end in .glb");
+    }
+
+    #[test]
+    fn the_job_bakes_and_writes_the_mesh() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let glb = dir.path().join("x.glb");
+        let mut job = BakeJob::new(SceneInput::builtin(), settings(20_000));
+        job.glb = Some(glb.clone());
+        let (mut ticks, mut writing) = (0, false);
+        let o = job
+            .check()
+            .expect("checked")
+            .run(None, None, &mut |e| match e {
+                BakeEvent::Tick(_) => ticks += 1,
+                BakeEvent::Writing => writing = true,
+                _ => {}
+            })
+            .expect("baked");
+        let b = o.baked.expect("a bake in this process");
+        assert!(!b.lit.indices.is_empty());
+        assert!(ticks > 0 && writing);
+        let bytes = std::fs::read(&glb).expect("written");
+        assert_eq!(&bytes[..4], b"glTF");
+    }
+}
