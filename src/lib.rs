@@ -10,6 +10,7 @@ pub mod bake;
 pub mod bench;
 pub mod bsdf;
 pub mod camera;
+pub mod color;
 pub mod emitter;
 pub mod film;
 pub mod geometry;
