@@ -24,7 +24,6 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod scenegen;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod simd8;
+pub mod simd;
 pub mod transport;
 pub mod world;

@@ -231,7 +231,7 @@ impl Lanes {
             // no alignment needed
             unsafe { _mm256_loadu_ps((r as *const Ray).cast()) }
         });
-        let t = crate::simd8::transpose8(rows);
+        let t = crate::simd::transpose8(rows);
         let o = [t[O], t[O + 1], t[O + 2]];
         let d = [t[D], t[D + 1], t[D + 2]];
         let one = _mm256_set1_ps(1.0);
@@ -362,9 +362,7 @@ impl PacketStack {
 #[inline]
 #[target_feature(enable = "avx2")]
 fn lane_mask(bits: u32) -> __m256 {
-    let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-    let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane);
-    _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, lane))
+    crate::simd::F8::mask(bits).0
 }
 
 // Where a Ray's values sit among its eight f32s (glam's Vec3 is three f32s,

@@ -18,7 +18,7 @@ use crate::geometry::Ray;
 use crate::partial::{Shard, State};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
-use crate::transport::dispatch::dispatched;
+use crate::simd::dispatched;
 use crate::transport::lanes::radiance_row;
 use crate::transport::{radiance_from_hit, DepthLimits};
 use glam::DVec3;

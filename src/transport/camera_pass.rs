@@ -60,7 +60,6 @@ use rayon::prelude::*;
 
 use glam::Vec3;
 
-use super::dispatch::dispatched;
 use super::{radiance_from, DepthLimits};
 use crate::bsdf::{Bsdf, Mode};
 use crate::emitter::LightSelection;
@@ -69,6 +68,7 @@ use crate::geometry::{offset_point, Ray};
 use crate::partial::Shard;
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::simd::dispatched;
 use crate::world::World;
 
 /// Probability with which an unmarked pixel is sampled in a pass.

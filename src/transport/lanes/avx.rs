@@ -6,7 +6,6 @@
 
 use std::arch::x86_64::*;
 use std::f32::consts::{FRAC_1_PI, PI};
-use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 use glam::{Vec2, Vec3};
 
@@ -18,6 +17,7 @@ use crate::geometry::Ray;
 use crate::sampling::{sin_cos_quarter, Pcg32, PCG_MULT};
 use crate::scene::records::TriRecord;
 use crate::scene::Rgb;
+use crate::simd::F8 as V;
 use crate::transport::{CameraPath, DepthLimits};
 use crate::world::World;
 
@@ -31,121 +31,6 @@ const _: () = {
     assert!(offset_of!(TriLight, n) == 36 && offset_of!(TriLight, le) == 48);
     assert!(offset_of!(TriLight, area) == 60);
 };
-
-/// Eight f32 lanes; a comparison gives a mask (all bits set where true).
-#[derive(Clone, Copy)]
-struct V(__m256);
-
-impl V {
-    #[inline(always)]
-    fn splat(x: f32) -> V {
-        V(unsafe { _mm256_set1_ps(x) })
-    }
-    #[inline(always)]
-    fn load(a: &[f32; LANES]) -> V {
-        V(unsafe { _mm256_loadu_ps(a.as_ptr()) })
-    }
-    #[inline(always)]
-    fn store(self) -> [f32; LANES] {
-        let mut out = [0.0; LANES];
-        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), self.0) };
-        out
-    }
-    #[inline(always)]
-    fn sqrt(self) -> V {
-        V(unsafe { _mm256_sqrt_ps(self.0) })
-    }
-    #[inline(always)]
-    fn abs(self) -> V {
-        V(unsafe { _mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0) })
-    }
-    /// `f32::max(self, 0.0)`: 0 for NaN, as `maxps` gives its second
-    /// operand then.
-    #[inline(always)]
-    fn max0(self) -> V {
-        V(unsafe { _mm256_max_ps(self.0, _mm256_setzero_ps()) })
-    }
-    #[inline(always)]
-    fn lt(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn gt(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn le(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn ge(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn eq(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, b.0) })
-    }
-    /// `!=`, true for NaN as in Rust.
-    #[inline(always)]
-    fn ne(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_NEQ_UQ>(self.0, b.0) })
-    }
-    /// `!(self <= b)`, true for NaN.
-    #[inline(always)]
-    fn nle(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_NLE_UQ>(self.0, b.0) })
-    }
-    /// `f32::is_finite`.
-    #[inline(always)]
-    fn finite(self) -> V {
-        self.abs().lt(V::splat(f32::INFINITY))
-    }
-    /// `if self { a } else { b }` for a mask.
-    #[inline(always)]
-    fn select(self, a: V, b: V) -> V {
-        V(unsafe { _mm256_blendv_ps(b.0, a.0, self.0) })
-    }
-    /// The lanes set in a mask, as bits.
-    #[inline(always)]
-    fn bits(self) -> u32 {
-        (unsafe { _mm256_movemask_ps(self.0) }) as u32
-    }
-    /// The mask of the lanes in `bits`.
-    #[inline(always)]
-    fn mask(bits: u32) -> V {
-        let lane = unsafe { _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128) };
-        let set = unsafe {
-            _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits as i32), lane), lane)
-        };
-        V(unsafe { _mm256_castsi256_ps(set) })
-    }
-}
-
-macro_rules! binop {
-    ($tr:ident, $f:ident, $op:ident) => {
-        impl $tr for V {
-            type Output = V;
-            #[inline(always)]
-            fn $f(self, b: V) -> V {
-                V(unsafe { $op(self.0, b.0) })
-            }
-        }
-    };
-}
-binop!(Add, add, _mm256_add_ps);
-binop!(Sub, sub, _mm256_sub_ps);
-binop!(Mul, mul, _mm256_mul_ps);
-binop!(Div, div, _mm256_div_ps);
-binop!(BitAnd, bitand, _mm256_and_ps);
-binop!(BitOr, bitor, _mm256_or_ps);
-
-impl Neg for V {
-    type Output = V;
-    #[inline(always)]
-    fn neg(self) -> V {
-        V(unsafe { _mm256_xor_ps(self.0, _mm256_set1_ps(-0.0)) })
-    }
-}
 
 /// Three lanes of vectors, by component.
 #[derive(Clone, Copy)]
@@ -207,7 +92,7 @@ impl V3 {
 fn transpose(r: [__m256; 8]) -> [V; 8] {
     // SAFETY: only inlined into `radiance_row`, which runs where the CPU
     // has AVX2
-    unsafe { crate::simd8::transpose8(r) }.map(V)
+    unsafe { crate::simd::transpose8(r) }.map(V)
 }
 
 /// The light of lanes that chose none.
@@ -853,12 +738,4 @@ fn vertices(
     put(&mut paths.d, m, wiw);
     put(&mut paths.beta, m, nbeta);
     alive
-}
-
-impl Not for V {
-    type Output = V;
-    #[inline(always)]
-    fn not(self) -> V {
-        V(unsafe { _mm256_xor_ps(self.0, _mm256_castsi256_ps(_mm256_set1_epi32(-1))) })
-    }
 }

@@ -17,7 +17,7 @@ use std::ops::Range;
 
 use super::raster::{Proj, Projector, ToMap, BOX_LIMIT};
 use crate::methods::bundle::patches::Corners;
-use crate::simd8::transpose8;
+use crate::simd::transpose8;
 
 // The write-out stores each projection as eighteen 4-byte rows in the
 // order of `Proj`'s fields (C layout); these pin that layout.
@@ -34,7 +34,7 @@ const _: () = {
 /// Whether [`project_avx2`] may run: the CPU has AVX2, and
 /// `KALOS_DISPATCH=baseline` does not ask for the baseline copies.
 pub(super) fn available() -> bool {
-    crate::transport::dispatch::has_v3()
+    crate::simd::has_v3()
 }
 
 /// Twice the signed area of (a, b, p), as `raster::edge`, in lanes.
