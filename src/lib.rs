@@ -4,6 +4,7 @@
 //! building (Szirmay-Kalos et al.), with a reference path tracer to judge
 //! them.
 #![warn(missing_docs)]
+#![deny(clippy::undocumented_unsafe_blocks)]
 
 pub mod accel;
 pub mod bake;

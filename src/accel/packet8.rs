@@ -561,8 +561,8 @@ fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
                         _mm256_and_si256(_mm256_castps_si256(hit), _mm256_set1_epi32(1 << k)),
                     );
                 }
-                // SAFETY: eight writable f32s and u32s; no alignment needed
                 let mut wa = [0u32; 8];
+                // SAFETY: eight writable f32s and u32s; no alignment needed
                 unsafe {
                     _mm256_storeu_ps(near.as_mut_ptr(), nv);
                     _mm256_storeu_si256(wa.as_mut_ptr().cast(), wv);

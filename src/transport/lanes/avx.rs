@@ -179,7 +179,9 @@ impl Rngs {
     /// are meaningless and the generators stay as they were).
     #[inline(always)]
     fn draw<const N: usize>(&mut self, mask: u32) -> [V; N] {
-        // SAFETY: the arrays hold eight u64 each, 32-byte aligned
+        // SAFETY: the arrays hold eight u64 each, 32-byte aligned (the
+        // struct's repr), read and written as two 256-bit halves; only
+        // inlined into `radiance_row`, which runs where the CPU has AVX2
         unsafe {
             let sp = self.state.as_mut_ptr().cast::<__m256i>();
             let ip = self.inc.as_ptr().cast::<__m256i>();
@@ -288,6 +290,8 @@ fn offset(p: V3, ng: V3, dir: V3) -> V3 {
 /// One coordinate of [`offset`], `n` facing the side to move to.
 #[inline(always)]
 fn offset_c(p: V, n: V) -> V {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
     unsafe {
         // (256 n) as i32, saturating as Rust casts
         let sn = _mm256_mul_ps(_mm256_set1_ps(256.0), n.0);
@@ -460,7 +464,7 @@ fn vertices(
     });
 
     // The surface points, as `records::interpolate` computes them
-    let mut lo = [unsafe { _mm256_setzero_ps() }; 8];
+    let mut lo = [V::splat(0.0).0; 8];
     let mut hi = lo;
     let mut shape = [0u32; LANES];
     for (i, h) in lh.iter().enumerate() {
@@ -553,12 +557,7 @@ fn vertices(
     let u_sel = u[0].store();
     // Frame::from_normal
     let nn = V3::load(&ns_a);
-    let sign = V(unsafe {
-        _mm256_or_ps(
-            _mm256_and_ps(nn.z.0, _mm256_set1_ps(-0.0)),
-            _mm256_set1_ps(1.0),
-        )
-    });
+    let sign = (nn.z & V::splat(-0.0)) | V::splat(1.0);
     let a = V::splat(-1.0) / (sign + nn.z);
     let b = nn.x * nn.y * a;
     let fs = V3::new(
@@ -583,7 +582,7 @@ fn vertices(
         }
     }
     // The lights chosen, by field: corners, normal, Le, area
-    let mut lo = [unsafe { _mm256_setzero_ps() }; 8];
+    let mut lo = [V::splat(0.0).0; 8];
     let mut hi = lo;
     for (i, tl) in light.iter().enumerate() {
         let ptr = (*tl as *const TriLight).cast::<f32>();
@@ -686,7 +685,7 @@ fn vertices(
     // Russian roulette's threshold, for lanes past rr_depth
     let m = nbeta.y.gt(nbeta.z).select(nbeta.y, nbeta.z);
     let m = nbeta.x.gt(m).select(nbeta.x, m);
-    let qrr = V(unsafe { _mm256_min_ps((m * V::load(&paths.eta_scale)).0, _mm256_set1_ps(0.95)) });
+    let qrr = (m * V::load(&paths.eta_scale)).min(V::splat(0.95));
 
     // Shadow rays, lane by lane
     let on = goes_on.bits() & vec;
