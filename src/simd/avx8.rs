@@ -83,7 +83,7 @@ impl F8 {
         F8(unsafe { _mm256_max_ps(self.0, b.0) })
     }
     /// `f32::max(self, 0.0)`: 0 for NaN, as `maxps` gives its second
-    /// operand then.
+    /// operand then, and +0 for −0 (where `f32::max` may give either).
     #[inline(always)]
     pub(crate) fn max0(self) -> F8 {
         // SAFETY: AVX, which the module's contract guarantees
@@ -203,5 +203,95 @@ impl Not for F8 {
     fn not(self) -> F8 {
         // SAFETY: AVX, which the module's contract guarantees
         F8(unsafe { _mm256_xor_ps(self.0, _mm256_castsi256_ps(_mm256_set1_epi32(-1))) })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::F8;
+
+    /// Values that tell the IEEE corners apart: signed zeros, infinities,
+    /// NaN, subnormals.
+    const X: [f32; 8] = [1.5, -0.0, f32::INFINITY, f32::NAN, 1e-40, -3.25, 0.0, 7.0];
+    const Y: [f32; 8] = [2.0, 0.0, -f32::INFINITY, 1.0, f32::NAN, -3.25, -0.0, 0.5];
+
+    /// Bit for bit, but any NaN for a NaN: Rust leaves a NaN's sign and
+    /// payload unspecified (and Miri picks them at random).
+    fn same(got: [f32; 8], want: [f32; 8]) {
+        let bits = |v: [f32; 8]| {
+            v.map(|x| {
+                if x.is_nan() {
+                    f32::NAN.to_bits()
+                } else {
+                    x.to_bits()
+                }
+            })
+        };
+        assert_eq!(bits(got), bits(want), "{got:?} against {want:?}");
+    }
+
+    fn mask(m: F8, want: [bool; 8]) {
+        let bits = (0..8).fold(0, |b, i| b | (u32::from(want[i]) << i));
+        assert_eq!(m.bits(), bits, "{want:?}");
+        // a mask is all bits or none
+        for (v, w) in m.store().iter().zip(want) {
+            assert_eq!(v.to_bits(), if w { u32::MAX } else { 0 });
+        }
+    }
+
+    /// The checks of [`lanes_are_the_scalar_operations`], compiled for
+    /// AVX2 as [`F8`]'s contract asks.
+    #[target_feature(enable = "avx2")]
+    fn check() {
+        let (a, b) = (F8::load(&X), F8::load_slice(&Y));
+        let f = |op: fn(f32, f32) -> f32| std::array::from_fn(|k| op(X[k], Y[k]));
+        let g = |op: fn(f32, f32) -> bool| std::array::from_fn(|k| op(X[k], Y[k]));
+        same((a + b).store(), f(|p, q| p + q));
+        same((a - b).store(), f(|p, q| p - q));
+        same((a * b).store(), f(|p, q| p * q));
+        same((a / b).store(), f(|p, q| p / q));
+        same((-a).store(), X.map(|p| -p));
+        same(a.min(b).store(), f(|p, q| if p < q { p } else { q }));
+        same(a.max(b).store(), f(|p, q| if p > q { p } else { q }));
+        same(a.max0().store(), X.map(|p| if p > 0.0 { p } else { 0.0 }));
+        same(a.sqrt().store(), X.map(f32::sqrt));
+        same(a.abs().store(), X.map(f32::abs));
+        mask(a.lt(b), g(|p, q| p < q));
+        mask(a.gt(b), g(|p, q| p > q));
+        mask(a.le(b), g(|p, q| p <= q));
+        mask(a.ge(b), g(|p, q| p >= q));
+        mask(a.eq(b), g(|p, q| p == q));
+        mask(a.ne(b), g(|p, q| p != q));
+        mask(a.nle(b), g(|p, q| !p.le(&q)));
+        mask(a.finite(), X.map(f32::is_finite));
+        mask(!a.lt(b), g(|p, q| !p.lt(&q)));
+        mask(a.lt(b) & a.ne(b), g(|p, q| p < q && p != q));
+        mask(a.lt(b) | a.eq(b), g(|p, q| p <= q));
+        mask(a.lt(b).andnot(a.ne(b)), g(|p, q| !p.lt(&q) && p != q));
+        mask(
+            F8::mask(0b1010_0110),
+            std::array::from_fn(|k| 0b1010_0110 & (1 << k) != 0),
+        );
+        same(
+            a.lt(b).select(a, b).store(),
+            f(|p, q| if p < q { p } else { q }),
+        );
+        same(F8::splat(-2.5).store(), [-2.5; 8]);
+        let mut out = [9.0; 10];
+        a.store_slice(&mut out[1..]);
+        same(out[1..9].try_into().unwrap(), X);
+        assert_eq!([out[0], out[9]], [9.0, 9.0]);
+    }
+
+    /// Every operation is the scalar one lane by lane, bit for bit (with
+    /// SSE's rule for min and max), and masks are all bits or none.
+    #[test]
+    fn lanes_are_the_scalar_operations() {
+        if !super::super::has_v3() {
+            eprintln!("no AVX2: F8 is not used here");
+            return;
+        }
+        // SAFETY: the CPU has AVX2 (has_v3 just said so)
+        unsafe { check() }
     }
 }

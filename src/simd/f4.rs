@@ -280,3 +280,70 @@ mod imp {
 }
 
 pub(crate) use imp::{F4, M4};
+
+#[cfg(test)]
+mod tests {
+    use super::{F4, M4};
+
+    /// Values that tell the IEEE corners apart: signed zeros, infinities,
+    /// NaN, subnormals.
+    const X: [f32; 8] = [1.5, -0.0, f32::INFINITY, f32::NAN, 1e-40, -3.25, 0.0, 7.0];
+    const Y: [f32; 8] = [2.0, 0.0, -f32::INFINITY, 1.0, f32::NAN, -3.25, -0.0, 0.5];
+
+    fn lanes(i: usize) -> (F4, F4, [f32; 4], [f32; 4]) {
+        let x: [f32; 4] = X[i..i + 4].try_into().unwrap();
+        let y: [f32; 4] = Y[i..i + 4].try_into().unwrap();
+        (F4::load(&x), F4::load_slice(&Y[i..]), x, y)
+    }
+
+    /// Bit for bit, but any NaN for a NaN: Rust leaves a NaN's sign and
+    /// payload unspecified (and Miri picks them at random).
+    fn same(got: [f32; 4], want: [f32; 4]) {
+        let bits = |v: [f32; 4]| {
+            v.map(|x| {
+                if x.is_nan() {
+                    f32::NAN.to_bits()
+                } else {
+                    x.to_bits()
+                }
+            })
+        };
+        assert_eq!(bits(got), bits(want), "{got:?} against {want:?}");
+    }
+
+    fn mask(m: M4, want: [bool; 4]) {
+        let bits = (0..4).fold(0, |b, i| b | (u32::from(want[i]) << i));
+        assert_eq!(m.bits(), bits, "{want:?}");
+    }
+
+    /// Every operation is the scalar one lane by lane, bit for bit, with
+    /// SSE's rule for min and max (the second operand when either is NaN).
+    #[test]
+    fn lanes_are_the_scalar_operations() {
+        for i in 0..=4 {
+            let (a, b, x, y) = (lanes(i).0, lanes(i).1, lanes(i).2, lanes(i).3);
+            let f = |op: fn(f32, f32) -> f32| std::array::from_fn(|k| op(x[k], y[k]));
+            same(a.add(b).to_array(), f(|p, q| p + q));
+            same(a.sub(b).to_array(), f(|p, q| p - q));
+            same(a.mul(b).to_array(), f(|p, q| p * q));
+            same(a.div(b).to_array(), f(|p, q| p / q));
+            same(a.min(b).to_array(), f(|p, q| if p < q { p } else { q }));
+            same(a.max(b).to_array(), f(|p, q| if p > q { p } else { q }));
+            same(a.sqrt().to_array(), x.map(f32::sqrt));
+            same(a.abs().to_array(), x.map(f32::abs));
+            same(F4::splat(x[0]).to_array(), [x[0]; 4]);
+            let g = |op: fn(f32, f32) -> bool| std::array::from_fn(|k| op(x[k], y[k]));
+            mask(a.le(b), g(|p, q| p <= q));
+            mask(a.lt(b), g(|p, q| p < q));
+            mask(a.ge(b), g(|p, q| p >= q));
+            mask(a.ne(b), g(|p, q| p != q));
+            mask(a.le(b).and(a.ne(b)), g(|p, q| p < q));
+            let pick = F4::select(a.lt(b), a, b).to_array();
+            same(pick, f(|p, q| if p < q { p } else { q }));
+            let mut out = [9.0; 6];
+            a.store_slice(&mut out[1..]);
+            same(out[1..5].try_into().unwrap(), x);
+            assert_eq!([out[0], out[5]], [9.0, 9.0]);
+        }
+    }
+}
