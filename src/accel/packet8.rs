@@ -532,7 +532,34 @@ fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
                 continue;
             }
         } else {
-            leaf(w, p, r, active, &mut best);
+            // Each triangle of the leaf against the active rays in the
+            // lanes, or, where the rays are fewer than the triangles, each
+            // ray against a pack's triangles at once (inline here: as a
+            // function of its own LLVM kept it out of line, `best` in memory)
+            let av = lane_mask(active);
+            for pk in leaf_packs(r) {
+                let pack = &w.packs[pk];
+                let ids = &w.ids[8 * pk..8 * pk + 8];
+                // SAFETY: eight readable u32s; no alignment needed
+                let unused = unsafe {
+                    let c = _mm256_loadu_si256(ids.as_ptr().cast());
+                    _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                        c,
+                        _mm256_set1_epi32(-1),
+                    ))) as u32
+                };
+                let valid = !unused & 0xff;
+                if active.count_ones() < valid.count_ones() {
+                    best.rays_against(p, pack, ids, active);
+                } else {
+                    let mut bits = valid;
+                    while bits != 0 {
+                        let j = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        best.triangle(p, pack, j, ids[j], av);
+                    }
+                }
+            }
         }
         match pop(&mut stack, &best) {
             Some(next) => (r, active) = next,
@@ -655,38 +682,6 @@ fn push_children(
     stack.len -= 1;
     let (cr, _, cm) = stack.get(stack.len);
     (cr, u32::from(cm))
-}
-
-/// Each triangle of leaf `r` against the active rays in the lanes, or,
-/// where the rays are fewer than the triangles, each ray against a pack's
-/// triangles at once.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn leaf(w: &Wide8, p: &Lanes, r: u32, active: u32, best: &mut Best) {
-    let av = lane_mask(active);
-    for pk in leaf_packs(r) {
-        let pack = &w.packs[pk];
-        let ids = &w.ids[8 * pk..8 * pk + 8];
-        // SAFETY: eight readable u32s; no alignment needed
-        let unused = unsafe {
-            let c = _mm256_loadu_si256(ids.as_ptr().cast());
-            _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
-                c,
-                _mm256_set1_epi32(-1),
-            ))) as u32
-        };
-        let valid = !unused & 0xff;
-        if active.count_ones() < valid.count_ones() {
-            best.rays_against(p, pack, ids, active);
-        } else {
-            let mut bits = valid;
-            while bits != 0 {
-                let j = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                best.triangle(p, pack, j, ids[j], av);
-            }
-        }
-    }
 }
 
 /// Pops the nearest entry that may still hold a closer hit for one of its
