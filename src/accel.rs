@@ -3,7 +3,7 @@
 //! geometry. obvhs (pinned to an exact version in Cargo.toml) builds a binary
 //! BVH in parallel by PLOC with rayon; `accel/wide.rs` collapses it into a
 //! 4-wide BVH whose nodes and triangles the kernels of `accel/traverse.rs`
-//! test four at a time (SSE2 on x86_64, `accel/simd.rs`).
+//! test four at a time (SSE2 on x86_64, `crate::simd`'s `F4`).
 //!
 //! PLOC clusters triangles by their centroids' Morton order, and where
 //! large triangles (walls, floors) sit among many small ones it makes
@@ -39,7 +39,6 @@ mod collapse;
 mod packet8;
 mod quality;
 mod sah;
-mod simd;
 mod traverse;
 #[cfg(target_arch = "x86_64")]
 mod traverse8;

@@ -3,7 +3,7 @@
 
 use glam::{DVec3, Vec3};
 
-use crate::scene::Rgb;
+use crate::color::Rgb;
 
 /// A finished image: linear RGB, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]

@@ -4,12 +4,14 @@
 //! building (Szirmay-Kalos et al.), with a reference path tracer to judge
 //! them.
 #![warn(missing_docs)]
+#![deny(clippy::undocumented_unsafe_blocks)]
 
 pub mod accel;
 pub mod bake;
 pub mod bench;
 pub mod bsdf;
 pub mod camera;
+pub mod color;
 pub mod emitter;
 pub mod film;
 pub mod geometry;
@@ -26,8 +28,7 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod scenegen;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod simd8;
+pub mod simd;
 pub mod state;
 pub mod transport;
 pub mod world;

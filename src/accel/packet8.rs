@@ -231,7 +231,7 @@ impl Lanes {
             // no alignment needed
             unsafe { _mm256_loadu_ps((r as *const Ray).cast()) }
         });
-        let t = crate::simd8::transpose8(rows);
+        let t = crate::simd::transpose8(rows);
         let o = [t[O], t[O + 1], t[O + 2]];
         let d = [t[D], t[D + 1], t[D + 2]];
         let one = _mm256_set1_ps(1.0);
@@ -362,9 +362,7 @@ impl PacketStack {
 #[inline]
 #[target_feature(enable = "avx2")]
 fn lane_mask(bits: u32) -> __m256 {
-    let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-    let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane);
-    _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, lane))
+    crate::simd::F8::mask(bits).0
 }
 
 // Where a Ray's values sit among its eight f32s (glam's Vec3 is three f32s,
@@ -516,82 +514,13 @@ fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
         v: _mm256_setzero_ps(),
         tri: _mm256_set1_epi32(-1),
     };
-    let inf = _mm256_set1_ps(f32::INFINITY);
-    let far_scale = _mm256_set1_ps(FAR_SCALE);
     let mut stack = PacketStack::new();
     let mut r = w.root;
     let mut active = p.rays;
     loop {
         if r & LEAF_BIT == 0 {
-            // Each valid child against the active rays: its rays are those
-            // that enter it, its distance the least of theirs
             let node = &w.nodes[r as usize];
-            // SAFETY: eight readable u32s; no alignment needed
-            let unused = unsafe {
-                let c = _mm256_loadu_si256(node.child.as_ptr().cast());
-                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
-                    c,
-                    _mm256_set1_epi32(-1),
-                ))) as u32
-            };
-            let (mut near, mut who) = ([0f32; 8], [0u8; 8]);
-            let mut hit_children = 0u32;
-            let mut valid = !unused & 0xff;
-            if !MIXED {
-                if let (Some(f), Some(oct)) = (&p.frustum, p.octant) {
-                    // Drop the children no ray can enter
-                    valid &= f.keep(node, oct, most_v(best.t));
-                }
-            }
-            if active.count_ones() < valid.count_ones() {
-                // Fewer rays than children: each ray against the eight
-                // boxes at once, as the single-ray kernel tests them
-                let mut tb = [0f32; 8];
-                // SAFETY: eight writable f32s; no alignment needed
-                unsafe { _mm256_storeu_ps(tb.as_mut_ptr(), best.t) };
-                let mut nv = inf;
-                let mut wv = _mm256_setzero_si256();
-                let mut bits = active;
-                while bits != 0 {
-                    let k = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    let ray = Prepared::lane(&p.o, &p.d, &p.inv, k);
-                    let (hit, t0) = ray.boxes_v(node, p.tmin_of(k), _mm256_set1_ps(tb[k]));
-                    nv = _mm256_min_ps(_mm256_blendv_ps(inf, t0, hit), nv);
-                    wv = _mm256_or_si256(
-                        wv,
-                        _mm256_and_si256(_mm256_castps_si256(hit), _mm256_set1_epi32(1 << k)),
-                    );
-                }
-                // SAFETY: eight writable f32s and u32s; no alignment needed
-                let mut wa = [0u32; 8];
-                unsafe {
-                    _mm256_storeu_ps(near.as_mut_ptr(), nv);
-                    _mm256_storeu_si256(wa.as_mut_ptr().cast(), wv);
-                }
-                who = wa.map(|m| m as u8);
-                hit_children = !_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
-                    wv,
-                    _mm256_setzero_si256(),
-                ))) as u32
-                    & 0xff;
-            } else {
-                // Each valid child against the active rays in the lanes
-                let av = lane_mask(active);
-                let mut bits = valid;
-                while bits != 0 {
-                    let i = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    let (hit, t0) = p.enters::<MIXED>(node, i, best.t);
-                    let hit = _mm256_and_ps(hit, av);
-                    let m = _mm256_movemask_ps(hit) as u32;
-                    if m != 0 {
-                        near[i] = least(_mm256_blendv_ps(inf, t0, hit));
-                        who[i] = m as u8;
-                        hit_children |= 1 << i;
-                    }
-                }
-            }
+            let (hit_children, near, who) = children_hit::<MIXED>(p, node, &best, active);
             if hit_children != 0 {
                 if hit_children & (hit_children - 1) == 0 {
                     let i = hit_children.trailing_zeros() as usize;
@@ -599,35 +528,14 @@ fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
                     active = u32::from(who[i]);
                     continue;
                 }
-                // Push the children sorted farthest first; descend into the
-                // nearest
-                let base = stack.len;
-                let mut bits = hit_children;
-                while bits != 0 {
-                    let i = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    let mut j = stack.len;
-                    while j > base {
-                        let (rj, dj, mj) = stack.get(j - 1);
-                        if dj >= near[i] {
-                            break;
-                        }
-                        stack.set(j, rj, dj, mj);
-                        j -= 1;
-                    }
-                    stack.set(j, node.child[i], near[i], who[i]);
-                    stack.len += 1;
-                }
-                stack.len -= 1;
-                let (cr, _, cm) = stack.get(stack.len);
-                r = cr;
-                active = u32::from(cm);
+                (r, active) = push_children(&mut stack, node, hit_children, &near, &who);
                 continue;
             }
         } else {
             // Each triangle of the leaf against the active rays in the
             // lanes, or, where the rays are fewer than the triangles, each
-            // ray against a pack's triangles at once
+            // ray against a pack's triangles at once (inline here: as a
+            // function of its own LLVM kept it out of line, `best` in memory)
             let av = lane_mask(active);
             for pk in leaf_packs(r) {
                 let pack = &w.packs[pk];
@@ -653,38 +561,169 @@ fn walk<const MIXED: bool>(w: &Wide8, p: &Lanes, out: &mut [Option<Hit>]) {
                 }
             }
         }
-        // Pop the nearest entry that may still hold a closer hit for one of
-        // its rays (`traverse::visits` in the lanes), with those rays
-        loop {
-            if stack.len == 0 {
-                let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
-                // SAFETY: eight writable f32s or i32s each; no alignment needed
-                unsafe {
-                    _mm256_storeu_ps(t.as_mut_ptr(), best.t);
-                    _mm256_storeu_ps(u.as_mut_ptr(), best.u);
-                    _mm256_storeu_ps(v.as_mut_ptr(), best.v);
-                    _mm256_storeu_si256(tri.as_mut_ptr().cast(), best.tri);
-                }
-                for (k, o) in out.iter_mut().enumerate() {
-                    *o = (tri[k] >= 0).then(|| Hit {
-                        t: t[k],
-                        tri: tri[k] as u32,
-                        b1: u[k],
-                        b2: v[k],
-                    });
-                }
+        match pop(&mut stack, &best) {
+            Some(next) => (r, active) = next,
+            None => {
+                best.write(out);
                 return;
             }
-            let (cr, cd, cm) = stack.get(stack.len - 1);
-            stack.len -= 1;
-            let still =
-                _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_set1_ps(cd), _mm256_mul_ps(best.t, far_scale));
-            let m = u32::from(cm) & _mm256_movemask_ps(still) as u32;
+        }
+    }
+}
+
+/// The children of `node` that the active rays enter: one bit per child,
+/// each one's distance (the least of its rays') and its rays.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn children_hit<const MIXED: bool>(
+    p: &Lanes,
+    node: &Node8,
+    best: &Best,
+    active: u32,
+) -> (u32, [f32; 8], [u8; 8]) {
+    let inf = _mm256_set1_ps(f32::INFINITY);
+    // SAFETY: eight readable u32s; no alignment needed
+    let unused = unsafe {
+        let c = _mm256_loadu_si256(node.child.as_ptr().cast());
+        _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+            c,
+            _mm256_set1_epi32(-1),
+        ))) as u32
+    };
+    let (mut near, mut who) = ([0f32; 8], [0u8; 8]);
+    let mut hit_children = 0u32;
+    let mut valid = !unused & 0xff;
+    if !MIXED {
+        if let (Some(f), Some(oct)) = (&p.frustum, p.octant) {
+            // Drop the children no ray can enter
+            valid &= f.keep(node, oct, most_v(best.t));
+        }
+    }
+    if active.count_ones() < valid.count_ones() {
+        // Fewer rays than children: each ray against the eight
+        // boxes at once, as the single-ray kernel tests them
+        let mut tb = [0f32; 8];
+        // SAFETY: eight writable f32s; no alignment needed
+        unsafe { _mm256_storeu_ps(tb.as_mut_ptr(), best.t) };
+        let mut nv = inf;
+        let mut wv = _mm256_setzero_si256();
+        let mut bits = active;
+        while bits != 0 {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let ray = Prepared::lane(&p.o, &p.d, &p.inv, k);
+            let (hit, t0) = ray.boxes_v(node, p.tmin_of(k), _mm256_set1_ps(tb[k]));
+            nv = _mm256_min_ps(_mm256_blendv_ps(inf, t0, hit), nv);
+            wv = _mm256_or_si256(
+                wv,
+                _mm256_and_si256(_mm256_castps_si256(hit), _mm256_set1_epi32(1 << k)),
+            );
+        }
+        let mut wa = [0u32; 8];
+        // SAFETY: eight writable f32s and u32s; no alignment needed
+        unsafe {
+            _mm256_storeu_ps(near.as_mut_ptr(), nv);
+            _mm256_storeu_si256(wa.as_mut_ptr().cast(), wv);
+        }
+        who = wa.map(|m| m as u8);
+        hit_children = !_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+            wv,
+            _mm256_setzero_si256(),
+        ))) as u32
+            & 0xff;
+    } else {
+        // Each valid child against the active rays in the lanes
+        let av = lane_mask(active);
+        let mut bits = valid;
+        while bits != 0 {
+            let i = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let (hit, t0) = p.enters::<MIXED>(node, i, best.t);
+            let hit = _mm256_and_ps(hit, av);
+            let m = _mm256_movemask_ps(hit) as u32;
             if m != 0 {
-                r = cr;
-                active = m;
+                near[i] = least(_mm256_blendv_ps(inf, t0, hit));
+                who[i] = m as u8;
+                hit_children |= 1 << i;
+            }
+        }
+    }
+    (hit_children, near, who)
+}
+
+/// Pushes the children `hit_children` of `node` sorted farthest first, and
+/// takes the nearest back off: the node to descend into, with its rays.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn push_children(
+    stack: &mut PacketStack,
+    node: &Node8,
+    hit_children: u32,
+    near: &[f32; 8],
+    who: &[u8; 8],
+) -> (u32, u32) {
+    let base = stack.len;
+    let mut bits = hit_children;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        let mut j = stack.len;
+        while j > base {
+            let (rj, dj, mj) = stack.get(j - 1);
+            if dj >= near[i] {
                 break;
             }
+            stack.set(j, rj, dj, mj);
+            j -= 1;
+        }
+        stack.set(j, node.child[i], near[i], who[i]);
+        stack.len += 1;
+    }
+    stack.len -= 1;
+    let (cr, _, cm) = stack.get(stack.len);
+    (cr, u32::from(cm))
+}
+
+/// Pops the nearest entry that may still hold a closer hit for one of its
+/// rays (`traverse::visits` in the lanes): the node, with those rays; none
+/// when the stack runs out.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn pop(stack: &mut PacketStack, best: &Best) -> Option<(u32, u32)> {
+    let far_scale = _mm256_set1_ps(FAR_SCALE);
+    while stack.len != 0 {
+        let (cr, cd, cm) = stack.get(stack.len - 1);
+        stack.len -= 1;
+        let still =
+            _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_set1_ps(cd), _mm256_mul_ps(best.t, far_scale));
+        let m = u32::from(cm) & _mm256_movemask_ps(still) as u32;
+        if m != 0 {
+            return Some((cr, m));
+        }
+    }
+    None
+}
+
+impl Best {
+    /// The hits found, one per ray.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn write(&self, out: &mut [Option<Hit>]) {
+        let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
+        // SAFETY: eight writable f32s or i32s each; no alignment needed
+        unsafe {
+            _mm256_storeu_ps(t.as_mut_ptr(), self.t);
+            _mm256_storeu_ps(u.as_mut_ptr(), self.u);
+            _mm256_storeu_ps(v.as_mut_ptr(), self.v);
+            _mm256_storeu_si256(tri.as_mut_ptr().cast(), self.tri);
+        }
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = (tri[k] >= 0).then(|| Hit {
+                t: t[k],
+                tri: tri[k] as u32,
+                b1: u[k],
+                b2: v[k],
+            });
         }
     }
 }

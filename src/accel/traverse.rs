@@ -7,8 +7,8 @@ use std::mem::MaybeUninit;
 use glam::Vec3;
 
 use super::collapse::leaf_packs;
-use super::simd::F4;
 use super::wide::{Node, Pack, Wide, LEAF_BIT, STACK};
+use crate::simd::F4;
 
 /// Rounding in the slab test can put an exact box's far distance just
 /// before a triangle on its face; the far distance is widened by 1 + 2γ₃

@@ -49,9 +49,9 @@ use crate::geometry::{offset_point, Ray};
 use crate::memory::MemoryItem;
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb};
+use crate::simd::dispatched;
 use crate::state::{Shard, ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
-use crate::transport::dispatch::dispatched;
 use crate::transport::{
     connect_emission, connect_to_camera, follow_delta_chain, light_walk, scatter, splat_to_camera,
     Landing, Spectrum,

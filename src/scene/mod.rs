@@ -98,14 +98,7 @@ pub(crate) fn check_finite(path: &Path, what: &str, positions: &[Vec3]) -> Resul
     }
 }
 
-/// Linear RGB colour (radiance, reflectance, power...).
-pub type Rgb = Vec3;
-
-/// Rec. 709 luminance of a linear RGB colour.
-#[inline]
-pub fn luminance(c: Rgb) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
-}
+pub use crate::color::{luminance, Rgb};
 
 /// An error in a scene file: the file, the 1-based line (0 when unknown, and
 /// then not shown) and what was wrong or expected.

@@ -60,7 +60,6 @@ use rayon::prelude::*;
 
 use glam::Vec3;
 
-use super::dispatch::dispatched;
 use super::{radiance_from, DepthLimits};
 use crate::bsdf::{Bsdf, Mode};
 use crate::emitter::LightSelection;
@@ -68,6 +67,7 @@ use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
 use crate::sampling::Pcg32;
 use crate::scene::Rgb;
+use crate::simd::dispatched;
 use crate::state::Shard;
 use crate::world::World;
 

@@ -6,12 +6,12 @@
 use glam::{Vec2, Vec3};
 
 use super::camera_pass::camera_share;
-use super::dispatch::dispatched;
 use super::Vertex;
 use crate::bsdf::{shading_normal_correction_over, Mode};
 use crate::film::Film;
 use crate::geometry::offset_point;
 use crate::scene::Rgb;
+use crate::simd::dispatched;
 use crate::world::World;
 
 /// Connects the surface vertex `v` of a light path carrying power `phi` to

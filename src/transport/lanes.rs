@@ -45,7 +45,7 @@ pub fn radiance_row(
     mut finish: impl FnMut(usize, Rgb, u64),
 ) {
     #[cfg(target_arch = "x86_64")]
-    if super::dispatch::has_v3() && world.lights.triangles_only() {
+    if crate::simd::has_v3() && world.lights.triangles_only() {
         // SAFETY: the CPU has AVX2 (checked by has_v3)
         unsafe { avx::radiance_row(world, limits, w, start, finish) };
         return;

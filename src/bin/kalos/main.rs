@@ -1,5 +1,6 @@
 //! The `kalos` command line: parses arguments, shows progress and writes
 //! files. Everything else lives in the library.
+#![deny(clippy::undocumented_unsafe_blocks)]
 
 mod bake;
 mod bench;

@@ -14,6 +14,9 @@
 use glam::Vec3;
 
 use super::Bounds;
+#[cfg(target_arch = "x86_64")]
+use crate::simd::F8;
+use crate::simd::{F4, M4};
 
 /// Eight nodes' bounds by field, the fields [`Bounds::importance`] reads.
 /// For a node with children a and b, lanes: a, b, a's two children, b's
@@ -61,7 +64,7 @@ impl Group {
     #[inline]
     pub(super) fn importance(&self, p: Vec3, n: Vec3) -> [f32; 8] {
         #[cfg(target_arch = "x86_64")]
-        if crate::transport::dispatch::has_v3() {
+        if crate::simd::has_v3() {
             // SAFETY: the CPU has AVX (has_v3 checks AVX2, which implies it)
             return unsafe { self.importance_avx(p, n) };
         }
@@ -73,8 +76,8 @@ impl Group {
     #[inline(always)]
     pub(super) fn importance_sse(&self, p: Vec3, n: Vec3) -> [f32; 8] {
         let mut out = [0.0; 8];
-        self.eval::<L4>(0, p, n, &mut out[..4]);
-        self.eval::<L4>(4, p, n, &mut out[4..]);
+        self.eval::<F4>(0, p, n, &mut out[..4]);
+        self.eval::<F4>(4, p, n, &mut out[4..]);
         out
     }
 
@@ -83,7 +86,7 @@ impl Group {
     #[target_feature(enable = "avx")]
     fn importance_avx(&self, p: Vec3, n: Vec3) -> [f32; 8] {
         let mut out = [0.0; 8];
-        self.eval::<L8>(0, p, n, &mut out);
+        self.eval::<F8>(0, p, n, &mut out);
         out
     }
 
@@ -168,199 +171,126 @@ trait Lanes: Copy {
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
 }
 
-#[cfg(target_arch = "x86_64")]
-mod lanes {
-    //! SSE2 (which every x86_64 has) and AVX. Every `unsafe` block calls an
-    //! intrinsic on register values, or loads or stores as many f32s as the
-    //! slice just taken holds. The AVX methods run only inlined into
-    //! [`super::Group::importance_avx`], which is compiled for AVX and
-    //! called where the CPU has it.
-    use std::arch::x86_64::*;
-
-    use super::Lanes;
-
-    /// Four f32 lanes.
-    #[derive(Clone, Copy)]
-    pub(super) struct L4(__m128);
-
-    /// Eight f32 lanes.
-    #[derive(Clone, Copy)]
-    pub(super) struct L8(__m256);
-
-    macro_rules! lanes {
-        ($t:ident, $n:literal, $v:ty, $set1:ident, $loadu:ident, $storeu:ident, $add:ident, $sub:ident,
-         $mul:ident, $div:ident, $sqrt:ident, $min:ident, $max:ident, $andnot:ident, $and:ident, $or:ident,
-         |$x:ident, $y:ident| $le:expr, $ge:expr) => {
-            impl Lanes for $t {
-                type Mask = $v;
-                #[inline(always)]
-                fn splat(x: f32) -> Self {
-                    $t(unsafe { $set1(x) })
-                }
-                #[inline(always)]
-                fn load(a: &[f32]) -> Self {
-                    let a = &a[..$n];
-                    $t(unsafe { $loadu(a.as_ptr()) })
-                }
-                #[inline(always)]
-                fn store(self, out: &mut [f32]) {
-                    let out = &mut out[..$n];
-                    unsafe { $storeu(out.as_mut_ptr(), self.0) }
-                }
-                #[inline(always)]
-                fn add(self, b: Self) -> Self {
-                    $t(unsafe { $add(self.0, b.0) })
-                }
-                #[inline(always)]
-                fn sub(self, b: Self) -> Self {
-                    $t(unsafe { $sub(self.0, b.0) })
-                }
-                #[inline(always)]
-                fn mul(self, b: Self) -> Self {
-                    $t(unsafe { $mul(self.0, b.0) })
-                }
-                #[inline(always)]
-                fn div(self, b: Self) -> Self {
-                    $t(unsafe { $div(self.0, b.0) })
-                }
-                #[inline(always)]
-                fn sqrt(self) -> Self {
-                    $t(unsafe { $sqrt(self.0) })
-                }
-                #[inline(always)]
-                fn min(self, b: Self) -> Self {
-                    $t(unsafe { $min(self.0, b.0) })
-                }
-                #[inline(always)]
-                fn max(self, b: Self) -> Self {
-                    $t(unsafe { $max(self.0, b.0) })
-                }
-                #[inline(always)]
-                fn abs(self) -> Self {
-                    $t(unsafe { $andnot($set1(-0.0), self.0) })
-                }
-                #[inline(always)]
-                fn le(self, b: Self) -> $v {
-                    let ($x, $y) = (self.0, b.0);
-                    unsafe { $le }
-                }
-                #[inline(always)]
-                fn ge(self, b: Self) -> $v {
-                    let ($x, $y) = (self.0, b.0);
-                    unsafe { $ge }
-                }
-                #[inline(always)]
-                fn select(m: $v, a: Self, b: Self) -> Self {
-                    $t(unsafe { $or($and(m, a.0), $andnot(m, b.0)) })
-                }
-            }
-        };
-    }
-
-    lanes!(
-        L4,
-        4,
-        __m128,
-        _mm_set1_ps,
-        _mm_loadu_ps,
-        _mm_storeu_ps,
-        _mm_add_ps,
-        _mm_sub_ps,
-        _mm_mul_ps,
-        _mm_div_ps,
-        _mm_sqrt_ps,
-        _mm_min_ps,
-        _mm_max_ps,
-        _mm_andnot_ps,
-        _mm_and_ps,
-        _mm_or_ps,
-        |x, y| _mm_cmple_ps(x, y),
-        _mm_cmpge_ps(x, y)
-    );
-    lanes!(
-        L8,
-        8,
-        __m256,
-        _mm256_set1_ps,
-        _mm256_loadu_ps,
-        _mm256_storeu_ps,
-        _mm256_add_ps,
-        _mm256_sub_ps,
-        _mm256_mul_ps,
-        _mm256_div_ps,
-        _mm256_sqrt_ps,
-        _mm256_min_ps,
-        _mm256_max_ps,
-        _mm256_andnot_ps,
-        _mm256_and_ps,
-        _mm256_or_ps,
-        |x, y| _mm256_cmp_ps::<_CMP_LE_OS>(x, y),
-        _mm256_cmp_ps::<_CMP_GE_OS>(x, y)
-    );
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-mod lanes {
-    //! Plain arrays, with SSE's semantics for min, max and comparisons.
-
-    use super::Lanes;
-
-    /// Four f32 lanes.
-    #[derive(Clone, Copy)]
-    pub(super) struct L4([f32; 4]);
-
+impl Lanes for F4 {
+    type Mask = M4;
     #[inline(always)]
-    fn map(a: L4, b: L4, f: impl Fn(f32, f32) -> f32) -> L4 {
-        L4(std::array::from_fn(|i| f(a.0[i], b.0[i])))
+    fn splat(x: f32) -> Self {
+        F4::splat(x)
     }
-
-    impl Lanes for L4 {
-        type Mask = [bool; 4];
-        fn splat(x: f32) -> Self {
-            L4([x; 4])
-        }
-        fn load(a: &[f32]) -> Self {
-            L4(std::array::from_fn(|i| a[i]))
-        }
-        fn store(self, out: &mut [f32]) {
-            out[..4].copy_from_slice(&self.0);
-        }
-        fn add(self, b: Self) -> Self {
-            map(self, b, |x, y| x + y)
-        }
-        fn sub(self, b: Self) -> Self {
-            map(self, b, |x, y| x - y)
-        }
-        fn mul(self, b: Self) -> Self {
-            map(self, b, |x, y| x * y)
-        }
-        fn div(self, b: Self) -> Self {
-            map(self, b, |x, y| x / y)
-        }
-        fn sqrt(self) -> Self {
-            L4(self.0.map(f32::sqrt))
-        }
-        fn min(self, b: Self) -> Self {
-            map(self, b, |x, y| if x < y { x } else { y })
-        }
-        fn max(self, b: Self) -> Self {
-            map(self, b, |x, y| if x > y { x } else { y })
-        }
-        fn abs(self) -> Self {
-            L4(self.0.map(f32::abs))
-        }
-        fn le(self, b: Self) -> [bool; 4] {
-            std::array::from_fn(|i| self.0[i] <= b.0[i])
-        }
-        fn ge(self, b: Self) -> [bool; 4] {
-            std::array::from_fn(|i| self.0[i] >= b.0[i])
-        }
-        fn select(m: [bool; 4], a: Self, b: Self) -> Self {
-            L4(std::array::from_fn(|i| if m[i] { a.0[i] } else { b.0[i] }))
-        }
+    #[inline(always)]
+    fn load(a: &[f32]) -> Self {
+        F4::load_slice(a)
+    }
+    #[inline(always)]
+    fn store(self, out: &mut [f32]) {
+        self.store_slice(out)
+    }
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        F4::add(self, b)
+    }
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        F4::sub(self, b)
+    }
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        F4::mul(self, b)
+    }
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        F4::div(self, b)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F4::sqrt(self)
+    }
+    #[inline(always)]
+    fn min(self, b: Self) -> Self {
+        F4::min(self, b)
+    }
+    #[inline(always)]
+    fn max(self, b: Self) -> Self {
+        F4::max(self, b)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        F4::abs(self)
+    }
+    #[inline(always)]
+    fn le(self, b: Self) -> M4 {
+        F4::le(self, b)
+    }
+    #[inline(always)]
+    fn ge(self, b: Self) -> M4 {
+        F4::ge(self, b)
+    }
+    #[inline(always)]
+    fn select(m: M4, a: Self, b: Self) -> Self {
+        F4::select(m, a, b)
     }
 }
 
-use lanes::L4;
+/// Only inlined into [`Group::importance_avx`], which is compiled for AVX
+/// and called where the CPU has it, as [`F8`]'s contract asks.
 #[cfg(target_arch = "x86_64")]
-use lanes::L8;
+impl Lanes for F8 {
+    type Mask = F8;
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        F8::splat(x)
+    }
+    #[inline(always)]
+    fn load(a: &[f32]) -> Self {
+        F8::load_slice(a)
+    }
+    #[inline(always)]
+    fn store(self, out: &mut [f32]) {
+        self.store_slice(out)
+    }
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        self + b
+    }
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        self - b
+    }
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        self * b
+    }
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        self / b
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F8::sqrt(self)
+    }
+    #[inline(always)]
+    fn min(self, b: Self) -> Self {
+        F8::min(self, b)
+    }
+    #[inline(always)]
+    fn max(self, b: Self) -> Self {
+        F8::max(self, b)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        F8::abs(self)
+    }
+    #[inline(always)]
+    fn le(self, b: Self) -> F8 {
+        F8::le(self, b)
+    }
+    #[inline(always)]
+    fn ge(self, b: Self) -> F8 {
+        F8::ge(self, b)
+    }
+    /// By bits, (m ∧ a) ∨ (¬m ∧ b), as [`F4::select`].
+    #[inline(always)]
+    fn select(m: F8, a: Self, b: Self) -> Self {
+        (m & a) | m.andnot(b)
+    }
+}

@@ -6,7 +6,6 @@
 
 use std::arch::x86_64::*;
 use std::f32::consts::{FRAC_1_PI, PI};
-use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 use glam::{Vec2, Vec3};
 
@@ -18,6 +17,7 @@ use crate::geometry::Ray;
 use crate::sampling::{sin_cos_quarter, Pcg32, PCG_MULT};
 use crate::scene::records::TriRecord;
 use crate::scene::Rgb;
+use crate::simd::F8 as V;
 use crate::transport::{CameraPath, DepthLimits};
 use crate::world::World;
 
@@ -31,121 +31,6 @@ const _: () = {
     assert!(offset_of!(TriLight, n) == 36 && offset_of!(TriLight, le) == 48);
     assert!(offset_of!(TriLight, area) == 60);
 };
-
-/// Eight f32 lanes; a comparison gives a mask (all bits set where true).
-#[derive(Clone, Copy)]
-struct V(__m256);
-
-impl V {
-    #[inline(always)]
-    fn splat(x: f32) -> V {
-        V(unsafe { _mm256_set1_ps(x) })
-    }
-    #[inline(always)]
-    fn load(a: &[f32; LANES]) -> V {
-        V(unsafe { _mm256_loadu_ps(a.as_ptr()) })
-    }
-    #[inline(always)]
-    fn store(self) -> [f32; LANES] {
-        let mut out = [0.0; LANES];
-        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), self.0) };
-        out
-    }
-    #[inline(always)]
-    fn sqrt(self) -> V {
-        V(unsafe { _mm256_sqrt_ps(self.0) })
-    }
-    #[inline(always)]
-    fn abs(self) -> V {
-        V(unsafe { _mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0) })
-    }
-    /// `f32::max(self, 0.0)`: 0 for NaN, as `maxps` gives its second
-    /// operand then.
-    #[inline(always)]
-    fn max0(self) -> V {
-        V(unsafe { _mm256_max_ps(self.0, _mm256_setzero_ps()) })
-    }
-    #[inline(always)]
-    fn lt(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn gt(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn le(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn ge(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, b.0) })
-    }
-    #[inline(always)]
-    fn eq(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, b.0) })
-    }
-    /// `!=`, true for NaN as in Rust.
-    #[inline(always)]
-    fn ne(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_NEQ_UQ>(self.0, b.0) })
-    }
-    /// `!(self <= b)`, true for NaN.
-    #[inline(always)]
-    fn nle(self, b: V) -> V {
-        V(unsafe { _mm256_cmp_ps::<_CMP_NLE_UQ>(self.0, b.0) })
-    }
-    /// `f32::is_finite`.
-    #[inline(always)]
-    fn finite(self) -> V {
-        self.abs().lt(V::splat(f32::INFINITY))
-    }
-    /// `if self { a } else { b }` for a mask.
-    #[inline(always)]
-    fn select(self, a: V, b: V) -> V {
-        V(unsafe { _mm256_blendv_ps(b.0, a.0, self.0) })
-    }
-    /// The lanes set in a mask, as bits.
-    #[inline(always)]
-    fn bits(self) -> u32 {
-        (unsafe { _mm256_movemask_ps(self.0) }) as u32
-    }
-    /// The mask of the lanes in `bits`.
-    #[inline(always)]
-    fn mask(bits: u32) -> V {
-        let lane = unsafe { _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128) };
-        let set = unsafe {
-            _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits as i32), lane), lane)
-        };
-        V(unsafe { _mm256_castsi256_ps(set) })
-    }
-}
-
-macro_rules! binop {
-    ($tr:ident, $f:ident, $op:ident) => {
-        impl $tr for V {
-            type Output = V;
-            #[inline(always)]
-            fn $f(self, b: V) -> V {
-                V(unsafe { $op(self.0, b.0) })
-            }
-        }
-    };
-}
-binop!(Add, add, _mm256_add_ps);
-binop!(Sub, sub, _mm256_sub_ps);
-binop!(Mul, mul, _mm256_mul_ps);
-binop!(Div, div, _mm256_div_ps);
-binop!(BitAnd, bitand, _mm256_and_ps);
-binop!(BitOr, bitor, _mm256_or_ps);
-
-impl Neg for V {
-    type Output = V;
-    #[inline(always)]
-    fn neg(self) -> V {
-        V(unsafe { _mm256_xor_ps(self.0, _mm256_set1_ps(-0.0)) })
-    }
-}
 
 /// Three lanes of vectors, by component.
 #[derive(Clone, Copy)]
@@ -207,7 +92,7 @@ impl V3 {
 fn transpose(r: [__m256; 8]) -> [V; 8] {
     // SAFETY: only inlined into `radiance_row`, which runs where the CPU
     // has AVX2
-    unsafe { crate::simd8::transpose8(r) }.map(V)
+    unsafe { crate::simd::transpose8(r) }.map(V)
 }
 
 /// The light of lanes that chose none.
@@ -294,7 +179,9 @@ impl Rngs {
     /// are meaningless and the generators stay as they were).
     #[inline(always)]
     fn draw<const N: usize>(&mut self, mask: u32) -> [V; N] {
-        // SAFETY: the arrays hold eight u64 each, 32-byte aligned
+        // SAFETY: the arrays hold eight u64 each, 32-byte aligned (the
+        // struct's repr), read and written as two 256-bit halves; only
+        // inlined into `radiance_row`, which runs where the CPU has AVX2
         unsafe {
             let sp = self.state.as_mut_ptr().cast::<__m256i>();
             let ip = self.inc.as_ptr().cast::<__m256i>();
@@ -403,6 +290,8 @@ fn offset(p: V3, ng: V3, dir: V3) -> V3 {
 /// One coordinate of [`offset`], `n` facing the side to move to.
 #[inline(always)]
 fn offset_c(p: V, n: V) -> V {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
     unsafe {
         // (256 n) as i32, saturating as Rust casts
         let sn = _mm256_mul_ps(_mm256_set1_ps(256.0), n.0);
@@ -559,8 +448,6 @@ fn vertices(
     rngs: &mut Rngs,
     mask: u32,
 ) -> u32 {
-    let (scene, recs, lights) = (&world.scene, world.tris.records(), &world.lights);
-    let max_depth = limits.max_depth.unwrap_or(u32::MAX);
     // Each lane's hit (lanes outside the mask repeat the first lane's, and
     // are not written back)
     let first = mask.trailing_zeros() as usize;
@@ -573,16 +460,50 @@ fn vertices(
             b2: 0.0,
         })
     });
+    let sp = surface_points(world.tris.records(), &lh);
+    let sh = shade_or_scatter(world, limits, paths, rngs, &lh, &sp, mask);
+    if sh.vec == 0 {
+        return sh.alive;
+    }
+    // The lanes' numbers, in the scalar order: the light's choice and
+    // point, then the BSDF's lobe and direction
+    let u = rngs.draw::<6>(sh.vec);
+    let fr = frame(&sh, sp.ng, V3::load(&paths.d).neg());
+    let ls = choose_lights(world, limits, sp.p, fr.ng_o, u[0], sh.vec);
+    let ne = next_event(paths, &sh, &sp, &fr, &ls, [u[1], u[2]]);
+    let bs = sample_bsdf(paths, &sh, &fr, [u[4], u[5]]);
+    trace_shadows(world, paths, &sp, &fr, &ls, &ne, sh.vec);
+    next_segment(limits, paths, rngs, &sp, &fr, &bs, sh)
+}
 
-    // The surface points, as `records::interpolate` computes them
-    let mut lo = [unsafe { _mm256_setzero_ps() }; 8];
+/// The surface points of eight hits, by lane.
+struct Surface {
+    /// The point.
+    p: V3,
+    /// The geometric normal.
+    ng: V3,
+    /// The texture coordinates, u then v.
+    uv: [[f32; LANES]; 2],
+    /// The first barycentric coordinate.
+    b0: V,
+    /// The shape hit.
+    shape: [u32; LANES],
+}
+
+/// The surface points of the hits `lh`, as `records::interpolate` computes
+/// them.
+#[inline(always)]
+fn surface_points(recs: &[TriRecord], lh: &[Hit; LANES]) -> Surface {
+    let mut lo = [V::splat(0.0).0; 8];
     let mut hi = lo;
     let mut shape = [0u32; LANES];
     for (i, h) in lh.iter().enumerate() {
         let r: &TriRecord = &recs[h.tri as usize];
         shape[i] = r.shape;
         let ptr = (r as *const TriRecord).cast::<f32>();
-        // SAFETY: a record is 64 bytes of f32-sized fields, 64-aligned
+        // SAFETY: a record is 64 bytes of f32-sized fields, 64-aligned;
+        // only inlined into `radiance_row`, which runs where the CPU has
+        // AVX2
         unsafe {
             lo[i] = _mm256_load_ps(ptr);
             hi[i] = _mm256_load_ps(ptr.add(8));
@@ -614,41 +535,78 @@ fn vertices(
     let rcp = V::splat(1.0) / cross.dot(cross).sqrt();
     let unit = rcp.finite() & rcp.gt(V::splat(0.0));
     let ng = V3::select(unit, cross.scale(rcp), V3::splat(Vec3::Z));
-    let ng_a = ng.store();
-    // Which vertices the lanes shade; the rest take the scalar step. A
-    // lane's shading normal (interpolated for smooth shapes, lane by lane),
-    // and its reflectance
-    let mut alive = mask;
-    let mut vec = 0u32;
-    let mut two_sided = 0u32;
-    let mut r = [[0.0f32; LANES]; 3];
-    let mut ns_a = ng_a;
-    let b0_a = b0.store();
-    let mut light: [&TriLight; LANES] = [&NO_LIGHT; LANES];
-    let mut pmf = [0.0f32; LANES];
-    let mut chosen = 0u32;
+    Surface {
+        p,
+        ng,
+        uv,
+        b0,
+        shape,
+    }
+}
+
+/// Which vertices the lanes shade, and what they need to.
+struct Shaded {
+    /// The paths still going on (so far: the scalar steps' answers).
+    alive: u32,
+    /// The lanes shaded in lanes.
+    vec: u32,
+    /// The lanes whose material is two-sided.
+    two_sided: u32,
+    /// The diffuse reflectance.
+    r: [[f32; LANES]; 3],
+    /// The shading normal, facing the geometric one.
+    ns: [[f32; LANES]; 3],
+}
+
+/// Which vertices the lanes shade: the common case (a diffuse BSDF on a
+/// surface that does not emit, below the depth limit); every other vertex
+/// takes the scalar step here. A shaded lane's reflectance and shading
+/// normal (interpolated for smooth shapes, lane by lane).
+#[inline(always)]
+fn shade_or_scatter(
+    world: &World,
+    limits: &DepthLimits,
+    paths: &mut Paths,
+    rngs: &mut Rngs,
+    lh: &[Hit; LANES],
+    sp: &Surface,
+    mask: u32,
+) -> Shaded {
+    let (scene, lights) = (&world.scene, &world.lights);
+    let max_depth = limits.max_depth.unwrap_or(u32::MAX);
+    let ng_a = sp.ng.store();
+    let b0_a = sp.b0.store();
+    let mut sh = Shaded {
+        alive: mask,
+        vec: 0,
+        two_sided: 0,
+        r: [[0.0f32; LANES]; 3],
+        ns: ng_a,
+    };
     for i in lanes(mask) {
-        let s = &scene.shapes[shape[i] as usize];
+        let shape = sp.shape[i];
+        let s = &scene.shapes[shape as usize];
         let material = &scene.materials[s.material as usize];
-        let common = paths.depth[i] < max_depth && !lights.is_emitter_of(lh[i].tri, shape[i]);
-        let diffuse = match common.then(|| material.bsdf(Vec2::new(uv[0][i], uv[1][i]))) {
+        let common = paths.depth[i] < max_depth && !lights.is_emitter_of(lh[i].tri, shape);
+        let uv = Vec2::new(sp.uv[0][i], sp.uv[1][i]);
+        let diffuse = match common.then(|| material.bsdf(uv)) {
             Some(Bsdf::Diffuse { r }) => Some(r),
             _ => None,
         };
         let Some(ri) = diffuse else {
             let mut path = paths.get(i);
-            let sp = world.surface_point(&lh[i]);
+            let spi = world.surface_point(&lh[i]);
             let mut rng = rngs.get(i);
-            if !path.scatter(world, limits, &sp, &mut rng) {
-                alive &= !(1 << i);
+            if !path.scatter(world, limits, &spi, &mut rng) {
+                sh.alive &= !(1 << i);
             }
             rngs.set(i, &rng);
             paths.set(i, &path);
             continue;
         };
-        vec |= 1 << i;
-        two_sided |= u32::from(material.is_two_sided()) << i;
-        V3::set(&mut r, i, ri);
+        sh.vec |= 1 << i;
+        sh.two_sided |= u32::from(material.is_two_sided()) << i;
+        V3::set(&mut sh.r, i, ri);
         if s.smooth {
             let ng = V3::lane(&ng_a, i);
             let [i0, i1, i2] = scene.triangles[lh[i].tri as usize].map(|i| i as usize);
@@ -656,24 +614,32 @@ fn vertices(
                 + scene.normals[i1] * lh[i].b1
                 + scene.normals[i2] * lh[i].b2;
             let n = n.normalize_or(ng);
-            V3::set(&mut ns_a, i, if n.dot(ng) < 0.0 { -n } else { n });
+            V3::set(&mut sh.ns, i, if n.dot(ng) < 0.0 { -n } else { n });
         }
     }
-    if vec == 0 {
-        return alive;
-    }
-    // The lanes' numbers, in the scalar order: the light's choice and
-    // point, then the BSDF's lobe and direction
-    let u = rngs.draw::<6>(vec);
-    let u_sel = u[0].store();
-    // Frame::from_normal
-    let nn = V3::load(&ns_a);
-    let sign = V(unsafe {
-        _mm256_or_ps(
-            _mm256_and_ps(nn.z.0, _mm256_set1_ps(-0.0)),
-            _mm256_set1_ps(1.0),
-        )
-    });
+    sh
+}
+
+/// The shading frames, oriented.
+struct Frame8 {
+    /// The frame's first tangent.
+    fs: V3,
+    /// Its second tangent.
+    ft: V3,
+    /// Its normal.
+    fn_: V3,
+    /// The direction to the viewer.
+    wo: V3,
+    /// The geometric normal, facing the viewer on two-sided materials.
+    ng_o: V3,
+}
+
+/// `Frame::from_normal` of the shading normals, then `orient`: two-sided
+/// materials face the viewer at `wo`.
+#[inline(always)]
+fn frame(sh: &Shaded, ng: V3, wo: V3) -> Frame8 {
+    let nn = V3::load(&sh.ns);
+    let sign = (nn.z & V::splat(-0.0)) | V::splat(1.0);
     let a = V::splat(-1.0) / (sign + nn.z);
     let b = nn.x * nn.y * a;
     let fs = V3::new(
@@ -682,27 +648,63 @@ fn vertices(
         -sign * nn.x,
     );
     let ft = V3::new(b, sign + nn.y * nn.y * a, -nn.y);
-    // orient: two-sided materials face the viewer
-    let wo = V3::load(&paths.d).neg();
-    let flip = V::mask(two_sided) & ng.dot(wo).lt(V::splat(0.0));
-    let ng_o = V3::select(flip, ng.neg(), ng);
-    let ft = V3::select(flip, ft.neg(), ft);
-    let fn_ = V3::select(flip, nn.neg(), nn);
-    // The light each lane chooses, as seen from its point and normal
+    let flip = V::mask(sh.two_sided) & ng.dot(wo).lt(V::splat(0.0));
+    Frame8 {
+        fs,
+        ft: V3::select(flip, ft.neg(), ft),
+        fn_: V3::select(flip, nn.neg(), nn),
+        wo,
+        ng_o: V3::select(flip, ng.neg(), ng),
+    }
+}
+
+/// The lights the lanes chose, by field.
+struct Chosen {
+    /// The lanes that chose one.
+    chosen: u32,
+    /// Its probability.
+    pmf: [f32; LANES],
+    /// Its corners.
+    q: [V3; 3],
+    /// Its normal.
+    n: V3,
+    /// Its emitted radiance.
+    le: V3,
+    /// Its area.
+    area: V,
+}
+
+/// The light each lane of `vec` chooses with the number `u_sel`, as seen
+/// from its point `p` and normal `ng_o`, read by field.
+#[inline(always)]
+fn choose_lights(
+    world: &World,
+    limits: &DepthLimits,
+    p: V3,
+    ng_o: V3,
+    u_sel: V,
+    vec: u32,
+) -> Chosen {
+    let u_sel = u_sel.store();
+    let mut light: [&TriLight; LANES] = [&NO_LIGHT; LANES];
+    let mut pmf = [0.0f32; LANES];
+    let mut chosen = 0u32;
     let (p_a, ngo_a) = (p.store(), ng_o.store());
     for i in lanes(vec) {
         let (pi, ni) = (V3::lane(&p_a, i), V3::lane(&ngo_a, i));
-        if let Some((tl, pm)) = lights.select_tri(limits.light_selection, pi, ni, u_sel[i]) {
+        let selection = limits.light_selection;
+        if let Some((tl, pm)) = world.lights.select_tri(selection, pi, ni, u_sel[i]) {
             chosen |= 1 << i;
             (light[i], pmf[i]) = (tl, pm);
         }
     }
     // The lights chosen, by field: corners, normal, Le, area
-    let mut lo = [unsafe { _mm256_setzero_ps() }; 8];
+    let mut lo = [V::splat(0.0).0; 8];
     let mut hi = lo;
     for (i, tl) in light.iter().enumerate() {
         let ptr = (*tl as *const TriLight).cast::<f32>();
-        // SAFETY: a TriLight is 64 bytes of f32, 64-aligned
+        // SAFETY: a TriLight is 64 bytes of f32, 64-aligned; only inlined
+        // into `radiance_row`, which runs where the CPU has AVX2
         unsafe {
             lo[i] = _mm256_load_ps(ptr);
             hi[i] = _mm256_load_ps(ptr.add(8));
@@ -710,25 +712,48 @@ fn vertices(
     }
     let [qax, qay, qaz, qbx, qby, qbz, qcx, qcy] = transpose(lo);
     let [qcz, lnx, lny, lnz, lex, ley, lez, larea] = transpose(hi);
-    let (qa, qb, qc) = (
-        V3::new(qax, qay, qaz),
-        V3::new(qbx, qby, qbz),
-        V3::new(qcx, qcy, qcz),
-    );
-    let lnv = V3::new(lnx, lny, lnz);
-    let lle = V3::new(lex, ley, lez);
+    Chosen {
+        chosen,
+        pmf,
+        q: [
+            V3::new(qax, qay, qaz),
+            V3::new(qbx, qby, qbz),
+            V3::new(qcx, qcy, qcz),
+        ],
+        n: V3::new(lnx, lny, lnz),
+        le: V3::new(lex, ley, lez),
+        area: larea,
+    }
+}
 
-    let zero = V::splat(0.0);
-    let one = V::splat(1.0);
+/// Next-event estimation's sample of each lane.
+struct NextEvent {
+    /// The point on the light.
+    q: V3,
+    /// The unit direction to it.
+    wi_l: V3,
+    /// The lanes whose shadow ray is traced.
+    shadow: V,
+    /// Their contribution where the light is not blocked.
+    contrib: V3,
+}
 
-    let wol = V3::new(wo.dot(fs), wo.dot(ft), wo.dot(fn_));
-    let rr = V3::load(&r);
+/// Next-event estimation with MIS (Lights::sample_entry, Bsdf::eval and
+/// Bsdf::pdf of Diffuse, power_heuristic), from the numbers `u`.
+#[inline(always)]
+fn next_event(
+    paths: &Paths,
+    sh: &Shaded,
+    sp: &Surface,
+    fr: &Frame8,
+    ls: &Chosen,
+    u: [V; 2],
+) -> NextEvent {
+    let (zero, one) = (V::splat(0.0), V::splat(1.0));
+    let (p, [qa, qb, qc]) = (sp.p, ls.q);
+    let wol = V3::new(fr.wo.dot(fr.fs), fr.wo.dot(fr.ft), fr.wo.dot(fr.fn_));
     let beta = V3::load(&paths.beta);
-    let l = V3::load(&paths.l);
-
-    // Next-event estimation with MIS (Lights::sample_entry, Bsdf::eval and
-    // Bsdf::pdf of Diffuse, power_heuristic)
-    let (ux, uy) = (u[1], u[2]);
+    let (ux, uy) = (u[0], u[1]);
     let su = ux.sqrt();
     let (tb_x, tb_y) = (one - su, uy * su);
     let w0 = one - tb_x - tb_y;
@@ -741,20 +766,20 @@ fn vertices(
     let dist2 = dq.dot(dq);
     let len = dist2.sqrt();
     let wi_l = V3::new(dq.x / len, dq.y / len, dq.z / len);
-    let cos_l = -lnv.dot(wi_l);
-    let lpdf = V::load(&pmf) / larea * dist2 / cos_l;
-    let sampled = V::mask(chosen) & dist2.nle(zero) & cos_l.nle(zero);
-    let wi = V3::new(wi_l.dot(fs), wi_l.dot(ft), wi_l.dot(fn_));
+    let cos_l = -ls.n.dot(wi_l);
+    let lpdf = V::load(&ls.pmf) / ls.area * dist2 / cos_l;
+    let sampled = V::mask(ls.chosen) & dist2.nle(zero) & cos_l.nle(zero);
+    let wi = V3::new(wi_l.dot(fr.fs), wi_l.dot(fr.ft), wi_l.dot(fr.fn_));
     let up = wol.z.nle(zero) & wi.z.nle(zero);
-    let fr = rr.scale(V::splat(FRAC_1_PI));
+    let fr_ = V3::load(&sh.r).scale(V::splat(FRAC_1_PI));
     let cos_i = wi.z.abs();
     let f = V3::new(
-        up.select(fr.x, zero) * cos_i,
-        up.select(fr.y, zero) * cos_i,
-        up.select(fr.z, zero) * cos_i,
+        up.select(fr_.x, zero) * cos_i,
+        up.select(fr_.y, zero) * cos_i,
+        up.select(fr_.z, zero) * cos_i,
     );
     let nonzero = f.x.ne(zero) | f.y.ne(zero) | f.z.ne(zero);
-    let shadow = sampled & nonzero & (wi_l.dot(ng_o) * wi.z).gt(zero);
+    let shadow = sampled & nonzero & (wi_l.dot(fr.ng_o) * wi.z).gt(zero);
     let bpdf = wol.z.le(zero).select(zero, wi.z.max0() / V::splat(PI));
     let (pa, pb) = (lpdf * lpdf, bpdf * bpdf);
     let mis = (pa + pb).eq(zero).select(
@@ -764,15 +789,45 @@ fn vertices(
             .select(one, pa / (pa + pb)),
     );
     let k = mis / lpdf;
+    let lle = ls.le;
     let contrib = V3::new(
         beta.x * f.x * lle.x * k,
         beta.y * f.y * lle.y * k,
         beta.z * f.z * lle.z * k,
     );
+    NextEvent {
+        q,
+        wi_l,
+        shadow,
+        contrib,
+    }
+}
 
-    // Sample the BSDF (Diffuse: cosine_hemisphere, concentric_disk's
-    // polynomial in lanes)
-    let (ox, oy) = (V::splat(2.0) * u[4] - one, V::splat(2.0) * u[5] - one);
+/// The BSDF's sample of each lane.
+struct BsdfSample {
+    /// The direction, in world space.
+    wiw: V3,
+    /// Its density.
+    spdf: V,
+    /// The throughput after it.
+    nbeta: V3,
+    /// The lanes that go on.
+    goes_on: V,
+    /// Russian roulette's threshold, for lanes past `rr_depth`.
+    qrr: V,
+}
+
+/// Samples the BSDF from the numbers `u` (Diffuse: cosine_hemisphere,
+/// concentric_disk's polynomial in lanes), and Russian roulette's
+/// threshold.
+#[inline(always)]
+fn sample_bsdf(paths: &Paths, sh: &Shaded, fr: &Frame8, u: [V; 2]) -> BsdfSample {
+    let (zero, one) = (V::splat(0.0), V::splat(1.0));
+    let (fs, ft, fn_) = (fr.fs, fr.ft, fr.fn_);
+    let wol_z = fr.wo.dot(fn_);
+    let fr_ = V3::load(&sh.r).scale(V::splat(FRAC_1_PI));
+    let beta = V3::load(&paths.beta);
+    let (ox, oy) = (V::splat(2.0) * u[0] - one, V::splat(2.0) * u[1] - one);
     let centre = ox.eq(zero) & oy.eq(zero);
     let wide = ox.abs().gt(oy.abs());
     let rad = wide.select(ox, oy);
@@ -790,24 +845,42 @@ fn vertices(
     );
     let kb = z.abs() / spdf;
     let nbeta = V3::new(
-        beta.x * (fr.x * kb),
-        beta.y * (fr.y * kb),
-        beta.z * (fr.z * kb),
+        beta.x * (fr_.x * kb),
+        beta.y * (fr_.y * kb),
+        beta.z * (fr_.z * kb),
     );
     let finite = nbeta.x.finite() & nbeta.y.finite() & nbeta.z.finite();
     let zero_beta = nbeta.x.eq(zero) & nbeta.y.eq(zero) & nbeta.z.eq(zero);
     let goes_on =
-        wol.z.nle(zero) & spdf.nle(zero) & (wiw.dot(ng_o) * z).nle(zero) & finite & !zero_beta;
-    // Russian roulette's threshold, for lanes past rr_depth
+        wol_z.nle(zero) & spdf.nle(zero) & (wiw.dot(fr.ng_o) * z).nle(zero) & finite & !zero_beta;
     let m = nbeta.y.gt(nbeta.z).select(nbeta.y, nbeta.z);
     let m = nbeta.x.gt(m).select(nbeta.x, m);
-    let qrr = V(unsafe { _mm256_min_ps((m * V::load(&paths.eta_scale)).0, _mm256_set1_ps(0.95)) });
+    let qrr = (m * V::load(&paths.eta_scale)).min(V::splat(0.95));
+    BsdfSample {
+        wiw,
+        spdf,
+        nbeta,
+        goes_on,
+        qrr,
+    }
+}
 
-    // Shadow rays, lane by lane
-    let on = goes_on.bits() & vec;
-    let shadow_bits = shadow.bits() & vec;
-    let origin = offset(p, ng_o, wi_l).store();
-    let target = offset(q, lnv, wi_l.neg()).store();
+/// Traces the shadow rays of next-event estimation, lane by lane, and adds
+/// the contributions of the lanes whose light is not blocked.
+#[inline(always)]
+fn trace_shadows(
+    world: &World,
+    paths: &mut Paths,
+    sp: &Surface,
+    fr: &Frame8,
+    ls: &Chosen,
+    ne: &NextEvent,
+    vec: u32,
+) {
+    let l = V3::load(&paths.l);
+    let shadow_bits = ne.shadow.bits() & vec;
+    let origin = offset(sp.p, fr.ng_o, ne.wi_l).store();
+    let target = offset(ne.q, ls.n, ne.wi_l.neg()).store();
     let mut clear = 0u32;
     for i in lanes(shadow_bits) {
         paths.rays[i] += 1;
@@ -816,10 +889,25 @@ fn vertices(
             .occluded(V3::lane(&origin, i), V3::lane(&target, i));
         clear |= u32::from(!blocked) << i;
     }
-    let lc = V3::new(l.x + contrib.x, l.y + contrib.y, l.z + contrib.z);
+    let c = ne.contrib;
+    let lc = V3::new(l.x + c.x, l.y + c.y, l.z + c.z);
     put(&mut paths.l, V::mask(clear), lc);
+}
 
-    // The next segment, and Russian roulette's draws
+/// The next segment of the lanes that go on, after Russian roulette's
+/// draws; returns the paths that go on.
+#[inline(always)]
+fn next_segment(
+    limits: &DepthLimits,
+    paths: &mut Paths,
+    rngs: &mut Rngs,
+    sp: &Surface,
+    fr: &Frame8,
+    bs: &BsdfSample,
+    sh: Shaded,
+) -> u32 {
+    let (vec, mut alive) = (sh.vec, sh.alive);
+    let on = bs.goes_on.bits() & vec;
     let mut rr_lanes = 0u32;
     for i in lanes(vec) {
         if on & (1 << i) == 0 {
@@ -831,6 +919,7 @@ fn vertices(
             rr_lanes |= 1 << i;
         }
     }
+    let (qrr, nbeta) = (bs.qrr, bs.nbeta);
     let rr_m = V::mask(rr_lanes);
     let stop = if rr_lanes == 0 {
         0
@@ -846,19 +935,11 @@ fn vertices(
     );
     let m = V::mask(on & !stop);
     paths.specular &= !on;
-    put1(&mut paths.prev_pdf, m, spdf);
-    put(&mut paths.prev_p, m, p);
-    put(&mut paths.prev_n, m, ng_o);
-    put(&mut paths.o, m, offset(p, ng, wiw));
-    put(&mut paths.d, m, wiw);
+    put1(&mut paths.prev_pdf, m, bs.spdf);
+    put(&mut paths.prev_p, m, sp.p);
+    put(&mut paths.prev_n, m, fr.ng_o);
+    put(&mut paths.o, m, offset(sp.p, sp.ng, bs.wiw));
+    put(&mut paths.d, m, bs.wiw);
     put(&mut paths.beta, m, nbeta);
     alive
-}
-
-impl Not for V {
-    type Output = V;
-    #[inline(always)]
-    fn not(self) -> V {
-        V(unsafe { _mm256_xor_ps(self.0, _mm256_castsi256_ps(_mm256_set1_epi32(-1))) })
-    }
 }

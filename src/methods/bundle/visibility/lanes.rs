@@ -17,7 +17,7 @@ use std::ops::Range;
 
 use super::raster::{Proj, Projector, ToMap, BOX_LIMIT};
 use crate::methods::bundle::patches::Corners;
-use crate::simd8::transpose8;
+use crate::simd::transpose8;
 
 // The write-out stores each projection as eighteen 4-byte rows in the
 // order of `Proj`'s fields (C layout); these pin that layout.
@@ -34,7 +34,7 @@ const _: () = {
 /// Whether [`project_avx2`] may run: the CPU has AVX2, and
 /// `KALOS_DISPATCH=baseline` does not ask for the baseline copies.
 pub(super) fn available() -> bool {
-    crate::transport::dispatch::has_v3()
+    crate::simd::has_v3()
 }
 
 /// Twice the signed area of (a, b, p), as `raster::edge`, in lanes.
@@ -123,6 +123,71 @@ fn clamp(v: __m256) -> __m256 {
     )
 }
 
+/// [`ToMap`]'s values in every lane.
+struct MapLanes {
+    /// The map's centre.
+    o: [__m256; 3],
+    /// The map's frame: its two axes and its direction.
+    s: [__m256; 3],
+    t: [__m256; 3],
+    d: [__m256; 3],
+    radius: __m256,
+    delta: __m256,
+    jx: __m256,
+    jy: __m256,
+}
+
+/// Eight patches on the map.
+struct OnMap {
+    /// The corners' map coordinates and depths.
+    u: [__m256; 3],
+    w: [__m256; 3],
+    z: [__m256; 3],
+    /// The centroid's depth.
+    centroid: __m256,
+}
+
+/// Eight triangles on the map, counter-clockwise, and what `Proj::new`
+/// finds of them.
+struct Oriented {
+    /// The corners a, b, c: map coordinates and depths.
+    ax: __m256,
+    ay: __m256,
+    za: __m256,
+    bx: __m256,
+    by: __m256,
+    zb: __m256,
+    cx: __m256,
+    cy: __m256,
+    zc: __m256,
+    /// Twice the area.
+    area: __m256,
+    /// The lanes that are neither degenerate nor non-finite.
+    keep: __m256,
+}
+
+/// The boxes of pixel centres, clipped to the map.
+struct PixelBox {
+    x0: __m256i,
+    y0: __m256i,
+    x1: __m256i,
+    y1: __m256i,
+}
+
+/// The tie rules and the test of a one-pixel box.
+struct Centre {
+    /// The tie rules of b→c, c→a, a→b, as bits 1, 2 and 4.
+    bits: __m256i,
+    /// 1 / (twice the area).
+    inv: __m256,
+    /// The lanes whose box holds one pixel centre.
+    single: __m256,
+    /// Those lanes' depth at the centre.
+    z1: __m256,
+    /// The lanes kept: boxes of one centre must cover it.
+    keep: __m256,
+}
+
 /// Projects patches `range` with corners `corners`, as the scalar loop of
 /// [`super::project`] does with pixel-centre roulette (`pj.centre_rr`),
 /// and pushes each projection that covers a pixel centre onto `out`, in
@@ -147,19 +212,16 @@ pub(super) unsafe fn project_avx2(
     assert!(c.iter().all(|a| a.len() >= range.end + 7));
     let set = _mm256_set1_ps;
     let splat3 = |v: glam::Vec3| [set(v.x), set(v.y), set(v.z)];
-    let (o, s, t, d) = (
-        splat3(to_map.center),
-        splat3(to_map.frame.s),
-        splat3(to_map.frame.t),
-        splat3(to_map.d),
-    );
-    let (radius, delta) = (set(to_map.radius), set(to_map.delta));
-    let (jx, jy) = (set(to_map.jitter.x), set(to_map.jitter.y));
-    let (zero, half, one, three) = (_mm256_setzero_ps(), set(0.5), set(1.0), set(3.0));
-    let inf = set(f32::INFINITY);
-    let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MAX));
-    let (wmax, hmax) = (_mm256_set1_epi32(pj.w - 1), _mm256_set1_epi32(pj.h - 1));
-    let izero = _mm256_setzero_si256();
+    let map = MapLanes {
+        o: splat3(to_map.center),
+        s: splat3(to_map.frame.s),
+        t: splat3(to_map.frame.t),
+        d: splat3(to_map.d),
+        radius: set(to_map.radius),
+        delta: set(to_map.delta),
+        jx: set(to_map.jitter.x),
+        jy: set(to_map.jitter.y),
+    };
     let mut i = range.start;
     while i < range.end {
         // SAFETY: every array holds at least `range.end + 7` values
@@ -170,185 +232,259 @@ pub(super) unsafe fn project_avx2(
                 [load(&c[6], i), load(&c[7], i), load(&c[8], i)],
             ]
         };
-
-        // ToMap::patch: the centroid ((v0 + v1) + v2) / 3, its depth (the
-        // scalar lane's subtraction of 0 leaves it as it is), the corners
-        // on the map
-        let mut m = [zero; 3];
-        for (a, m) in m.iter_mut().enumerate() {
-            *m = _mm256_div_ps(
-                _mm256_add_ps(_mm256_add_ps(v[0][a], v[1][a]), v[2][a]),
-                three,
-            );
-        }
-        let centroid = dot(m[0], m[1], m[2], d);
-        let mut u = [zero; 3];
-        let mut w = [zero; 3];
-        let mut z = [zero; 3];
-        for k in 0..3 {
-            let x = _mm256_sub_ps(v[k][0], o[0]);
-            let y = _mm256_sub_ps(v[k][1], o[1]);
-            let zz = _mm256_sub_ps(v[k][2], o[2]);
-            u[k] = _mm256_add_ps(
-                _mm256_div_ps(_mm256_add_ps(dot(x, y, zz, s), radius), delta),
-                jx,
-            );
-            w[k] = _mm256_add_ps(
-                _mm256_div_ps(_mm256_add_ps(dot(x, y, zz, t), radius), delta),
-                jy,
-            );
-            z[k] = dot(x, y, zz, d);
-        }
-        // order_bits: negative values reversed, positive ones above them
+        let m = patch(&v, &map);
         let key = if painter {
-            let k = _mm256_castps_si256(centroid);
-            let flip = _mm256_or_si256(_mm256_srai_epi32::<31>(k), _mm256_set1_epi32(i32::MIN));
-            _mm256_xor_si256(k, flip)
+            order_bits(m.centroid)
         } else {
-            izero
+            _mm256_setzero_si256()
         };
-
-        // Proj::new: a degenerate or non-finite projection covers nothing
-        let signed = edge(u[0], w[0], u[1], w[1], u[2], w[2]);
-        let area = _mm256_and_ps(signed, abs_mask);
-        let mut keep = _mm256_and_ps(
-            _mm256_cmp_ps::<_CMP_LT_OQ>(area, inf),
-            _mm256_cmp_ps::<_CMP_NEQ_OQ>(signed, zero),
-        );
-        // orient counter-clockwise: swap b and c where the area is negative
-        let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(signed, zero);
-        let (ax, ay, za) = (u[0], w[0], z[0]);
-        let bx = _mm256_blendv_ps(u[1], u[2], neg);
-        let by = _mm256_blendv_ps(w[1], w[2], neg);
-        let zb = _mm256_blendv_ps(z[1], z[2], neg);
-        let cx = _mm256_blendv_ps(u[2], u[1], neg);
-        let cy = _mm256_blendv_ps(w[2], w[1], neg);
-        let zc = _mm256_blendv_ps(z[2], z[1], neg);
-        // the box of pixel centres (box_bounds: clamped, then exact
-        // ceiling and floor), clipped to the map
-        let lo_x = _mm256_min_ps(_mm256_min_ps(ax, bx), cx);
-        let lo_y = _mm256_min_ps(_mm256_min_ps(ay, by), cy);
-        let hi_x = _mm256_max_ps(_mm256_max_ps(ax, bx), cx);
-        let hi_y = _mm256_max_ps(_mm256_max_ps(ay, by), cy);
-        let x0 = _mm256_max_epi32(ceil_centre(lo_x), izero);
-        let y0 = _mm256_max_epi32(ceil_centre(lo_y), izero);
-        let x1 = _mm256_min_epi32(floor_centre(hi_x), wmax);
-        let y1 = _mm256_min_epi32(floor_centre(hi_y), hmax);
-        let empty = _mm256_or_si256(_mm256_cmpgt_epi32(x0, x1), _mm256_cmpgt_epi32(y0, y1));
-        keep = _mm256_andnot_ps(_mm256_castsi256_ps(empty), keep);
-        // tie rules of b→c, c→a, a→b, and 1 / (twice the area)
-        let own = [
-            owns(bx, by, cx, cy),
-            owns(cx, cy, ax, ay),
-            owns(ax, ay, bx, by),
-        ];
-        let bits = _mm256_or_si256(
-            _mm256_and_si256(_mm256_castps_si256(own[0]), _mm256_set1_epi32(1)),
-            _mm256_or_si256(
-                _mm256_and_si256(_mm256_castps_si256(own[1]), _mm256_set1_epi32(2)),
-                _mm256_and_si256(_mm256_castps_si256(own[2]), _mm256_set1_epi32(4)),
-            ),
-        );
-        let inv = _mm256_div_ps(one, area);
-        // a box of one pixel centre: Proj::centre's test and depth
-        let single = _mm256_castsi256_ps(_mm256_and_si256(
-            _mm256_cmpeq_epi32(x0, x1),
-            _mm256_cmpeq_epi32(y0, y1),
-        ));
-        let px = _mm256_add_ps(_mm256_cvtepi32_ps(x0), half);
-        let py = _mm256_add_ps(_mm256_cvtepi32_ps(y0), half);
-        let wa = edge(bx, by, cx, cy, px, py);
-        let wb = edge(cx, cy, ax, ay, px, py);
-        let wc = edge(ax, ay, bx, by, px, py);
-        let inside = _mm256_and_ps(
-            _mm256_and_ps(covers(wa, own[0]), covers(wb, own[1])),
-            covers(wc, own[2]),
-        );
-        let z1 = _mm256_mul_ps(
-            _mm256_add_ps(
-                _mm256_add_ps(_mm256_mul_ps(wa, za), _mm256_mul_ps(wb, zb)),
-                _mm256_mul_ps(wc, zc),
-            ),
-            inv,
-        );
-        keep = _mm256_andnot_ps(_mm256_andnot_ps(inside, single), keep);
+        let tri = orient(&m);
+        let bx = pixel_box(&tri, pj);
+        let ce = centre(&tri, &bx);
 
         // The projections of the kept lanes, in patch order
-        let mut mask = _mm256_movemask_ps(keep) as u32;
+        let mut mask = _mm256_movemask_ps(ce.keep) as u32;
         let left = range.end - i;
         if left < 8 {
             mask &= (1 << left) - 1;
         }
         if mask != 0 {
-            // The 18 fields of Proj (C layout) as rows of eight lanes,
-            // transposed so that each lane's 72 bytes are three stores
-            let id = _mm256_add_epi32(
-                _mm256_set1_epi32(i as i32),
-                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-            );
-            // a one-pixel projection's depths are all that of its centre;
-            // its cover is Cover::One (1), else Cover::Raster (0)
-            let cover = _mm256_and_si256(_mm256_castps_si256(single), _mm256_set1_epi32(1));
-            let f = _mm256_castsi256_ps;
-            let lo = transpose8([
-                ax,
-                ay,
-                bx,
-                by,
-                cx,
-                cy,
-                _mm256_blendv_ps(za, z1, single),
-                _mm256_blendv_ps(zb, z1, single),
-            ]);
-            let hi = transpose8([
-                _mm256_blendv_ps(zc, z1, single),
-                inv,
-                f(id),
-                f(key),
-                f(x0),
-                f(x1),
-                f(y0),
-                f(y1),
-            ]);
-            // owns and cover, pairs by lane: 0, 1, 4, 5 in `a`, 2, 3, 6, 7 in `b`
-            let (a, b) = (
-                _mm256_unpacklo_ps(f(bits), f(cover)),
-                _mm256_unpackhi_ps(f(bits), f(cover)),
-            );
-            let mut tail = [0u64; 8];
-            // SAFETY: `tail` holds eight u64 (unaligned stores)
-            unsafe {
-                _mm256_storeu_ps(
-                    tail.as_mut_ptr().cast(),
-                    _mm256_permute2f128_ps::<0x20>(a, b),
-                );
-                _mm256_storeu_ps(
-                    tail.as_mut_ptr().add(4).cast(),
-                    _mm256_permute2f128_ps::<0x31>(a, b),
-                );
-            }
-            // tail now holds lanes 0, 1, 2, 3 and 4, 5, 6, 7 in order
-            out.reserve(8);
-            let mut len = out.len();
-            let at = out.as_mut_ptr();
-            while mask != 0 {
-                let l = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                // SAFETY: at most 8 lanes, and 8 places were reserved; Proj
-                // is 72 bytes in C layout, its fields as the rows above
-                unsafe {
-                    let p = at.add(len).cast::<f32>();
-                    _mm256_storeu_ps(p, lo[l]);
-                    _mm256_storeu_ps(p.add(8), hi[l]);
-                    p.add(16).cast::<u64>().write_unaligned(tail[l]);
-                }
-                len += 1;
-            }
-            // SAFETY: the places up to `len` were written just above
-            unsafe { out.set_len(len) };
+            write_out(&tri, &bx, &ce, key, i, mask, out);
         }
         i += 8;
     }
+}
+
+/// `ToMap::patch` of eight patches with corners `v`: the centroid
+/// ((v0 + v1) + v2) / 3, its depth (the scalar lane's subtraction of 0
+/// leaves it as it is), the corners on the map.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn patch(v: &[[__m256; 3]; 3], map: &MapLanes) -> OnMap {
+    let zero = _mm256_setzero_ps();
+    let three = _mm256_set1_ps(3.0);
+    let mut m = [zero; 3];
+    for (a, m) in m.iter_mut().enumerate() {
+        *m = _mm256_div_ps(
+            _mm256_add_ps(_mm256_add_ps(v[0][a], v[1][a]), v[2][a]),
+            three,
+        );
+    }
+    let centroid = dot(m[0], m[1], m[2], map.d);
+    let mut u = [zero; 3];
+    let mut w = [zero; 3];
+    let mut z = [zero; 3];
+    for k in 0..3 {
+        let x = _mm256_sub_ps(v[k][0], map.o[0]);
+        let y = _mm256_sub_ps(v[k][1], map.o[1]);
+        let zz = _mm256_sub_ps(v[k][2], map.o[2]);
+        u[k] = _mm256_add_ps(
+            _mm256_div_ps(_mm256_add_ps(dot(x, y, zz, map.s), map.radius), map.delta),
+            map.jx,
+        );
+        w[k] = _mm256_add_ps(
+            _mm256_div_ps(_mm256_add_ps(dot(x, y, zz, map.t), map.radius), map.delta),
+            map.jy,
+        );
+        z[k] = dot(x, y, zz, map.d);
+    }
+    OnMap { u, w, z, centroid }
+}
+
+/// `order_bits`: negative values reversed, positive ones above them.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn order_bits(v: __m256) -> __m256i {
+    let k = _mm256_castps_si256(v);
+    let flip = _mm256_or_si256(_mm256_srai_epi32::<31>(k), _mm256_set1_epi32(i32::MIN));
+    _mm256_xor_si256(k, flip)
+}
+
+/// `Proj::new`'s first steps: a degenerate or non-finite projection
+/// covers nothing, and the triangle turns counter-clockwise (b and c
+/// swapped where the area is negative).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn orient(m: &OnMap) -> Oriented {
+    let (u, w, z) = (&m.u, &m.w, &m.z);
+    let zero = _mm256_setzero_ps();
+    let inf = _mm256_set1_ps(f32::INFINITY);
+    let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MAX));
+    let signed = edge(u[0], w[0], u[1], w[1], u[2], w[2]);
+    let area = _mm256_and_ps(signed, abs_mask);
+    let keep = _mm256_and_ps(
+        _mm256_cmp_ps::<_CMP_LT_OQ>(area, inf),
+        _mm256_cmp_ps::<_CMP_NEQ_OQ>(signed, zero),
+    );
+    let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(signed, zero);
+    Oriented {
+        ax: u[0],
+        ay: w[0],
+        za: z[0],
+        bx: _mm256_blendv_ps(u[1], u[2], neg),
+        by: _mm256_blendv_ps(w[1], w[2], neg),
+        zb: _mm256_blendv_ps(z[1], z[2], neg),
+        cx: _mm256_blendv_ps(u[2], u[1], neg),
+        cy: _mm256_blendv_ps(w[2], w[1], neg),
+        zc: _mm256_blendv_ps(z[2], z[1], neg),
+        area,
+        keep,
+    }
+}
+
+/// The box of pixel centres (`box_bounds`: clamped, then exact ceiling and
+/// floor), clipped to the map.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn pixel_box(t: &Oriented, pj: &Projector) -> PixelBox {
+    let izero = _mm256_setzero_si256();
+    let (wmax, hmax) = (_mm256_set1_epi32(pj.w - 1), _mm256_set1_epi32(pj.h - 1));
+    let lo_x = _mm256_min_ps(_mm256_min_ps(t.ax, t.bx), t.cx);
+    let lo_y = _mm256_min_ps(_mm256_min_ps(t.ay, t.by), t.cy);
+    let hi_x = _mm256_max_ps(_mm256_max_ps(t.ax, t.bx), t.cx);
+    let hi_y = _mm256_max_ps(_mm256_max_ps(t.ay, t.by), t.cy);
+    PixelBox {
+        x0: _mm256_max_epi32(ceil_centre(lo_x), izero),
+        y0: _mm256_max_epi32(ceil_centre(lo_y), izero),
+        x1: _mm256_min_epi32(floor_centre(hi_x), wmax),
+        y1: _mm256_min_epi32(floor_centre(hi_y), hmax),
+    }
+}
+
+/// The tie rules of b→c, c→a, a→b, 1 / (twice the area), and for a box of
+/// one pixel centre `Proj::centre`'s test and depth; an empty box, or a
+/// one-centre box whose centre the triangle misses, drops the lane.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn centre(t: &Oriented, b: &PixelBox) -> Centre {
+    let (ax, ay, bx, by, cx, cy) = (t.ax, t.ay, t.bx, t.by, t.cx, t.cy);
+    let empty = _mm256_or_si256(
+        _mm256_cmpgt_epi32(b.x0, b.x1),
+        _mm256_cmpgt_epi32(b.y0, b.y1),
+    );
+    let keep = _mm256_andnot_ps(_mm256_castsi256_ps(empty), t.keep);
+    let own = [
+        owns(bx, by, cx, cy),
+        owns(cx, cy, ax, ay),
+        owns(ax, ay, bx, by),
+    ];
+    let bits = _mm256_or_si256(
+        _mm256_and_si256(_mm256_castps_si256(own[0]), _mm256_set1_epi32(1)),
+        _mm256_or_si256(
+            _mm256_and_si256(_mm256_castps_si256(own[1]), _mm256_set1_epi32(2)),
+            _mm256_and_si256(_mm256_castps_si256(own[2]), _mm256_set1_epi32(4)),
+        ),
+    );
+    let inv = _mm256_div_ps(_mm256_set1_ps(1.0), t.area);
+    let single = _mm256_castsi256_ps(_mm256_and_si256(
+        _mm256_cmpeq_epi32(b.x0, b.x1),
+        _mm256_cmpeq_epi32(b.y0, b.y1),
+    ));
+    let half = _mm256_set1_ps(0.5);
+    let px = _mm256_add_ps(_mm256_cvtepi32_ps(b.x0), half);
+    let py = _mm256_add_ps(_mm256_cvtepi32_ps(b.y0), half);
+    let wa = edge(bx, by, cx, cy, px, py);
+    let wb = edge(cx, cy, ax, ay, px, py);
+    let wc = edge(ax, ay, bx, by, px, py);
+    let inside = _mm256_and_ps(
+        _mm256_and_ps(covers(wa, own[0]), covers(wb, own[1])),
+        covers(wc, own[2]),
+    );
+    let z1 = _mm256_mul_ps(
+        _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(wa, t.za), _mm256_mul_ps(wb, t.zb)),
+            _mm256_mul_ps(wc, t.zc),
+        ),
+        inv,
+    );
+    Centre {
+        bits,
+        inv,
+        single,
+        z1,
+        keep: _mm256_andnot_ps(_mm256_andnot_ps(inside, single), keep),
+    }
+}
+
+/// Pushes the projections of the lanes of `mask` (patches `i`..) onto
+/// `out`, in patch order: the 18 fields of `Proj` (C layout) as rows of
+/// eight lanes, transposed so that each lane's 72 bytes are three stores.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn write_out(
+    t: &Oriented,
+    b: &PixelBox,
+    ce: &Centre,
+    key: __m256i,
+    i: usize,
+    mut mask: u32,
+    out: &mut Vec<Proj>,
+) {
+    let id = _mm256_add_epi32(
+        _mm256_set1_epi32(i as i32),
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+    );
+    // a one-pixel projection's depths are all that of its centre;
+    // its cover is Cover::One (1), else Cover::Raster (0)
+    let single = ce.single;
+    let cover = _mm256_and_si256(_mm256_castps_si256(single), _mm256_set1_epi32(1));
+    let f = _mm256_castsi256_ps;
+    let lo = transpose8([
+        t.ax,
+        t.ay,
+        t.bx,
+        t.by,
+        t.cx,
+        t.cy,
+        _mm256_blendv_ps(t.za, ce.z1, single),
+        _mm256_blendv_ps(t.zb, ce.z1, single),
+    ]);
+    let hi = transpose8([
+        _mm256_blendv_ps(t.zc, ce.z1, single),
+        ce.inv,
+        f(id),
+        f(key),
+        f(b.x0),
+        f(b.x1),
+        f(b.y0),
+        f(b.y1),
+    ]);
+    // owns and cover, pairs by lane: 0, 1, 4, 5 in `a`, 2, 3, 6, 7 in `b`
+    let (pa, pb) = (
+        _mm256_unpacklo_ps(f(ce.bits), f(cover)),
+        _mm256_unpackhi_ps(f(ce.bits), f(cover)),
+    );
+    let mut tail = [0u64; 8];
+    // SAFETY: `tail` holds eight u64 (unaligned stores)
+    unsafe {
+        _mm256_storeu_ps(
+            tail.as_mut_ptr().cast(),
+            _mm256_permute2f128_ps::<0x20>(pa, pb),
+        );
+        _mm256_storeu_ps(
+            tail.as_mut_ptr().add(4).cast(),
+            _mm256_permute2f128_ps::<0x31>(pa, pb),
+        );
+    }
+    // tail now holds lanes 0, 1, 2, 3 and 4, 5, 6, 7 in order
+    out.reserve(8);
+    let mut len = out.len();
+    let at = out.as_mut_ptr();
+    while mask != 0 {
+        let l = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        // SAFETY: at most 8 lanes, and 8 places were reserved; Proj
+        // is 72 bytes in C layout, its fields as the rows above
+        unsafe {
+            let p = at.add(len).cast::<f32>();
+            _mm256_storeu_ps(p, lo[l]);
+            _mm256_storeu_ps(p.add(8), hi[l]);
+            p.add(16).cast::<u64>().write_unaligned(tail[l]);
+        }
+        len += 1;
+    }
+    // SAFETY: the places up to `len` were written just above
+    unsafe { out.set_len(len) };
 }
 
 #[cfg(test)]

@@ -36,3 +36,36 @@ pub(crate) fn transpose8(r: [std::arch::x86_64::__m256; 8]) -> [std::arch::x86_6
         _mm256_permute2f128_ps::<0x31>(u3, u7),
     ]
 }
+
+#[cfg(test)]
+mod tests {
+    use std::arch::x86_64::*;
+
+    /// Row k, lane l of the result is row l, lane k of the input.
+    #[target_feature(enable = "avx2")]
+    fn check() {
+        let rows: [[f32; 8]; 8] =
+            std::array::from_fn(|r| std::array::from_fn(|l| (10 * r + l) as f32));
+        // SAFETY: each row is eight readable f32s (no alignment needed)
+        let t = transpose8(rows.map(|r| unsafe { _mm256_loadu_ps(r.as_ptr()) }));
+        for (k, v) in t.iter().enumerate() {
+            let mut out = [0.0f32; 8];
+            // SAFETY: `out` is eight writable f32s (no alignment needed)
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), *v) };
+            let want: [f32; 8] = std::array::from_fn(|l| (10 * l + k) as f32);
+            assert_eq!(out, want, "row {k}");
+        }
+    }
+
+    use super::transpose8;
+
+    #[test]
+    fn transposes() {
+        if !super::super::has_v3() {
+            eprintln!("no AVX2: the transpose is not used here");
+            return;
+        }
+        // SAFETY: the CPU has AVX2 (has_v3 just said so)
+        unsafe { check() }
+    }
+}
