@@ -1,5 +1,5 @@
 //! Equal-time and equal-ray comparisons of several methods on one scene,
-//! for the plb evaluation in BENCHMARKS.md (issue #12).
+//! for the plb evaluation in docs/notebook/plb.md (issue #12).
 //!
 //! ```text
 //! cargo run --release --features cli --example plb_eval -- SCENE K BUDGETS METHODS [ref=IMAGE] [region=BOXES] [csv=PREFIX]

@@ -1,4 +1,4 @@
-//! Variance across seeds, for the plb experiments in BENCHMARKS.md.
+//! Variance across seeds, for the plb experiments in docs/notebook/plb.md.
 //!
 //! Renders a scene K times with seeds 1…K under the same budget and prints
 //! the mean over pixels (and channels) of the per-pixel variance across the
@@ -11,7 +11,7 @@
 //!
 //! The method's flags are those of `kalos render --method METHOD`, e.g.
 //! `--lambda 2 --variant pooled` for plb; the short forms `lambda=L`,
-//! `phase=P`, `pop=C`, `discard=D` and `variant=V` that BENCHMARKS.md
+//! `phase=P`, `pop=C`, `discard=D` and `variant=V` that docs/notebook/plb.md
 //! records are read as those flags.
 
 use std::time::Instant;

@@ -5,7 +5,7 @@
 //! (x < 0: the light's room, x > 0: the camera's room). Prints, per room,
 //! the vertices, the camera connections that reached the film, and the
 //! image energy (luminance) those connections carry. Used for the plb
-//! diagnosis in BENCHMARKS.md.
+//! diagnosis in docs/notebook/plb.md.
 //!
 //! ```text
 //! cargo run --release --example two_rooms_paths -- scenes/two-rooms/scene.xml [PATHS]

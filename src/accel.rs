@@ -192,7 +192,7 @@ const CHOICE_SAMPLE: usize = 32768;
 /// this fraction of PLOC's. The SAH prices rays that cross the whole scene
 /// and never stop early, so a few per cent either way say nothing about
 /// the rays a render traces; a large scene where PLOC clusters its big
-/// triangles badly differs by far more (BENCHMARKS.md, "BVH quality on
+/// triangles badly differs by far more (docs/notebook/ray-core.md, "BVH quality on
 /// large scenes").
 const SWITCH_MARGIN: f64 = 0.95;
 

@@ -31,7 +31,7 @@ pub enum LightSelection {
     /// (power, distance, and the orientation of light and surface), through
     /// a light tree (pbrt-v4's `BVHLightSampler`); the environment keeps
     /// its power share. The default: far less noise where many lights are
-    /// spread out, the same image where one light shines (BENCHMARKS.md,
+    /// spread out, the same image where one light shines (docs/notebook/path.md,
     /// "Light selection by the shading point").
     #[default]
     Spatial,

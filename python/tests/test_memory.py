@@ -30,7 +30,7 @@ CASES = [
 # through the methods grew it by 372 and 376 kB in two runs (the thread
 # pool's and the interpreter's own bookkeeping); the same test keeping every
 # returned image alive, the smallest leak that matters (128*128*3*4 bytes =
-# 196 kB a render), grew it by 9984 and 9992 kB (BENCHMARKS.md, "Python
+# 196 kB a render), grew it by 9984 and 9992 kB (docs/notebook/viewer-python.md, "Python
 # package"). 4 MB sits ten times above the first and well below the second.
 ALLOWANCE_KB = 4 * 1024
 

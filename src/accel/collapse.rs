@@ -86,7 +86,7 @@ impl Collapse {
 /// of a pack of eight triangles. A pack test costs more than the box test
 /// (a division, and the leaf's bookkeeping): trees that trade node tests
 /// for pack tests replay slower, and below this value the visits per ray
-/// hardly change (BENCHMARKS.md, "The 8-wide tree").
+/// hardly change (docs/notebook/ray-core.md, "The 8-wide tree").
 const SAH_C_NODE8: f32 = 0.5;
 /// The same for four boxes against four triangles.
 const SAH_C_NODE4: f32 = 0.5;

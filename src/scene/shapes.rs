@@ -31,7 +31,7 @@ pub const SPHERE_RINGS: u32 = 48;
 pub const SPHERE_MIN_RINGS: u32 = 4;
 /// The largest distance between a tessellated sphere and the true one (the
 /// sagitta of a segment, `r·(1 − cos(π/2n))` ≈ `r·π²/(8n²)` for n rings), as a
-/// fraction of the scene's bounding-box diagonal. BENCHMARKS.md ("Geometry:
+/// fraction of the scene's bounding-box diagonal. docs/notebook/loaders.md ("Geometry:
 /// spheres and degenerate BVH inputs") has the measurement behind it.
 pub const SPHERE_TOLERANCE: f32 = 1e-4;
 /// The most triangles all the spheres of a scene may take together; past it

@@ -46,7 +46,7 @@ SEED = "1"
 
 # Largest difference of a channel mean (0..255 sRGB) between the viewer's
 # screenshot and kalos's own render of the same bake from the same camera.
-# Measured over seeds 1..5 (BENCHMARKS.md, "Viewer (issue #16)"): the
+# Measured over seeds 1..5 (docs/notebook/viewer-python.md, "Viewer (issue #16)"): the
 # difference is systematic (rasterised against ray-traced edges and
 # interpolation), at most 0.29 in any channel, and moves by at most 0.02
 # between seeds. The tolerance is above that by more than three times, and

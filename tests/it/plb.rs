@@ -67,7 +67,7 @@ fn average(imgs: &[Image]) -> Image {
 /// weighted as one phase of history (see `src/methods/plb/mod.rs`), the
 /// expected error of the phase images falls geometrically, and the average
 /// of N phase images keeps a deficit of order 1/N. Measured with these runs
-/// (32 seeds at 1 pass, 16 at 8 passes, as here; BENCHMARKS.md): about −0.6 % of
+/// (32 seeds at 1 pass, 16 at 8 passes, as here; docs/notebook/plb.md): about −0.6 % of
 /// the red channel mean after 1 pass and under −0.1 % after 8 passes, green
 /// and blue smaller.
 ///
@@ -81,7 +81,7 @@ fn average(imgs: &[Image]) -> Image {
 ///    spread, the second term the 1/N law applied to the deficit measured at
 ///    1 pass. That deficit is itself a 32-seed estimate with standard error
 ///    σ₁, so the law is applied to its upper bound at 2 σ₁ (a point
-///    estimate understated the blue deficit; BENCHMARKS.md, plb, "The
+///    estimate understated the blue deficit; docs/notebook/plb.md, plb, "The
 ///    start-up test's bias bound"), with 50 % slack for the law itself.
 /// 3. relMSE of one 8-pass render against the reference is at most 1.5 × its
 ///    expectation from noise, relMSE(k₁, k₂)/2 + the reference's own

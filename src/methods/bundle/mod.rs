@@ -186,7 +186,7 @@ pub struct Settings {
 pub enum PatchBudget {
     /// One uniform edge length: patches in proportion to area (the paper,
     /// and the default: at equal patch count and iterations it measured no
-    /// worse than `projected`, see BENCHMARKS.md).
+    /// worse than `projected`, see docs/notebook/bundle.md).
     Area,
     /// The same count, spread by area and by the camera's pixel footprint.
     Projected,

@@ -152,7 +152,7 @@ pub fn brdf(p: &Patch, ns: Vec3, d: Vec3, w: Vec3) -> Rgb {
 /// reflection integral that `path` (and Mitsuba) evaluate weights the
 /// incoming radiance by the cosine to the *shading* normal, |cos θ_s|. With
 /// flat shading the two agree; with interpolated normals they do not, and
-/// leaving the ratio out darkens the image (measured in BENCHMARKS.md and
+/// leaving the ratio out darkens the image (measured in docs/notebook/bundle.md and
 /// checked by `tests/bundle.rs`, `shading_normals_vs_path`). Where cos θ_g → 0
 /// the ratio grows, but the pixel coverage that it multiplies falls in
 /// proportion, so the product stays an unbiased estimate of L |cos θ_s|.

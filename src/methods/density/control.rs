@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// Phase 2 (grouping and estimation) takes about this many seconds per
-/// second of phase 1 on the scenes we measured (see BENCHMARKS.md), with a
+/// second of phase 1 on the scenes we measured (see docs/notebook/density.md), with a
 /// margin: the Cornell box, whose rays are cheap, is the worst case.
 pub const POST_PER_TRACE: f64 = 1.3;
 

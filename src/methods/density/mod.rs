@@ -48,7 +48,7 @@
 //! are made from the same hits and their noise is correlated: no "visible
 //! coloured texture" (§4.4), which the paper's per-channel runs show because
 //! each channel's hits are independent. `Channel::Single` keeps the paper's
-//! per-channel runs for the measurement in BENCHMARKS.md. The price
+//! per-channel runs for the measurement in docs/notebook/density.md. The price
 //! is 4 more bytes per hit (RGB9E5 power: 12 bytes instead of 8), against
 //! three runs of 8 bytes (24 bytes for the same particles per channel).
 //!

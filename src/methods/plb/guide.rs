@@ -4,7 +4,7 @@
 //! The paper chooses *which* hit spawns by importance (§3.1), but the ray it
 //! spawns follows the BSDF. On a scene lit through a gap, the rays that
 //! matter are the few that head for the gap, whatever the parent, so the
-//! selection rule alone is capped (BENCHMARKS.md, plb diagnosis). The paper
+//! selection rule alone is capped (docs/notebook/plb.md, plb diagnosis). The paper
 //! itself points at importance-driven directions; here they are learnt.
 //!
 //! Per cell of the importance grid (`importance::GRID_RES`³ over the scene),

@@ -59,7 +59,7 @@
 //!
 //! - `pooled`: eq. (9) has no visibility in it, and eq. (8) judges a hit
 //!   by its own one or two children, so on a scene lit through a gap the
-//!   paper's importance barely prefers the hits that matter (BENCHMARKS.md,
+//!   paper's importance barely prefers the hits that matter (docs/notebook/plb.md,
 //!   plb diagnosis). The pooled rule keeps, per cell of a 16³ grid over the
 //!   scene, the mean image impact per unit power of every ray ever spawned
 //!   from that cell (`ImportanceGrid`), and sets a hit's importance to its

@@ -47,7 +47,7 @@ pub(super) fn end_phase(s: &Settings, form: Form, rng: &mut Pcg32, lane: &mut La
 /// The survivors are compacted in place, in order, so the population keeps
 /// its allocation from phase to phase (building a new vector each phase
 /// reallocated the whole population whenever the next phase outgrew it;
-/// the cost is measured in BENCHMARKS.md).
+/// the cost is measured in docs/notebook/plb.md).
 fn purge(hits: &mut Vec<Hit>, sigma: f64, cap: usize, rng: &mut Pcg32) {
     let n = hits.len();
     let c = survival_scale(hits.iter().map(|h| h.s), cap);

@@ -337,7 +337,7 @@ fn a_cut_run_lights_every_luminaire_in_proportion() {
 /// take many minutes: the bake stops tracing early, estimates what it
 /// traced, and the image is lit. The bound on the wall time is a generous
 /// "does not hang" check (the finding: the old bake ignored
-/// `--time`); how close to the budget it ends is measured in BENCHMARKS.md.
+/// `--time`); how close to the budget it ends is measured in docs/notebook/density.md.
 #[test]
 fn a_time_budget_ends_a_render_that_asked_for_too_many_particles() {
     let world = cbox(16);

@@ -41,7 +41,7 @@
 //!   coverage is the same, but the patch lands on a line that may not pass
 //!   through it, so it is paired with patches it does not see (on cbox the
 //!   luminaire, just under the ceiling, gives part of its light to the
-//!   ceiling's back; the darkening is measured in BENCHMARKS.md).
+//!   ceiling's back; the darkening is measured in docs/notebook/bundle.md).
 //!
 //! **Z-buffer variant**, for comparison (the hardware approach of ref. 40):
 //! depth peeling. Each layer rasterises every patch and keeps, per pixel,

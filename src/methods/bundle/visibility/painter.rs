@@ -62,7 +62,7 @@ impl Px {
 /// Why two layers: with one, when two coplanar patches (cbox's ceiling
 /// quads) both sort before a third that lies between them in depth (the
 /// luminaire), the third slides in between them and gives its light to the
-/// ceiling instead of the floor (the bias is measured in BENCHMARKS.md).
+/// ceiling instead of the floor (the bias is measured in docs/notebook/bundle.md).
 /// Misorders deeper than [`LAYERS`] are still slid in above the base.
 pub(super) fn painter_band(
     src: &Src,
