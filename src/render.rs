@@ -19,7 +19,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! The command line, the tests and the examples all render through it.
+//! The command line, the tests and the examples all render through it. The
+//! whole sequence a front end runs (check the outputs, load the scene, size
+//! the memory, build the world, render, write) is `kalos::job::RenderJob`,
+//! which renders through this builder.
 //!
 //! Before anything large is allocated, [`memory_estimate`] sizes a render's
 //! big buffers (the film with every per-lane copy, bundle's visibility map
@@ -286,7 +289,3 @@ pub fn mem_total(meminfo: &str) -> Option<u64> {
         Some(_) => None,
     }
 }
-
-// The whole sequence of a render (check, load, size, build, run, write),
-// for the front ends: see [`crate::job`].
-pub use crate::job::{CheckedRender, JobError, RenderEvent, RenderJob, RenderOutcome};
