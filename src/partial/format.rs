@@ -136,127 +136,183 @@ pub fn read(path: &Path) -> Result<Partial, PartialError> {
 
 /// Parses the bytes of a partial-result file.
 fn decode(bytes: &[u8]) -> Result<Partial, String> {
+    check_version(bytes)?;
+    let end = find(bytes, b"\nend\n").ok_or("the header has no 'end' line (truncated file?)")?;
+    let head = std::str::from_utf8(&bytes[..end]).map_err(|_| "the header is not UTF-8")?;
+    let mut header = Header::parse(head)?;
+    let meta = header.meta()?;
+    let buffers = std::mem::take(&mut header.buffers);
+    let buffers = read_buffers(&bytes[end + 5..], buffers, meta.width, meta.height)?;
+    let get = |k: &str| header.get(k);
+    let seconds: f64 = num("seconds", get("seconds")?)?;
+    let spp: f64 = num("spp", get("spp")?)?;
+    if !(seconds.is_finite() && seconds >= 0.0 && spp.is_finite() && spp >= 0.0) {
+        return Err("'seconds' and 'spp' must be finite and ≥ 0".into());
+    }
+    Ok(Partial {
+        meta,
+        state: State {
+            passes: num("passes", get("passes")?)?,
+            rays: num("rays", get("rays")?)?,
+            seconds,
+            spp,
+            counters: header.counters,
+            buffers,
+        },
+    })
+}
+
+/// Checks the first line: this format's magic and version, or a message
+/// that says which kalos wrote the file.
+fn check_version(bytes: &[u8]) -> Result<(), String> {
     let first = bytes.split(|&b| b == b'\n').next().unwrap_or_default();
     let version = std::str::from_utf8(first)
         .ok()
         .and_then(|l| l.strip_prefix(MAGIC_KEY))
         .and_then(|v| v.strip_prefix(' '));
     match version.map(str::trim) {
-        Some(v) if v == VERSION.to_string() => {}
-        Some("1") => {
-            return Err(
-                "written by an older kalos (partial format 1, whose settings cannot be read \
-                 back): re-render the shard"
-                    .into(),
-            )
-        }
-        Some(v) => {
-            return Err(format!(
-                "partial format '{v}', but this kalos reads format {VERSION} \
-                 (written by a newer kalos?)"
-            ))
-        }
-        None => {
-            return Err(format!(
-                "not a kalos partial result (expected a first line '{MAGIC_KEY} {VERSION}', as \
-                 `kalos render --shard` and `--checkpoint` write)"
-            ))
-        }
+        Some(v) if v == VERSION.to_string() => Ok(()),
+        Some("1") => Err(
+            "written by an older kalos (partial format 1, whose settings cannot be read \
+             back): re-render the shard"
+                .into(),
+        ),
+        Some(v) => Err(format!(
+            "partial format '{v}', but this kalos reads format {VERSION} \
+             (written by a newer kalos?)"
+        )),
+        None => Err(format!(
+            "not a kalos partial result (expected a first line '{MAGIC_KEY} {VERSION}', as \
+             `kalos render --shard` and `--checkpoint` write)"
+        )),
     }
-    let end = find(bytes, b"\nend\n").ok_or("the header has no 'end' line (truncated file?)")?;
-    let head = std::str::from_utf8(&bytes[..end]).map_err(|_| "the header is not UTF-8")?;
-    let mut data = &bytes[end + 5..];
+}
 
-    let mut field = std::collections::HashMap::new();
-    let mut counters = Vec::new();
-    let mut buffers: Vec<(String, usize)> = Vec::new();
-    for (n, l) in head.lines().enumerate().skip(1) {
-        let line_no = n + 1;
-        let (k, v) = l
-            .split_once(' ')
-            .ok_or_else(|| format!("header line {line_no}: expected 'KEY VALUE', got '{l}'"))?;
-        match k {
-            "counter" | "buffer" => {
-                let (name, num) = v.rsplit_once(' ').ok_or_else(|| {
-                    format!("header line {line_no}: expected '{k} NAME NUMBER', got '{l}'")
-                })?;
-                let num: u64 = num
-                    .parse()
-                    .map_err(|_| format!("header line {line_no}: '{num}' is not a whole number"))?;
-                if k == "counter" {
-                    counters.push((name.to_string(), num));
-                } else {
-                    buffers.push((name.to_string(), num as usize));
+/// The header's lines after the first, read but not yet interpreted: each
+/// field with the line it came from, the counters, and the buffers' names
+/// and pixel counts in file order.
+struct Header {
+    field: std::collections::HashMap<String, (String, usize)>,
+    counters: Vec<(String, u64)>,
+    buffers: Vec<(String, usize)>,
+}
+
+impl Header {
+    /// Splits the header text (up to its `end` line) into fields.
+    fn parse(head: &str) -> Result<Header, String> {
+        let mut h = Header {
+            field: std::collections::HashMap::new(),
+            counters: Vec::new(),
+            buffers: Vec::new(),
+        };
+        for (n, l) in head.lines().enumerate().skip(1) {
+            let line_no = n + 1;
+            let (k, v) = l
+                .split_once(' ')
+                .ok_or_else(|| format!("header line {line_no}: expected 'KEY VALUE', got '{l}'"))?;
+            match k {
+                "counter" | "buffer" => {
+                    let (name, num) = v.rsplit_once(' ').ok_or_else(|| {
+                        format!("header line {line_no}: expected '{k} NAME NUMBER', got '{l}'")
+                    })?;
+                    let num: u64 = num.parse().map_err(|_| {
+                        format!("header line {line_no}: '{num}' is not a whole number")
+                    })?;
+                    if k == "counter" {
+                        h.counters.push((name.to_string(), num));
+                    } else {
+                        h.buffers.push((name.to_string(), num as usize));
+                    }
                 }
-            }
-            _ => {
-                if field
-                    .insert(k.to_string(), (v.to_string(), line_no))
-                    .is_some()
-                {
-                    return Err(format!("header line {line_no}: '{k}' given twice"));
+                _ => {
+                    if h.field
+                        .insert(k.to_string(), (v.to_string(), line_no))
+                        .is_some()
+                    {
+                        return Err(format!("header line {line_no}: '{k}' given twice"));
+                    }
                 }
             }
         }
+        Ok(h)
     }
-    let get = |k: &str| {
-        field
+
+    /// The field `k` with its line number, or an error naming it.
+    fn get(&self, k: &str) -> Result<(&str, usize), String> {
+        self.field
             .get(k)
             .map(|(v, n)| (v.as_str(), *n))
             .ok_or_else(|| format!("the header has no '{k}' line"))
-    };
-    fn num<T: std::str::FromStr>(k: &str, (v, n): (&str, usize)) -> Result<T, String> {
-        v.parse()
-            .map_err(|_| format!("header line {n}: '{k}' expects a number, got '{v}'"))
     }
-    let (size, size_line) = get("size")?;
-    let (w, h) = size
-        .split_once(' ')
-        .ok_or_else(|| format!("header line {size_line}: 'size' expects 'W H'"))?;
-    let (w, h): (u32, u32) = (num("size", (w, size_line))?, num("size", (h, size_line))?);
-    let (shard, shard_line) = get("shard")?;
-    let shard =
-        Shard::parse(shard).map_err(|e| format!("header line {shard_line}: 'shard': {e}"))?;
-    let kind = match get("kind")? {
-        ("exact", _) => ShardKind::Exact,
-        ("chains", _) => ShardKind::Chains,
-        (v, n) => {
-            return Err(format!(
-                "header line {n}: 'kind' expects exact or chains, got '{v}'"
-            ))
-        }
-    };
-    let max_depth = match get("max_depth")? {
-        ("none", _) => None,
-        v => Some(num("max_depth", v)?),
-    };
-    let (scene, scene_line) = get("scene")?;
-    let scene_hash = u64::from_str_radix(scene, 16)
-        .map_err(|_| format!("header line {scene_line}: 'scene' expects 16 hex digits"))?;
-    let (settings, settings_line) = get("settings")?;
-    let settings: MethodConfig = serde_json::from_str(settings).map_err(|e| {
-        format!("header line {settings_line}: the method's settings do not parse: {e}")
-    })?;
-    let (method, method_line) = get("method")?;
-    if method != settings.name() {
-        return Err(format!(
-            "header line {method_line}: 'method' is {method} but the settings are {}'s",
-            settings.name()
-        ));
-    }
-    let meta = Meta {
-        settings,
-        seed: num("seed", get("seed")?)?,
-        max_depth,
-        scene_hash,
-        scene_source: get("scene_source")?.0.to_string(),
-        width: w,
-        height: h,
-        shard,
-        kind,
-    };
 
-    // The sums, each checked against the size the header gives
+    /// The render the file belongs to: size, shard, kind, depth, scene and
+    /// the method's settings (read back with serde), checked against the
+    /// `method` line.
+    fn meta(&self) -> Result<Meta, String> {
+        let get = |k: &str| self.get(k);
+        let (size, size_line) = get("size")?;
+        let (w, h) = size
+            .split_once(' ')
+            .ok_or_else(|| format!("header line {size_line}: 'size' expects 'W H'"))?;
+        let (w, h): (u32, u32) = (num("size", (w, size_line))?, num("size", (h, size_line))?);
+        let (shard, shard_line) = get("shard")?;
+        let shard =
+            Shard::parse(shard).map_err(|e| format!("header line {shard_line}: 'shard': {e}"))?;
+        let kind = match get("kind")? {
+            ("exact", _) => ShardKind::Exact,
+            ("chains", _) => ShardKind::Chains,
+            (v, n) => {
+                return Err(format!(
+                    "header line {n}: 'kind' expects exact or chains, got '{v}'"
+                ))
+            }
+        };
+        let max_depth = match get("max_depth")? {
+            ("none", _) => None,
+            v => Some(num("max_depth", v)?),
+        };
+        let (scene, scene_line) = get("scene")?;
+        let scene_hash = u64::from_str_radix(scene, 16)
+            .map_err(|_| format!("header line {scene_line}: 'scene' expects 16 hex digits"))?;
+        let (settings, settings_line) = get("settings")?;
+        let settings: MethodConfig = serde_json::from_str(settings).map_err(|e| {
+            format!("header line {settings_line}: the method's settings do not parse: {e}")
+        })?;
+        let (method, method_line) = get("method")?;
+        if method != settings.name() {
+            return Err(format!(
+                "header line {method_line}: 'method' is {method} but the settings are {}'s",
+                settings.name()
+            ));
+        }
+        Ok(Meta {
+            settings,
+            seed: num("seed", get("seed")?)?,
+            max_depth,
+            scene_hash,
+            scene_source: get("scene_source")?.0.to_string(),
+            width: w,
+            height: h,
+            shard,
+            kind,
+        })
+    }
+}
+
+/// A header value `v` (on line `n`) of field `k` as a number.
+fn num<T: std::str::FromStr>(k: &str, (v, n): (&str, usize)) -> Result<T, String> {
+    v.parse()
+        .map_err(|_| format!("header line {n}: '{k}' expects a number, got '{v}'"))
+}
+
+/// The sums after the header, each checked against the film's size `w` ×
+/// `h`, with nothing left over.
+fn read_buffers(
+    mut data: &[u8],
+    buffers: Vec<(String, usize)>,
+    w: u32,
+    h: u32,
+) -> Result<Vec<(String, Vec<DVec3>)>, String> {
     let pixels = w as usize * h as usize;
     let mut out = Vec::new();
     for (name, len) in buffers {
@@ -289,22 +345,7 @@ fn decode(bytes: &[u8]) -> Result<Partial, String> {
             data.len()
         ));
     }
-    let seconds: f64 = num("seconds", get("seconds")?)?;
-    let spp: f64 = num("spp", get("spp")?)?;
-    if !(seconds.is_finite() && seconds >= 0.0 && spp.is_finite() && spp >= 0.0) {
-        return Err("'seconds' and 'spp' must be finite and ≥ 0".into());
-    }
-    Ok(Partial {
-        meta,
-        state: State {
-            passes: num("passes", get("passes")?)?,
-            rays: num("rays", get("rays")?)?,
-            seconds,
-            spp,
-            counters,
-            buffers: out,
-        },
-    })
+    Ok(out)
 }
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
