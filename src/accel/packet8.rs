@@ -679,8 +679,9 @@ fn push_children(
         stack.set(j, node.child[i], near[i], who[i]);
         stack.len += 1;
     }
+    // The nearest was pushed last: pop it
+    let (cr, _, cm) = stack.get(stack.len - 1);
     stack.len -= 1;
-    let (cr, _, cm) = stack.get(stack.len);
     (cr, u32::from(cm))
 }
 

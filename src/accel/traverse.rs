@@ -283,8 +283,9 @@ pub(super) fn closest(
                     stack.set(j, node.child[i], t0[i]);
                     stack.len += 1;
                 }
+                // The nearest was pushed last: pop it and descend
+                r = stack.get(stack.len - 1).0;
                 stack.len -= 1;
-                r = stack.get(stack.len).0;
                 continue;
             }
         } else {

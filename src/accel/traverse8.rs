@@ -386,8 +386,9 @@ fn closest_avx2<C: Count>(
                     stack.set(j, node.child[i], t0a[i]);
                     stack.len += 1;
                 }
+                // The nearest was pushed last: pop it and descend
+                r = stack.get(stack.len - 1).0;
                 stack.len -= 1;
-                r = stack.get(stack.len).0;
                 continue;
             }
         } else {
