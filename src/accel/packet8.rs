@@ -414,6 +414,21 @@ struct Best {
 }
 
 impl Best {
+    /// The best hit's t, u, v and triangle slot of each lane, as arrays.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn lanes(&self) -> ([f32; 8], [f32; 8], [f32; 8], [i32; 8]) {
+        let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
+        // SAFETY: eight writable f32s or i32s each; no alignment needed
+        unsafe {
+            _mm256_storeu_ps(t.as_mut_ptr(), self.t);
+            _mm256_storeu_ps(u.as_mut_ptr(), self.u);
+            _mm256_storeu_ps(v.as_mut_ptr(), self.v);
+            _mm256_storeu_si256(tri.as_mut_ptr().cast(), self.tri);
+        }
+        (t, u, v, tri)
+    }
+
     /// Tests triangle `j` of `pack`, scene triangle `id`, against the
     /// lanes in `active`, and takes its hits where `traverse::better`
     /// would: `Prepared::triangles::<true>`'s operations, in its order,
@@ -458,14 +473,7 @@ impl Best {
     #[inline]
     #[target_feature(enable = "avx2")]
     fn rays_against(&mut self, p: &Lanes, pack: &Pack8, ids: &[u32], active: u32) {
-        let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
-        // SAFETY: eight writable f32s or i32s each; no alignment needed
-        unsafe {
-            _mm256_storeu_ps(t.as_mut_ptr(), self.t);
-            _mm256_storeu_ps(u.as_mut_ptr(), self.u);
-            _mm256_storeu_ps(v.as_mut_ptr(), self.v);
-            _mm256_storeu_si256(tri.as_mut_ptr().cast(), self.tri);
-        }
+        let (mut t, mut u, mut v, mut tri) = self.lanes();
         let mut bits = active;
         while bits != 0 {
             let k = bits.trailing_zeros() as usize;
@@ -710,14 +718,7 @@ impl Best {
     #[inline]
     #[target_feature(enable = "avx2")]
     fn write(&self, out: &mut [Option<Hit>]) {
-        let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
-        // SAFETY: eight writable f32s or i32s each; no alignment needed
-        unsafe {
-            _mm256_storeu_ps(t.as_mut_ptr(), self.t);
-            _mm256_storeu_ps(u.as_mut_ptr(), self.u);
-            _mm256_storeu_ps(v.as_mut_ptr(), self.v);
-            _mm256_storeu_si256(tri.as_mut_ptr().cast(), self.tri);
-        }
+        let (t, u, v, tri) = self.lanes();
         for (k, o) in out.iter_mut().enumerate() {
             *o = (tri[k] >= 0).then(|| Hit {
                 t: t[k],
