@@ -415,11 +415,14 @@ struct Best {
 
 impl Best {
     /// The best hit's t, u, v and triangle slot of each lane, as arrays.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    /// Called only from this file's AVX2 functions, into which it is
+    /// inlined (a `#[target_feature]` function cannot be `inline(always)`,
+    /// and as a plain `inline` one LLVM kept it out of line).
+    #[inline(always)]
     fn lanes(&self) -> ([f32; 8], [f32; 8], [f32; 8], [i32; 8]) {
         let (mut t, mut u, mut v, mut tri) = ([0f32; 8], [0f32; 8], [0f32; 8], [0i32; 8]);
-        // SAFETY: eight writable f32s or i32s each; no alignment needed
+        // SAFETY: eight writable f32s or i32s each, no alignment needed;
+        // AVX is there, since only AVX2 functions call this one
         unsafe {
             _mm256_storeu_ps(t.as_mut_ptr(), self.t);
             _mm256_storeu_ps(u.as_mut_ptr(), self.u);
