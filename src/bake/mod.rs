@@ -7,6 +7,7 @@
 
 pub mod gltf;
 pub mod job;
+pub mod lightmap;
 pub mod ply;
 
 pub use crate::methods::density::BakedMesh;
