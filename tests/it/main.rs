@@ -13,6 +13,7 @@
 //! and nothing else: a test that needs what CI lacks must skip itself by
 //! another check, or `--ignored` would run it there.
 
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 mod common;
 
 mod bsdf;
