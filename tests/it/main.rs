@@ -37,4 +37,5 @@ mod plb;
 mod reference;
 mod replay;
 mod transport;
+mod untrusted_mp;
 mod view;
