@@ -58,12 +58,12 @@ pub fn texels(scene: &Scene, uv: &LightmapUv) -> Vec<Texel> {
                 let Some(c) = &corners[t as usize] else {
                     continue;
                 };
-                let ((x0, x1), (y0, y1)) = texel_box(c, w, h);
+                let (_, (y0, y1)) = texel_box(c, w, h);
                 for y in y0.max(row0)..y1.min(row0 + BAND) {
+                    let Some((x0, x1)) = row_span(c, y, w) else {
+                        continue;
+                    };
                     for x in x0..x1 {
-                        if !touches(c, x, y) {
-                            continue;
-                        }
                         let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
                         let d = centre.distance_squared(closest_point(c, centre));
                         let slot = &mut rows[((y - row0) * w + x) as usize];
@@ -193,26 +193,35 @@ fn texel_box(c: &[Vec2; 3], w: u32, h: u32) -> ((u32, u32), (u32, u32)) {
     (span(lo.x, hi.x, w), span(lo.y, hi.y, h))
 }
 
-/// Whether a triangle overlaps the square of texel (x, y) (separating axes:
-/// the square's, done by [`texel_box`], and the triangle's edge normals).
-fn touches(c: &[Vec2; 3], x: u32, y: u32) -> bool {
-    let sign = (c[1] - c[0]).perp_dot(c[2] - c[0]).signum();
-    let square = [
-        Vec2::new(x as f32, y as f32),
-        Vec2::new(x as f32 + 1.0, y as f32),
-        Vec2::new(x as f32, y as f32 + 1.0),
-        Vec2::new(x as f32 + 1.0, y as f32 + 1.0),
-    ];
-    (0..3).all(|i| {
+/// The texel columns (half-open) of row `y` whose squares the triangle
+/// overlaps deeper than [`TOUCH`]: the triangle clipped to the row's slab
+/// is convex and spans the slab's height at most, so it meets a texel's
+/// square exactly when its extent in x meets the square's.
+fn row_span(c: &[Vec2; 3], y: u32, w: u32) -> Option<(u32, u32)> {
+    let (lo, hi) = (y as f32 + TOUCH, y as f32 + 1.0 - TOUCH);
+    let (mut xmin, mut xmax) = (f32::INFINITY, f32::NEG_INFINITY);
+    let mut take = |x: f32| {
+        xmin = xmin.min(x);
+        xmax = xmax.max(x);
+    };
+    for i in 0..3 {
         let (a, b) = (c[i], c[(i + 1) % 3]);
-        let e = b - a;
-        let len = e.length();
-        // Inside is where sign · perp_dot(e, p − a) > 0: some corner of the
-        // square must lie deeper than TOUCH on that side.
-        square
-            .iter()
-            .any(|&p| sign * e.perp_dot(p - a) > TOUCH * len)
-    })
+        if (lo..=hi).contains(&a.y) {
+            take(a.x);
+        }
+        // Where the edge crosses the slab's two lines.
+        for line in [lo, hi] {
+            if (a.y.min(b.y)..=a.y.max(b.y)).contains(&line) && a.y != b.y {
+                take(a.x + (b.x - a.x) * ((line - a.y) / (b.y - a.y)));
+            }
+        }
+    }
+    if xmin > xmax {
+        return None;
+    }
+    let x0 = (xmin + TOUCH).floor().clamp(0.0, w as f32) as u32;
+    let x1 = (xmax - TOUCH).ceil().clamp(0.0, w as f32) as u32;
+    (x1 > x0).then_some((x0, x1))
 }
 
 /// The point of triangle `c` nearest to `p` (p itself when inside).
@@ -258,5 +267,83 @@ fn texel(scene: &Scene, c: &[Vec2; 3], t: u32, x: u32, y: u32) -> Texel {
         tri: t,
         p: a * l.x + b * l.y + cc * l.z,
         n: (b - a).cross(cc - a).normalize_or_zero(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Whether triangle `c` and the square of texel (x, y) overlap by more
+    /// than `margin` (separating axes: the square's two and the triangle's
+    /// three edge normals).
+    fn overlaps(c: &[Vec2; 3], x: u32, y: u32, margin: f32) -> bool {
+        let sq = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+            .map(|(dx, dy)| Vec2::new(x as f32 + dx, y as f32 + dy));
+        let sign = (c[1] - c[0]).perp_dot(c[2] - c[0]).signum();
+        let lo = c[0].min(c[1]).min(c[2]);
+        let hi = c[0].max(c[1]).max(c[2]);
+        let axes = lo.x < x as f32 + 1.0 - margin
+            && hi.x > x as f32 + margin
+            && lo.y < y as f32 + 1.0 - margin
+            && hi.y > y as f32 + margin;
+        axes && (0..3).all(|i| {
+            let (a, b) = (c[i], c[(i + 1) % 3]);
+            let e = b - a;
+            sq.iter()
+                .any(|&p| sign * e.perp_dot(p - a) > margin * e.length())
+        })
+    }
+
+    /// The row spans against a brute-force separating-axis test on random
+    /// triangles: every texel overlapped by more than 1e-3 is in the span,
+    /// and every texel in it is at least touched (−1e-3).
+    #[test]
+    fn row_spans_are_the_conservative_coverage() {
+        let mut state = 12345u64;
+        let mut rnd = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let w = 32;
+        for _ in 0..2000 {
+            let scale = if rnd() < 0.5 { 3.0 } else { 30.0 };
+            let c = [(); 3].map(|_| Vec2::new(1.0 + rnd() * scale, 1.0 + rnd() * scale));
+            if (c[1] - c[0]).perp_dot(c[2] - c[0]).abs() < 1e-3 {
+                continue;
+            }
+            for y in 0..w {
+                let span = row_span(&c, y, w).unwrap_or((0, 0));
+                for x in 0..w {
+                    let inside = (span.0..span.1).contains(&x);
+                    if overlaps(&c, x, y, 1e-3) {
+                        assert!(inside, "{c:?}: texel ({x}, {y}) missed");
+                    }
+                    if inside {
+                        assert!(
+                            overlaps(&c, x, y, -1e-3),
+                            "{c:?}: texel ({x}, {y}) not touched"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn closest_point_is_on_the_triangle_and_nearest() {
+        let c = [
+            Vec2::new(0.0, 0.0),
+            Vec2::new(4.0, 0.0),
+            Vec2::new(0.0, 4.0),
+        ];
+        assert_eq!(closest_point(&c, Vec2::new(1.0, 1.0)), Vec2::new(1.0, 1.0));
+        assert_eq!(closest_point(&c, Vec2::new(1.0, -2.0)), Vec2::new(1.0, 0.0));
+        assert_eq!(closest_point(&c, Vec2::new(3.0, 3.0)), Vec2::new(2.0, 2.0));
+        assert_eq!(closest_point(&c, Vec2::new(-1.0, -1.0)), Vec2::ZERO);
+        let l = barycentric(&c, Vec2::new(1.0, 2.0));
+        assert!((l - Vec3::new(0.25, 0.25, 0.5)).length() < 1e-6);
     }
 }

@@ -446,7 +446,7 @@ fn generate(scene: &Scene, degenerate: &[bool], opts: &UvOptions) -> Result<Ligh
         padding: opts.padding,
         ..Default::default()
     };
-    let atlas = uvunwrap::generate(&inputs, &options).map_err(|e| match e {
+    let unwrap_error = |e| match e {
         uvunwrap::Error::AtlasTooLarge { texels } if opts.texel_density.is_some() => {
             UvError::TooLarge {
                 side: round_up4((texels as f64).sqrt().ceil() as u64),
@@ -455,7 +455,11 @@ fn generate(scene: &Scene, degenerate: &[bool], opts: &UvOptions) -> Result<Ligh
             }
         }
         e => UvError::Unwrap(format!("{}: {e}", scene.source)),
-    })?;
+    };
+    let mut atlas = uvunwrap::generate(&inputs, &options).map_err(unwrap_error)?;
+    if let Some(d) = opts.texel_density {
+        atlas = squarer(&inputs, &options, d, atlas);
+    }
     if atlas.page_count > 1 {
         return Err(UvError::Options(format!(
             "the {} charts of {} do not fit one {}² atlas; give a larger atlas size or less padding",
@@ -519,6 +523,45 @@ fn generate(scene: &Scene, degenerate: &[bool], opts: &UvOptions) -> Result<Ligh
         tri_chart,
         warnings: Vec::new(),
     })
+}
+
+/// At a fixed density the unwrapper grows one page to fit, choosing the
+/// smallest area, which can be far from square (cbox at 1 texel per unit:
+/// 1960 × 1380). Our atlas is square, so try square pages between the side
+/// of that area and its longer side (four tries at most, in equal ratios),
+/// and keep the first that holds every chart.
+fn squarer(
+    inputs: &[uvunwrap::MeshInput],
+    options: &uvunwrap::Options,
+    density: f32,
+    atlas: uvunwrap::Atlas,
+) -> uvunwrap::Atlas {
+    let longest = round_up4(atlas.width.max(atlas.height) as u64) as f64;
+    let least = ((atlas.width as f64) * (atlas.height as f64)).sqrt();
+    if longest <= least + 4.0 {
+        return atlas;
+    }
+    const TRIES: i32 = 4;
+    let step = (longest / least).powf(1.0 / TRIES as f64);
+    for k in 0..TRIES {
+        let side = round_up4((least * step.powi(k)).ceil() as u64);
+        if side as f64 >= longest {
+            break;
+        }
+        let square = uvunwrap::Options {
+            density: uvunwrap::Density::Fixed {
+                texels_per_unit: density,
+                page_size: Some(side as u32),
+            },
+            ..*options
+        };
+        if let Ok(a) = uvunwrap::generate(inputs, &square) {
+            if a.page_count == 1 {
+                return a;
+            }
+        }
+    }
+    atlas
 }
 
 /// A position the unwrapper accepts: non-finite coordinates (only in
