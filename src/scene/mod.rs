@@ -39,6 +39,17 @@ pub use summary::Summary;
 /// stops with an error naming the count instead of exhausting memory.
 pub const MAX_TRIANGLES: u64 = 1 << 26;
 
+/// The bytes a mesh of `vertices` and `triangles` takes while a loader
+/// turns it into the scene's: the scene's own copy (position, normal and uv:
+/// 32 bytes a vertex; indices and shape: 16 a triangle) and the loader's
+/// (as much again, at most). What loaders declare through
+/// [`FileAccess::reserve`] before they allocate a mesh, once per instance.
+pub fn mesh_memory(vertices: u64, triangles: u64) -> u64 {
+    vertices
+        .saturating_mul(64)
+        .saturating_add(triangles.saturating_mul(28))
+}
+
 /// Loads a scene file, choosing the loader by extension: `.xml` (Mitsuba 3),
 /// `.pbrt` (pbrt-v4), `.gltf`/`.glb` (glTF 2.0), `.obj` (with its MTL; a
 /// camera is synthesised) or `.ply` (one mesh, default material,

@@ -148,10 +148,13 @@ impl<'t> Builder<'t> {
                 ),
             ));
         }
+        // until the scene's own access reaches here: the mesh file's folder
+        let access = crate::scene::FileAccess::for_scene(&path, &Default::default())
+            .map_err(|e| self.err(el, e.to_string()))?;
         let mut mesh = if ty == "obj" {
-            crate::scene::obj::load_obj(&path, flip_tex)
+            crate::scene::obj::load_obj(&path, flip_tex, &access)
         } else {
-            crate::scene::ply::load_ply(&path).map(|mut m| {
+            crate::scene::ply::load_ply(&path, &access).map(|mut m| {
                 if flip_tex {
                     if let Some(uvs) = &mut m.uvs {
                         uvs.iter_mut().for_each(|t| t.y = 1.0 - t.y);
