@@ -36,4 +36,5 @@ mod plb;
 mod reference;
 mod replay;
 mod transport;
+mod untrusted;
 mod view;
