@@ -217,14 +217,23 @@ pub struct FileAccess {
 
 impl FileAccess {
     /// The access of the scene file `scene`: its folder and the policy's
-    /// folders are readable. Fails when a folder of the policy does not
-    /// exist.
+    /// folders are readable, and the scene file itself: the user named it,
+    /// so when it is a symbolic link into another folder it is read all
+    /// the same (with the regular-file and size checks), while the files
+    /// it names are held to the folders. Fails when a folder of the policy
+    /// does not exist.
     pub fn for_scene(scene: &Path, policy: &ReadPolicy) -> Result<Self, AccessError> {
         let dir = match scene.parent() {
             Some(d) if !d.as_os_str().is_empty() => d,
             _ => Path::new("."),
         };
-        Self::for_dir(dir, policy)
+        let mut access = Self::for_dir(dir, policy)?;
+        if let Ok(file) = scene.canonicalize() {
+            if !access.roots.iter().any(|r| file.starts_with(r)) {
+                Arc::make_mut(&mut access.roots).push(file);
+            }
+        }
+        Ok(access)
     }
 
     /// The access of a scene whose files resolve against `dir`: `dir` and

@@ -6,8 +6,16 @@
 //! so that kd + ks ≤ 1); `Ke` (non-zero) → an area emitter of that radiance.
 //! OBJ files have no camera: one is synthesised looking at the bounding box
 //! along −z (the usual "front" of y-up OBJ files), and a warning says so.
+//!
+//! The file and its `mtllib`s are read through the scene's [`FileAccess`]:
+//! a material library outside the allowed folders, or one that is not a
+//! regular file, is an error naming the `mtllib` line, before the OBJ is
+//! parsed (a missing one is a warning, as in other renderers). The mesh's
+//! memory is declared from a count of its `v` and `f` lines before tobj
+//! builds it. MTL texture maps are not read.
 
-use crate::scene::access::FileAccess;
+use crate::scene::access::{AccessError, FileAccess, FileKind};
+use std::cell::RefCell;
 use std::path::Path;
 
 use glam::{Vec2, Vec3};
@@ -26,28 +34,116 @@ fn options() -> tobj::LoadOptions {
 /// The objects, the MTL materials, and a warning when the MTL did not load.
 type ObjModels = (Vec<tobj::Model>, Vec<tobj::Material>, Option<String>);
 
-fn load_models(path: &Path) -> Result<ObjModels, SceneError> {
-    if !path.is_file() {
-        return Err(SceneError::new(path, 0, "OBJ file not found"));
+/// What a first pass over an OBJ file's lines finds: how large its mesh is
+/// at least, and its material libraries.
+#[derive(Debug, Default, PartialEq)]
+struct Scan {
+    /// `v` lines.
+    vertices: u64,
+    /// The triangles of the `f` lines, fan-triangulated.
+    triangles: u64,
+    /// Each `mtllib` line's number and file name, as tobj reads it.
+    mtllibs: Vec<(u32, String)>,
+}
+
+/// Counts the vertices and triangles of `bytes` (an OBJ file) and lists its
+/// `mtllib`s, without parsing numbers.
+fn scan(bytes: &[u8]) -> Scan {
+    let mut scan = Scan::default();
+    for (i, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        let line = line.strip_suffix(b"\r").unwrap_or(line);
+        let mut words = line
+            .split(|b| b.is_ascii_whitespace())
+            .filter(|w| !w.is_empty());
+        match words.next() {
+            Some(b"v") => scan.vertices += 1,
+            Some(b"f") => scan.triangles += (words.count() as u64).saturating_sub(2),
+            Some(b"mtllib") => {
+                // tobj's reading: all after the first space, trimmed (a
+                // file name may hold spaces)
+                let line = String::from_utf8_lossy(line);
+                let name = line.split_once(' ').unwrap_or_default().1.trim();
+                scan.mtllibs.push((i as u32 + 1, name.to_string()));
+            }
+            _ => {}
+        }
     }
-    let file = std::fs::File::open(path)
-        .map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
-    let mut reader = std::io::BufReader::new(file);
+    scan
+}
+
+/// Reads the OBJ file `path` (a file of `kind`) and its material libraries
+/// through `access`: see the module documentation.
+fn load_models(path: &Path, kind: FileKind, access: &FileAccess) -> Result<ObjModels, SceneError> {
+    let bytes = access
+        .read(path, kind)
+        .map_err(|e| SceneError::new(path, 0, e.to_string()))?;
     let base = path.parent().unwrap_or(Path::new(""));
+    let found = scan(&bytes);
+    let line_of = |mtl: &Path| {
+        found
+            .mtllibs
+            .iter()
+            .find(|(_, name)| Path::new(name) == mtl)
+            .map_or(0, |(line, _)| *line)
+    };
+    let refusal = |mtl: &Path, e: AccessError| {
+        SceneError::new(
+            path,
+            line_of(mtl),
+            format!("mtllib `{}`: {e}", mtl.display()),
+        )
+    };
+    // every library the file names, checked before anything is parsed; a
+    // missing or unreadable one only loses the materials (a warning), as
+    // does an `mtllib` without a name
+    for (_, name) in found.mtllibs.iter().filter(|(_, n)| !n.is_empty()) {
+        match access.check(&base.join(name), FileKind::Material) {
+            Ok(_) | Err(AccessError::Io { .. }) => {}
+            Err(e) => return Err(refusal(Path::new(name), e)),
+        }
+    }
+    access
+        .reserve(
+            format!(
+                "mesh `{}` ({} vertices, {} triangles)",
+                path.display(),
+                found.vertices,
+                found.triangles
+            ),
+            super::mesh_memory(found.vertices, found.triangles),
+        )
+        .map_err(|e| SceneError::new(path, 0, e.to_string()))?;
     // what made an MTL file unreadable, in our words (tobj's error has no
-    // line)
-    let mtl_problem: std::cell::RefCell<Option<SceneError>> = Default::default();
-    let (models, materials) = tobj::load_obj_buf(&mut reader, &options(), |mtl| {
-        let mtl = base.join(mtl);
+    // line), and a refusal of the access, which is an error
+    let mtl_problem: RefCell<Option<SceneError>> = Default::default();
+    let refused: RefCell<Option<SceneError>> = Default::default();
+    let parsed = tobj::load_obj_buf(&mut &bytes[..], &options(), |mtl| {
+        if mtl.as_os_str().is_empty() {
+            return Err(tobj::LoadError::OpenFileFailed);
+        }
         // read once: checked, then parsed from the same bytes
-        let bytes = std::fs::read(&mtl).map_err(|_| tobj::LoadError::OpenFileFailed)?;
-        if let Err(e) = check_mtl(&mtl, &bytes) {
+        let bytes = match access.read(&base.join(mtl), FileKind::Material) {
+            Ok(bytes) => bytes,
+            Err(e @ AccessError::Io { .. }) => {
+                *mtl_problem.borrow_mut() = Some(refusal(mtl, e));
+                return Err(tobj::LoadError::OpenFileFailed);
+            }
+            Err(e) => {
+                *refused.borrow_mut() = Some(refusal(mtl, e));
+                return Err(tobj::LoadError::OpenFileFailed);
+            }
+        };
+        if let Err(e) = check_mtl(&base.join(mtl), &bytes) {
             *mtl_problem.borrow_mut() = Some(e);
             return Err(tobj::LoadError::MaterialParseError);
         }
         tobj::load_mtl_buf(&mut &bytes[..])
-    })
-    .map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
+    });
+    if let Some(e) = refused.into_inner() {
+        return Err(e);
+    }
+    let (models, materials) =
+        parsed.map_err(|e| SceneError::new(path, 0, format!("cannot read OBJ file: {e}")))?;
     for m in &models {
         if let Some(i) = m.mesh.positions.iter().position(|v| !v.is_finite()) {
             return Err(SceneError::new(
@@ -153,13 +249,13 @@ fn append(a: &mut MeshData, b: MeshData) {
 
 /// Loads every object of an OBJ file as one mesh (triangulated, one index
 /// per vertex). Normals and uvs are kept only when every object has them.
+/// The file is read through `access`, as a mesh file.
 pub fn load_obj(
     path: &Path,
     flip_tex_coords: bool,
     access: &FileAccess,
 ) -> Result<MeshData, SceneError> {
-    let _ = access;
-    let (models, _, _) = load_models(path)?;
+    let (models, _, _) = load_models(path, FileKind::Mesh, access)?;
     let mut mesh = MeshData::default();
     for m in &models {
         append(&mut mesh, to_mesh(&m.mesh, flip_tex_coords));
@@ -168,9 +264,9 @@ pub fn load_obj(
 }
 
 /// A standalone OBJ file (with its MTL) as a scene, with a synthesised camera.
+/// The file and its MTLs are read through `access`.
 pub fn load_obj_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
-    let _ = access;
-    let (models, mtls, mtl_warning) = load_models(path)?;
+    let (models, mtls, mtl_warning) = load_models(path, FileKind::Scene, access)?;
     let mut scene = Scene::empty(path.display().to_string());
     scene.warnings.extend(mtl_warning);
 

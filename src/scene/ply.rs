@@ -6,8 +6,14 @@
 //! and the `face` element's `vertex_indices` (or `vertex_index`) list, with any
 //! scalar types. Polygons are fan-triangulated. Every other element and
 //! property (lists included) is read and skipped.
+//!
+//! A file is read through the scene's [`FileAccess`], header first: counts
+//! the body cannot hold, or more faces than [`super::MAX_TRIANGLES`], are
+//! refused from the header alone, and the mesh's memory is declared
+//! ([`FileAccess::reserve`]) before the body is read.
 
-use crate::scene::access::FileAccess;
+use crate::scene::access::{FileAccess, FileKind};
+use std::io::Read;
 use std::path::Path;
 
 use glam::{Vec2, Vec3};
@@ -123,18 +129,99 @@ impl Reader<'_> {
     }
 }
 
-/// Loads a PLY file from disk.
+/// The longest PLY header read: past it without an `end_header` line, the
+/// file is refused.
+const MAX_HEADER: usize = 1 << 20;
+
+/// Loads the PLY file `path` through `access` (a mesh file): the header is
+/// read and checked first ([`check_counts`]: no count past what the file
+/// can hold or past [`super::MAX_TRIANGLES`] faces), the mesh's memory is
+/// declared, and only then is the body read. Errors name `path`; a caller
+/// that read the path from a scene file wraps them with its line.
 pub fn load_ply(path: &Path, access: &FileAccess) -> Result<MeshData, SceneError> {
-    let _ = access;
-    let bytes = std::fs::read(path)
-        .map_err(|e| SceneError::new(path, 0, format!("cannot read PLY file: {e}")))?;
+    let refused = |e: super::AccessError| SceneError::new(path, 0, e.to_string());
+    let (mut file, size) = access.open(path, FileKind::Mesh).map_err(refused)?;
+    let (mut bytes, short) = read_header(&mut file).map_err(|e| refused(file.error(e)))?;
+    if !short {
+        return Err(SceneError::new(
+            path,
+            0,
+            format!(
+                "PLY header has no `end_header` line in its first {} bytes",
+                MAX_HEADER
+            ),
+        ));
+    }
+    let (format, elements, body_start) = parse_header(&bytes, path)?;
+    check_counts(
+        format,
+        &elements,
+        size.saturating_sub(body_start as u64),
+        path,
+    )?;
+    reserve(&elements, path, access)?;
+    bytes.reserve_exact((size as usize).saturating_sub(bytes.len()));
+    file.read_to_end(&mut bytes)
+        .map_err(|e| refused(file.error(e)))?;
     parse_ply(&bytes, path)
+}
+
+/// Reads the start of a PLY file up to its `end_header` line (and maybe
+/// some of the body), or to its end if it has none. Returns the bytes, and
+/// false when [`MAX_HEADER`] bytes passed without the line.
+fn read_header(f: &mut impl Read) -> std::io::Result<(Vec<u8>, bool)> {
+    let mut head = Vec::new();
+    let mut chunk = [0u8; 4096];
+    let mut line_start = 0;
+    loop {
+        let n = match f.read(&mut chunk) {
+            Ok(0) => return Ok((head, true)), // the parser reports what is missing
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        head.extend_from_slice(&chunk[..n]);
+        while let Some(i) = head[line_start..].iter().position(|&b| b == b'\n') {
+            let line = &head[line_start..line_start + i];
+            line_start += i + 1;
+            let mut words = line
+                .split(|b| b.is_ascii_whitespace())
+                .filter(|w| !w.is_empty());
+            if words.next() == Some(b"end_header") && words.next().is_none() {
+                return Ok((head, true));
+            }
+        }
+        if head.len() > MAX_HEADER {
+            return Ok((head, false));
+        }
+    }
+}
+
+/// Declares the memory of the mesh the header describes: its first
+/// `vertex` element's vertices and at least a triangle per face of its
+/// first `face` element.
+fn reserve(elements: &[Element], path: &Path, access: &FileAccess) -> Result<(), SceneError> {
+    let count = |name: &str| {
+        elements
+            .iter()
+            .find(|e| e.name == name)
+            .map_or(0, |e| e.count as u64)
+    };
+    let (vertices, faces) = (count("vertex"), count("face"));
+    access
+        .reserve(
+            format!(
+                "mesh `{}` ({vertices} vertices, {faces} faces)",
+                path.display()
+            ),
+            super::mesh_memory(vertices, faces),
+        )
+        .map_err(|e| SceneError::new(path, 0, e.to_string()))
 }
 
 /// A standalone PLY file as a scene: one shape with Mitsuba's default
 /// material (diffuse 0.5) and a synthesised camera.
 pub fn load_ply_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
-    let _ = access;
     let mut mesh = load_ply(path, access)?;
     if mesh.normals.is_none() {
         mesh.compute_vertex_normals();
@@ -163,12 +250,36 @@ pub fn load_ply_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneEr
     Ok(scene)
 }
 
-/// Parses PLY bytes; `path` only names the file in errors.
+/// Parses PLY bytes; `path` only names the file in errors. See
+/// [`parse_ply_with`] to declare the mesh's memory first.
 pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
+    parse(bytes, path, None)
+}
+
+/// [`parse_ply`] of bytes read through `access`, declaring the mesh's
+/// memory to it ([`FileAccess::reserve`]) once the header is checked and
+/// before the body is read.
+pub fn parse_ply_with(
+    bytes: &[u8],
+    path: &Path,
+    access: &FileAccess,
+) -> Result<MeshData, SceneError> {
+    parse(bytes, path, Some(access))
+}
+
+fn parse(bytes: &[u8], path: &Path, access: Option<&FileAccess>) -> Result<MeshData, SceneError> {
     let err = |line: u32, msg: String| SceneError::new(path, line, msg);
     let (format, elements, body_start) = parse_header(bytes, path)?;
     let body = &bytes[body_start..];
-    check_counts(format, &elements, body, path)?;
+    check_counts(format, &elements, body.len() as u64, path)?;
+    if let Some(access) = access {
+        reserve(&elements, path, access)?;
+    }
+    // the vertex count the faces' indices are checked against
+    let Some(vertices) = elements.iter().find(|e| e.name == "vertex") else {
+        return Err(err(0, "PLY file has no vertex element".into()));
+    };
+    let vertices = vertices.count as i64;
     let mut reader = match format {
         Format::Ascii => Reader::Ascii(
             std::str::from_utf8(body)
@@ -196,15 +307,12 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<MeshData, SceneError> {
                 read.seen_vertex = true;
                 read_vertices(&mut reader, el, body.len(), &mut read, path)?;
             }
-            "face" if read.faces.is_empty() => {
-                read_faces(&mut reader, el, body.len(), &mut read.faces, path)?;
+            "face" if read.faces == 0 => {
+                read_faces(&mut reader, el, body.len(), vertices, &mut read, path)?;
             }
             _ if el.props.is_empty() => {}
             _ => skip_element(&mut reader, el, path)?,
         }
-    }
-    if !read.seen_vertex {
-        return Err(err(0, "PLY file has no vertex element".into()));
     }
     assemble(read, path)
 }
@@ -307,13 +415,30 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<(Format, Vec<Element>, usiz
 /// Trusts no count beyond what the body can hold: every entry takes at
 /// least its scalars' bytes (binary) or one digit and a separator per
 /// value (ASCII), so a lying header is refused before anything is sized
-/// from it.
+/// from it. A `face` element of more than [`super::MAX_TRIANGLES`] faces
+/// is refused too: each face with three corners or more is a triangle at
+/// least. `body_len` is the size of what follows the header.
 fn check_counts(
     format: Format,
     elements: &[Element],
-    body: &[u8],
+    body_len: u64,
     path: &Path,
 ) -> Result<(), SceneError> {
+    if let Some(el) = elements
+        .iter()
+        .find(|e| e.name == "face" && e.count as u64 > super::MAX_TRIANGLES)
+    {
+        return Err(SceneError::new(
+            path,
+            el.line,
+            format!(
+                "element `face` declares {} faces; kalos loads at most {} triangles \
+                 in a scene",
+                el.count,
+                super::MAX_TRIANGLES
+            ),
+        ));
+    }
     let mut need = 0u64;
     for el in elements {
         let min_entry: u64 = el
@@ -326,16 +451,14 @@ fn check_counts(
             })
             .sum();
         need = need.saturating_add((el.count as u64).saturating_mul(min_entry));
-        if need > body.len() as u64 + 1 {
+        if need > body_len + 1 {
             return Err(SceneError::new(
                 path,
                 el.line,
                 format!(
                     "element `{}` declares {} entries, but the {} bytes after the header \
                      cannot hold them: truncated file or a wrong count",
-                    el.name,
-                    el.count,
-                    body.len()
+                    el.name, el.count, body_len
                 ),
             ));
         }
@@ -344,14 +467,16 @@ fn check_counts(
 }
 
 /// What the body's elements give: the vertices (positions in `mesh`, with
-/// their optional normals and uvs) and the polygons.
+/// their optional normals and uvs) and the polygons' triangles (in
+/// `mesh.indices`).
 #[derive(Default)]
 struct Elements {
     mesh: MeshData,
     normals: Vec<Vec3>,
     uvs: Vec<Vec2>,
     seen_vertex: bool,
-    faces: Vec<Vec<i64>>,
+    /// The entries of the `face` element read (0: none read yet).
+    faces: usize,
 }
 
 /// The error for an element the body ends in, or that holds a token that
@@ -425,14 +550,17 @@ fn read_vertices(
     Ok(())
 }
 
-/// Reads the `face` element's `vertex_indices` (or `vertex_index`) lists
-/// into `faces`, skipping its other properties. `body_len` bounds what is
-/// reserved.
+/// Reads the `face` element's `vertex_indices` (or `vertex_index`) lists,
+/// fan-triangulated into `out.mesh.indices`, skipping its other
+/// properties. Each index must be one of the `vertices` the vertex element
+/// declares. `body_len` bounds what is reserved; the triangles are bounded
+/// by [`super::MAX_TRIANGLES`].
 fn read_faces(
     reader: &mut Reader,
     el: &Element,
     body_len: usize,
-    faces: &mut Vec<Vec<i64>>,
+    vertices: i64,
+    out: &mut Elements,
     path: &Path,
 ) -> Result<(), SceneError> {
     let truncated = || truncated(el, path);
@@ -447,8 +575,10 @@ fn read_faces(
             "PLY face element has no vertex_indices list",
         ));
     };
-    faces.reserve(el.count.min(body_len));
-    for _ in 0..el.count {
+    let indices = &mut out.mesh.indices;
+    indices.reserve(el.count.min(body_len));
+    let mut poly: Vec<u32> = Vec::new();
+    for f in 0..el.count {
         for (k, p) in el.props.iter().enumerate() {
             match p.list {
                 Some(ct) if k == fi => {
@@ -456,11 +586,35 @@ fn read_faces(
                     if !(0.0..=1e6).contains(&n) {
                         return Err(SceneError::new(path, 0, format!("bad PLY face size {n}")));
                     }
-                    let mut poly = Vec::with_capacity(n as usize);
+                    poly.clear();
                     for _ in 0..n as usize {
-                        poly.push(reader.read(p.ty).ok_or_else(truncated)? as i64);
+                        let i = reader.read(p.ty).ok_or_else(truncated)? as i64;
+                        if !(0..vertices).contains(&i) {
+                            return Err(SceneError::new(
+                                path,
+                                0,
+                                format!(
+                                    "PLY face {f} has vertex index {i}, but there are \
+                                     {vertices} vertices"
+                                ),
+                            ));
+                        }
+                        poly.push(i as u32);
                     }
-                    faces.push(poly);
+                    for k in 1..poly.len().saturating_sub(1) {
+                        indices.push([poly[0], poly[k], poly[k + 1]]);
+                    }
+                    if indices.len() as u64 > super::MAX_TRIANGLES {
+                        return Err(SceneError::new(
+                            path,
+                            el.line,
+                            format!(
+                                "the faces up to face {f} make more than {} triangles, \
+                                 the most kalos loads in a scene",
+                                super::MAX_TRIANGLES
+                            ),
+                        ));
+                    }
                 }
                 Some(ct) => skip_list(reader, ct, p.ty).ok_or_else(truncated)?,
                 None => {
@@ -469,6 +623,7 @@ fn read_faces(
             }
         }
     }
+    out.faces = el.count;
     Ok(())
 }
 
@@ -487,30 +642,15 @@ fn skip_element(reader: &mut Reader, el: &Element, path: &Path) -> Result<(), Sc
     Ok(())
 }
 
-/// Builds the mesh: fan-triangulates the faces (checking their indices)
-/// and checks that the positions are finite.
+/// Builds the mesh: checks that the positions are finite, and keeps the
+/// normals and uvs the vertices have.
 fn assemble(read: Elements, path: &Path) -> Result<MeshData, SceneError> {
     let Elements {
         mut mesh,
         normals,
         uvs,
-        faces,
         ..
     } = read;
-    let nv = mesh.positions.len() as i64;
-    for (f, poly) in faces.iter().enumerate() {
-        if let Some(&bad) = poly.iter().find(|&&i| i < 0 || i >= nv) {
-            return Err(SceneError::new(
-                path,
-                0,
-                format!("PLY face {f} has vertex index {bad}, but there are {nv} vertices"),
-            ));
-        }
-        for k in 1..poly.len().saturating_sub(1) {
-            mesh.indices
-                .push([poly[0] as u32, poly[k] as u32, poly[k + 1] as u32]);
-        }
-    }
     super::check_finite(path, "the PLY vertex element", &mesh.positions)?;
     if !normals.is_empty() {
         mesh.normals = Some(normals);

@@ -529,7 +529,6 @@ fn check_quad(m: &kalos::scene::MeshData) {
 #[test]
 fn ply_ascii_and_binary_round_trip() {
     let d = tmp("ply");
-    let access = kalos::scene::FileAccess::for_dir(&d, &Default::default()).unwrap();
     let mut ascii = ply_header("ascii");
     ascii += "2 7 8 0.5\n";
     for v in QUAD {
@@ -540,6 +539,7 @@ fn ply_ascii_and_binary_round_trip() {
     std::fs::write(d.join("a.ply"), &ascii).unwrap();
     std::fs::write(d.join("le.ply"), binary_ply(true)).unwrap();
     std::fs::write(d.join("be.ply"), binary_ply(false)).unwrap();
+    let access = scene::FileAccess::for_dir(&d, &Default::default()).unwrap();
     for f in ["a.ply", "le.ply", "be.ply"] {
         let m =
             kalos::scene::ply::load_ply(&d.join(f), &access).unwrap_or_else(|e| panic!("{f}: {e}"));

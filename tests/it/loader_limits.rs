@@ -171,6 +171,37 @@ fn ply_counts_beyond_the_file_are_errors() {
     assert_eq!(scene::load(&p).unwrap().triangles.len(), 1);
 }
 
+#[test]
+fn a_ply_header_past_the_triangle_cap_is_refused_from_the_header() {
+    let d = tmp();
+    let faces = kalos::scene::MAX_TRIANGLES + 1;
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n\
+         property float y\nproperty float z\nelement face {faces}\n\
+         property list uchar int vertex_indices\nend_header\n"
+    );
+    // a body large enough for the count (one byte a face at least), sparse:
+    // refused from the header alone, without reading the 64 MiB after it
+    let p = d.path().join("cap.ply");
+    let f = std::fs::File::create(&p).unwrap();
+    std::io::Write::write_all(&mut &f, header.as_bytes()).unwrap();
+    f.set_len(header.len() as u64 + 36 + faces).unwrap();
+    let start = std::time::Instant::now();
+    let e = expect_error(
+        &p,
+        &[&faces.to_string(), &kalos::scene::MAX_TRIANGLES.to_string()],
+    );
+    assert!(e.contains("cap.ply:7:"), "not the element's line: {e}");
+    assert!(
+        start.elapsed() < std::time::Duration::from_millis(500),
+        "{:?}: the body was read",
+        start.elapsed()
+    );
+    // the same from bytes, as pbrt's loader parses them
+    let e = kalos::scene::ply::parse_ply(header.as_bytes(), &p).unwrap_err();
+    assert!(e.to_string().contains("at most"), "{e}");
+}
+
 // ---------------------------------------------------------------------------
 // Includes
 

@@ -37,5 +37,6 @@ mod plb;
 mod reference;
 mod replay;
 mod transport;
+mod untrusted;
 mod untrusted_mp;
 mod view;

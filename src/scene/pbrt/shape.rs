@@ -356,10 +356,11 @@ impl Builder {
         let path = self.cx.resolve(file);
         let bytes = super::spectra::read_file(&self.cx.access, &path, FileKind::Mesh)
             .map_err(|e| self.cx.err(d.line, files::message("PLY file", file, &e)))?;
-        let mesh = crate::scene::ply::parse_ply(&bytes, &path).map_err(|e| {
-            self.cx
-                .err(d.line, format!("in the mesh of this shape: {e}"))
-        })?;
+        let mesh =
+            crate::scene::ply::parse_ply_with(&bytes, &path, &self.cx.access).map_err(|e| {
+                self.cx
+                    .err(d.line, format!("in the mesh of this shape: {e}"))
+            })?;
         Ok(Geom::Mesh(mesh))
     }
 
