@@ -19,6 +19,8 @@
 //!
 //! This file holds the types the stages hand each other.
 
+pub mod glb;
+
 use glam::{Vec2, Vec3};
 
 use crate::color::Rgb;
