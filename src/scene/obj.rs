@@ -7,6 +7,7 @@
 //! OBJ files have no camera: one is synthesised looking at the bounding box
 //! along −z (the usual "front" of y-up OBJ files), and a warning says so.
 
+use crate::scene::access::FileAccess;
 use std::path::Path;
 
 use glam::{Vec2, Vec3};
@@ -152,7 +153,12 @@ fn append(a: &mut MeshData, b: MeshData) {
 
 /// Loads every object of an OBJ file as one mesh (triangulated, one index
 /// per vertex). Normals and uvs are kept only when every object has them.
-pub fn load_obj(path: &Path, flip_tex_coords: bool) -> Result<MeshData, SceneError> {
+pub fn load_obj(
+    path: &Path,
+    flip_tex_coords: bool,
+    access: &FileAccess,
+) -> Result<MeshData, SceneError> {
+    let _ = access;
     let (models, _, _) = load_models(path)?;
     let mut mesh = MeshData::default();
     for m in &models {
@@ -162,7 +168,8 @@ pub fn load_obj(path: &Path, flip_tex_coords: bool) -> Result<MeshData, SceneErr
 }
 
 /// A standalone OBJ file (with its MTL) as a scene, with a synthesised camera.
-pub fn load_obj_scene(path: &Path) -> Result<Scene, SceneError> {
+pub fn load_obj_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
+    let _ = access;
     let (models, mtls, mtl_warning) = load_models(path)?;
     let mut scene = Scene::empty(path.display().to_string());
     scene.warnings.extend(mtl_warning);

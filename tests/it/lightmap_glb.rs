@@ -56,6 +56,8 @@ fn grid_uv(scene: &Scene, size: u32) -> LightmapUv {
         shapes,
         charts: n as u32,
         source: UvSource::Generated,
+        tri_chart: (0..n as u32).collect(),
+        warnings: Vec::new(),
     }
 }
 
