@@ -6,10 +6,17 @@
 // exposure 0 a pixel shows what `kalos render --tonemap clamp` writes for the
 // same radiance. COLOR_0 (clamped to the bake's white point) is not used:
 // it cannot be exposed down.
+//
+// A lightmapped .glb (`kalos bake --lightmap`, `MOZ_lightmap` materials) is
+// shown with its own materials and textures and its lightmap on uv 1
+// (lightmap.js), in a scene with no other light: a diffuse surface of
+// albedo R shows R·E/π, its radiance, scaled by 2^exposure through the
+// lightmap's intensity (and emitters' emissive intensity).
 
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+import { MozLightmap, errorMaterial } from "/view/lightmap.js";
 
 export async function show($) {
   $("mesh-controls").hidden = false;
@@ -20,8 +27,11 @@ export async function show($) {
   renderer.setClearColor(0x000000);
   stage.appendChild(renderer.domElement);
 
+  const lightmaps = new Map();
+  const loader = new GLTFLoader().register((parser) => new MozLightmap(parser, lightmaps));
   const gltf = await new Promise((resolve, reject) =>
-    new GLTFLoader().load("/scene.glb", resolve, undefined, reject));
+    loader.load("/scene.glb", resolve, undefined, reject));
+  const lightmapped = lightmaps.size > 0;
   const scene = new THREE.Scene();
   scene.add(gltf.scene);
   gltf.scene.updateMatrixWorld(true);
@@ -36,11 +46,22 @@ export async function show($) {
   const wires = [];
   let triangles = 0;
   let hasUnbaked = false;
+  // lightmapped: each mesh's own material, its lightmap and error map
+  const lit = [];
   gltf.scene.traverse((o) => {
     if (!o.isMesh) return;
     const g = o.geometry;
     const radiance = g.getAttribute("_radiance");
-    if (radiance) {
+    if (lightmapped) {
+      const assoc = gltf.parser.associations.get(o.material);
+      const lm = assoc && lightmaps.get(assoc.materials);
+      lit.push({
+        mesh: o, own: o.material, lm,
+        emissive: o.material.emissiveIntensity === undefined ? 0 : o.material.emissiveIntensity,
+        error: lm && lm.err ? errorMaterial(lm.lightMap, lm.err) : null,
+      });
+      if (!lm) hasUnbaked = true;
+    } else if (radiance) {
       g.setAttribute("color", radiance);
       o.material = baked;
     } else {
@@ -106,9 +127,22 @@ export async function show($) {
   function expose() {
     const v = Number($("exposure").value);
     $("exposure-value").textContent = v.toFixed(1);
-    baked.color.setScalar(Math.pow(2, v));
+    const k = Math.pow(2, v);
+    baked.color.setScalar(k);
+    for (const l of lit) {
+      if (l.lm) l.own.lightMapIntensity = l.lm.intensity * k;
+      if (l.emissive) l.own.emissiveIntensity = l.emissive * k;
+    }
     draw();
   }
+
+  function showError(on) {
+    for (const l of lit) l.mesh.material = on && l.error ? l.error : l.own;
+    draw();
+  }
+  const hasError = lit.some((l) => l.error);
+  $("error-map-row").hidden = !hasError;
+  $("error-map").onchange = () => showError($("error-map").checked);
 
   $("exposure").oninput = expose;
   $("wireframe").onchange = () => {
@@ -120,7 +154,9 @@ export async function show($) {
   $("camera-note").textContent =
     `${Math.round(triangles)} triangles; ` +
     (sceneCamera ? "first view: the scene's camera" : "the bake holds no camera") +
-    (hasUnbaked ? "; grey: not baked (specular)" : "");
+    (lightmapped ? "; lightmap on uv 1" : "") +
+    (hasUnbaked ? (lightmapped ? "; some materials have no lightmap (specular)"
+      : "; grey: not baked (specular)") : "");
   controls.addEventListener("change", draw);
   window.addEventListener("resize", () => {
     camera.aspect = window.innerWidth / window.innerHeight;
@@ -133,6 +169,9 @@ export async function show($) {
   window.kalos.triangles = triangles;
   window.kalos.sceneCamera = !!sceneCamera;
   window.kalos.setExposure = (v) => { $("exposure").value = v; expose(); };
+  window.kalos.lightmapped = lightmapped;
+  window.kalos.lightmaps = lightmaps.size;
+  window.kalos.setErrorMap = (on) => { $("error-map").checked = on; showError(on); };
   home();
   expose();
   requestAnimationFrame(() => { window.kalos.ready = true; });

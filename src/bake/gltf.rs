@@ -198,7 +198,7 @@ pub fn display_colors(lit: &BakedMesh, w0: f32) -> Vec<Vec3> {
 /// matrix is the camera's orthonormalised frame (glTF forbids shear, and a
 /// scene's `to_world` may scale), so the view is the same whatever scale
 /// the scene put in it.
-fn camera_json(
+pub(crate) fn camera_json(
     c: &CameraDesc,
     index: json::Index<json::Camera>,
 ) -> Option<(json::Node, json::Camera)> {
@@ -359,7 +359,7 @@ fn document(
 /// padded with zeros, each to 4 bytes), or None when it would exceed the
 /// 4 GiB its 32-bit length field can count. No BIN chunk when `bin` is
 /// empty (the JSON then declares no buffer).
-fn pack_glb(mut json: Vec<u8>, mut bin: Vec<u8>) -> Option<Vec<u8>> {
+pub(crate) fn pack_glb(mut json: Vec<u8>, mut bin: Vec<u8>) -> Option<Vec<u8>> {
     while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }

@@ -6,7 +6,9 @@
 //!
 //! - every triangle primitive of every mesh node of the default scene, with
 //!   the node's world transform (a negative determinant reverses the winding,
-//!   as the glTF specification says), normals and the first uv set;
+//!   as the glTF specification says), normals and the first uv set; the
+//!   second uv set is kept in [`Scene::uv1`], and each shape records the
+//!   node, mesh and primitive it came from ([`super::ShapeSource`]);
 //! - `baseColorFactor` × `baseColorTexture` (sRGB) → `diffuse` for
 //!   non-metals (`metallicFactor` < 0.5); metals become a mirror-Fresnel
 //!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
@@ -44,7 +46,9 @@ use std::sync::Arc;
 use glam::{Mat3, Mat4, Vec2, Vec3};
 
 use super::shapes::MeshData;
-use super::{CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, TexImage, Texture};
+use super::{
+    CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, ShapeSource, TexImage, Texture,
+};
 
 /// Largest number of node instances visited: a node referenced from many
 /// parents is walked once per path to it, so a small file can describe an
@@ -86,6 +90,9 @@ pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> 
     } = walk;
     if scene.triangles.is_empty() {
         return Err(err("glTF file has no triangles".into()));
+    }
+    if !scene.uv1.is_empty() {
+        scene.uv1.resize(scene.positions.len(), Vec2::ZERO);
     }
     if !camera_seen {
         super::obj::synthesise_camera(&mut scene, path);
@@ -378,6 +385,10 @@ impl Walk<'_> {
             .read_tex_coords(0)
             .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
             .filter(|v| v.len() == n);
+        let uv1: Option<Vec<Vec2>> = reader
+            .read_tex_coords(1)
+            .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
+            .filter(|v| v.len() == n);
         let flat: Vec<u32> = match reader.read_indices() {
             Some(ix) => ix.into_u32().collect(),
             None => (0..n as u32).collect(),
@@ -390,7 +401,8 @@ impl Walk<'_> {
             indices,
         };
         m.transform(&world);
-        if Mat3::from_mat4(world).determinant() < 0.0 {
+        let mirrored = Mat3::from_mat4(world).determinant() < 0.0;
+        if mirrored {
             m.reverse_winding();
         }
         let (material, emission) = match prim.material().index().and_then(|i| self.mats.get(i)) {
@@ -405,7 +417,8 @@ impl Walk<'_> {
             }
         };
         let name = format!("{}.{k}", node.name().or(mesh.name()).unwrap_or("mesh"));
-        scene.add_mesh(
+        let first_vertex = scene.positions.len() as u32;
+        let shape = scene.add_mesh(
             name,
             &m.positions,
             m.normals.as_deref(),
@@ -414,8 +427,61 @@ impl Walk<'_> {
             material,
             emission,
         );
+        keep_uv1(scene, first_vertex, n, uv1.as_deref());
+        let s = &scene.shapes[shape as usize];
+        let kept = kept_triangles(
+            &scene.triangles[s.first_tri as usize..][..s.tri_count as usize],
+            &m.indices,
+            first_vertex,
+        );
+        scene.shapes[shape as usize].source = Some(Box::new(ShapeSource {
+            node: node.index() as u32,
+            mesh: mesh.index() as u32,
+            primitive: k as u32,
+            first_vertex,
+            vertex_count: n as u32,
+            prim_triangles: m.indices.len() as u32,
+            kept,
+            mirrored,
+        }));
         Ok(())
     }
+}
+
+/// Appends a primitive's TEXCOORD_1 (`n` vertices from `first_vertex`) to
+/// [`Scene::uv1`], which stays empty until a primitive has one: then the
+/// vertices before get zeros, as do later primitives without one.
+fn keep_uv1(scene: &mut Scene, first_vertex: u32, n: usize, uv1: Option<&[Vec2]>) {
+    if uv1.is_none() && scene.uv1.is_empty() {
+        return;
+    }
+    scene.uv1.resize(first_vertex as usize, Vec2::ZERO);
+    match uv1 {
+        Some(t) => scene.uv1.extend_from_slice(t),
+        None => scene.uv1.resize(first_vertex as usize + n, Vec2::ZERO),
+    }
+}
+
+/// For each triangle the scene kept of a primitive (`kept`, on scene
+/// vertices), the index of the primitive triangle (`all`, on the
+/// primitive's vertices, which start at scene vertex `base`) it is; empty
+/// when every triangle was kept. The scene keeps them in order, so one pass
+/// matches them.
+fn kept_triangles(kept: &[[u32; 3]], all: &[[u32; 3]], base: u32) -> Vec<u32> {
+    if kept.len() == all.len() {
+        return Vec::new();
+    }
+    let mut out = Vec::with_capacity(kept.len());
+    let mut j = 0;
+    for t in kept {
+        let local = t.map(|i| i - base);
+        while j < all.len() && all[j] != local {
+            j += 1;
+        }
+        out.push(j as u32);
+        j += 1;
+    }
+    out
 }
 
 /// A perspective glTF camera placed by `world`, as kalos's camera (`None`

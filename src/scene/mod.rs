@@ -196,6 +196,49 @@ pub struct Shape {
     pub tri_count: u32,
     /// True when the vertices carry smooth shading normals.
     pub smooth: bool,
+    /// Where a glTF loader took the shape from (`None` for other
+    /// loaders): enough for a writer to map the shape's triangles and
+    /// vertices back to the primitive's accessors.
+    pub source: Option<Box<ShapeSource>>,
+}
+
+/// The glTF primitive a shape was read from. The shape's vertices are the
+/// primitive's, in order (scene vertex `first_vertex + i` is the
+/// primitive's vertex `i`); its triangles are the primitive's minus the
+/// degenerate ones the loader dropped, in order, with the winding reversed
+/// when the node's transform mirrors.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ShapeSource {
+    /// Index of the glTF node instancing the mesh.
+    pub node: u32,
+    /// Index of the glTF mesh.
+    pub mesh: u32,
+    /// Index of the primitive in the mesh.
+    pub primitive: u32,
+    /// The scene vertex ([`Scene::positions`]) of the primitive's vertex 0.
+    pub first_vertex: u32,
+    /// How many vertices the primitive has (all of them are in the scene).
+    pub vertex_count: u32,
+    /// How many triangles the primitive has (its index count / 3).
+    pub prim_triangles: u32,
+    /// For each of the shape's triangles, the primitive triangle it is
+    /// (empty when none was dropped: then triangle `k` is the primitive's
+    /// triangle `k`).
+    pub kept: Vec<u32>,
+    /// True when the node's transform has a negative determinant, so that
+    /// the loader swapped the second and third corner of every triangle.
+    pub mirrored: bool,
+}
+
+impl ShapeSource {
+    /// The primitive triangle of the shape's triangle `k`.
+    pub fn prim_triangle(&self, k: u32) -> u32 {
+        if self.kept.is_empty() {
+            k
+        } else {
+            self.kept[k as usize]
+        }
+    }
 }
 
 /// A light source. Area lights point at their shape; the environment
@@ -297,6 +340,10 @@ pub struct Scene {
     /// Per-vertex texture coordinates (same length as `positions`; zero when
     /// the source had none).
     pub uvs: Vec<Vec2>,
+    /// The asset's second uv set (glTF TEXCOORD_1), one per vertex like
+    /// `positions`; empty when the asset has none (a shape of a primitive
+    /// without one gets zeros). Only the glTF loader fills it.
+    pub uv1: Vec<Vec2>,
     /// Vertex indices of each triangle.
     pub triangles: Vec<[u32; 3]>,
     /// The shape of each triangle.
@@ -346,6 +393,7 @@ impl Scene {
             positions: Vec::new(),
             normals: Vec::new(),
             uvs: Vec::new(),
+            uv1: Vec::new(),
             triangles: Vec::new(),
             tri_shape: Vec::new(),
             shapes: Vec::new(),
@@ -450,6 +498,7 @@ impl Scene {
             first_tri,
             tri_count,
             smooth: normals.is_some_and(|n| n.len() == positions.len()),
+            source: None,
         });
         shape_id
     }

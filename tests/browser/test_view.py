@@ -5,12 +5,17 @@ driven by Playwright in Debian's Chromium with software WebGL (SwiftShader).
 Run from the repository root, after `cargo build --release`:
 
     python3 tests/browser/test_view.py [--kalos target/release/kalos] [--keep DIR]
+    python3 tests/browser/test_view.py --lightmap DIR [--kalos ...] [--keep DIR]
 
 It needs `pip install playwright` (never `playwright install`: the browser
 is /usr/bin/chromium, or $CHROMIUM). It prints one line per check and exits
 non-zero on the first failure. `--keep DIR` leaves the screenshots and
 images there; otherwise everything lives in a temporary folder that is
 removed.
+
+`--lightmap DIR` runs only the lightmap checks, on the textured cube and
+its lightmapped .glb that `KALOS_LIGHTMAP_GLB_DIR=DIR cargo test --release
+--test it lightmap_glb` leaves in DIR (`cube.gltf`, `cube.glb`).
 """
 
 import argparse
@@ -53,6 +58,25 @@ SEED = "1"
 # below what a fault does: an exposure off by 0.1 stop moves the red mean by
 # 2.5, an orbit of 5 pixels by 4.7 (measured the same way).
 MEAN_TOLERANCE = 1.0
+
+# The lightmapped cube (tests/it/lightmap_glb.rs): kalos renders the .gltf
+# (its albedo under a white sky of radiance 1: convex, so every face's
+# irradiance is π), the viewer shows the .glb's lightmap of π times the
+# same albedo texture. Measured at 256², 16 spp (docs/lightmaps.md):
+# - where the texture is flat (3×3 neighbourhoods within 2 levels in
+#   kalos's render), the viewer's linear radiance is kalos's × 1.004: the
+#   lightmap's scale, π convention and colour spaces agree; a fault moves it
+#   far more (a 0.1-stop error: 7 %). Tolerance 2 %.
+# - per pixel on the cube, viewer against kalos: 7.7 levels (0..255) on
+#   average, against 7.3 between two seeds of kalos itself (the checker's
+#   fine detail, sampled differently); tolerance: 1.5 × kalos's own
+#   seed-to-seed difference, measured in the run.
+# - channel means on the cube differ by 3.0 (texture filtering: mipmaps
+#   against supersampling, on a high-contrast checker); tolerance 4.5, below
+#   what a 0.1-stop exposure error gives (about 7).
+LIGHTMAP_FLAT_RATIO = 0.02
+LIGHTMAP_NOISE_FACTOR = 1.5
+LIGHTMAP_MEAN_TOLERANCE = 4.5
 
 
 def png_pixels(data):
@@ -164,6 +188,7 @@ def main():
     ap.add_argument("--kalos", default="target/release/kalos")
     ap.add_argument("--keep", help="folder to leave the screenshots and images in")
     ap.add_argument("--seed", default=SEED, help="seed of the bake and its render")
+    ap.add_argument("--lightmap", help="folder with cube.gltf and cube.glb: lightmap checks only")
     a = ap.parse_args()
     kalos = os.path.abspath(a.kalos)
     chromium = os.environ.get("CHROMIUM", "/usr/bin/chromium")
@@ -174,9 +199,12 @@ def main():
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
             try:
-                mesh_checks(browser, kalos, out, a.seed)
-                image_checks(browser, kalos, out)
-                live_checks(browser, kalos, out)
+                if a.lightmap:
+                    lightmap_checks(browser, kalos, out, a.lightmap)
+                else:
+                    mesh_checks(browser, kalos, out, a.seed)
+                    image_checks(browser, kalos, out)
+                    live_checks(browser, kalos, out)
             finally:
                 browser.close()
     print(f"browser test passed in {time.time() - t_start:.1f} s")
@@ -225,6 +253,118 @@ def mesh_checks(browser, kalos, out, seed):
         page.evaluate("window.kalos.setExposure(-2)")
         dark = means(png_pixels(page.screenshot())[2])
         check(all(d < 0.8 * v for d, v in zip(dark, m_view)), "the exposure slider darkens")
+        page.close()
+    finally:
+        served.stop()
+
+
+def pixel_difference(a, b, mask=None):
+    """Mean absolute difference per pixel and channel (0..255), over the
+    pixels `mask` (rows of booleans) keeps, or all."""
+    total, n = 0.0, 0
+    for y, (ra, rb) in enumerate(zip(a, b)):
+        for x, (p, q) in enumerate(zip(ra, rb)):
+            if mask is None or mask[y][x]:
+                total += sum(abs(p[c] - q[c]) for c in range(3))
+                n += 3
+    return total / max(n, 1)
+
+
+def masked_means(rows, mask):
+    """Channel means over the pixels `mask` keeps."""
+    px = [p for r, m in zip(rows, mask) for p, k in zip(r, m) if k]
+    return [sum(p[c] for p in px) / max(len(px), 1) for c in range(3)]
+
+
+def flat_ratio(view, ref, mask):
+    """Viewer over kalos, in linear radiance summed over the cube's pixels
+    whose 3×3 neighbourhood in kalos's render is flat (within 2 levels in
+    every channel)."""
+    lin = [((c / 255) / 12.92 if c / 255 <= 0.04045 else ((c / 255 + 0.055) / 1.055) ** 2.4)
+           for c in range(256)]
+    sv = sr = 0.0
+    for y in range(1, len(ref) - 1):
+        for x in range(1, len(ref[0]) - 1):
+            if not mask[y][x]:
+                continue
+            nb = [ref[j][i] for j in (y - 1, y, y + 1) for i in (x - 1, x, x + 1)]
+            if all(max(p[c] for p in nb) - min(p[c] for p in nb) <= 2 for c in range(3)):
+                sv += sum(lin[c] for c in view[y][x])
+                sr += sum(lin[c] for c in ref[y][x])
+    return sv / max(sr, 1e-9)
+
+
+def cube_mask(view, ref):
+    """The pixels of the cube: not background (kalos shows the white sky,
+    the viewer black), and not next to it (the two antialias the silhouette
+    against different backgrounds). A texel the viewer wrongly shows black
+    stays in: there kalos shows the texture, not white."""
+    h, w = len(view), len(view[0])
+    bg = [[max(view[y][x]) <= 1 and min(ref[y][x]) >= 254 for x in range(w)] for y in range(h)]
+    return [[not any(bg[j][i] for j in range(max(y - 1, 0), min(y + 2, h))
+                     for i in range(max(x - 1, 0), min(x + 2, w)))
+             for x in range(w)] for y in range(h)]
+
+
+def lightmap_checks(browser, kalos, out, src):
+    gltf, glb = os.path.join(src, "cube.gltf"), os.path.join(src, "cube.glb")
+    size = 256
+    refs = []
+    for seed in ("1", "2"):
+        png = os.path.join(out, f"cube-kalos-{seed}.png")
+        run([kalos, "render", gltf, "--spp", "16", "--res", f"{size}x{size}", "--seed", seed,
+             "-q", "-o", png])
+        with open(png, "rb") as f:
+            refs.append(png_pixels(f.read())[2])
+    noise = pixel_difference(refs[0], refs[1])
+    served = Served([kalos, "view", glb], "stdout")
+    try:
+        page = browser.new_page(viewport={"width": size, "height": size}, device_scale_factor=1)
+        page.goto(served.url)
+        page.wait_for_function("window.kalos && (window.kalos.ready || window.kalos.error)",
+                               timeout=60000)
+        check(page.evaluate("window.kalos.error") is None, "the lightmapped .glb loads in three.js")
+        check(page.evaluate("window.kalos.lightmapped"), "the viewer found MOZ_lightmap")
+        check(page.evaluate("window.kalos.sceneCamera"), "the .glb kept the scene's camera")
+        page.evaluate("document.getElementById('panel').style.display = 'none'")
+        shot = page.screenshot()
+        with open(os.path.join(out, "cube-view.png"), "wb") as f:
+            f.write(shot)
+        rows = png_pixels(shot)[2]
+        mask = cube_mask(rows, refs[0])
+        area = sum(map(sum, mask)) / (size * size)
+        check(0.2 < area < 0.8, f"the cube covers {area:.0%} of the view")
+        noise = pixel_difference(refs[0], refs[1], mask)
+        print(f"      kalos's own noise on the cube: {noise:.3f} per pixel and channel "
+              f"(two seeds)")
+        m_view, m_ref = masked_means(rows, mask), masked_means(refs[0], mask)
+        diff = [abs(p - q) for p, q in zip(m_view, m_ref)]
+        px = pixel_difference(rows, refs[0], mask)
+        print(f"      channel means on the cube: viewer {[round(v, 2) for v in m_view]}, "
+              f"kalos {[round(v, 2) for v in m_ref]}, difference "
+              f"{[round(d, 2) for d in diff]}; per pixel {px:.3f}")
+        ratio = flat_ratio(rows, refs[0], mask)
+        print(f"      where the texture is flat: viewer / kalos = {ratio:.4f} (linear)")
+        check(abs(ratio - 1) <= LIGHTMAP_FLAT_RATIO,
+              f"viewer and kalos agree where the texture is flat within "
+              f"{LIGHTMAP_FLAT_RATIO:.0%}")
+        check(px <= LIGHTMAP_NOISE_FACTOR * noise,
+              f"viewer and kalos agree per pixel within {LIGHTMAP_NOISE_FACTOR} × kalos's "
+              f"own seed-to-seed difference")
+        check(max(diff) <= LIGHTMAP_MEAN_TOLERANCE,
+              f"viewer and kalos agree in every channel mean within {LIGHTMAP_MEAN_TOLERANCE}")
+        page.evaluate("window.kalos.setExposure(-1)")
+        dark = means(png_pixels(page.screenshot())[2])
+        check(all(d < 0.8 * v for d, v in zip(dark, m_view)), "the exposure slider darkens")
+        page.evaluate("window.kalos.setExposure(0)")
+        page.evaluate("window.kalos.setErrorMap(true)")
+        err = page.screenshot()
+        with open(os.path.join(out, "cube-error-map.png"), "wb") as f:
+            f.write(err)
+        em = means(png_pixels(err)[2])
+        # 2 % of 10 %: the ramp's first fifth, blue to green, no red
+        check(em[2] > em[0] and em[1] > em[0],
+              f"the error map shows the cube's 2 % in blue-green (means {[round(v) for v in em]})")
         page.close()
     finally:
         served.stop()

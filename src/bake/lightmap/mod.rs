@@ -19,6 +19,7 @@
 //!
 //! This file holds the types the stages hand each other.
 
+pub mod glb;
 pub mod raster;
 pub mod uv;
 

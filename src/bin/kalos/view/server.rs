@@ -31,6 +31,11 @@ const FILES: &[(&str, &str, &str)] = &[
         JS,
     ),
     (
+        "/view/lightmap.js",
+        include_str!("../../../../assets/view/lightmap.js"),
+        JS,
+    ),
+    (
         "/view/image.js",
         include_str!("../../../../assets/view/image.js"),
         JS,
