@@ -105,3 +105,5 @@ pub struct Lightmap {
     /// Whether a triangle covers the texel (false: padding or empty).
     pub covered: Vec<bool>,
 }
+pub mod bake;
+pub mod estimate;
