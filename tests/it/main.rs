@@ -26,6 +26,7 @@ mod fuzz;
 mod geometry;
 mod glb;
 mod image_io;
+mod lightmap;
 mod lights;
 mod loader;
 mod loader_limits;
