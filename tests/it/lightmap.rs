@@ -256,6 +256,7 @@ fn texels_across_a_seam_agree() {
         grid.entry(key(t.p)).or_default().push(i);
     }
     let lm = &b.lightmap;
+    let surf = surfaces::build(&w.scene);
     let (mut pairs, mut worst) = (0, 0.0f32);
     for (i, t) in texels.iter().enumerate() {
         let k = key(t.p);
@@ -268,17 +269,21 @@ fn texels_across_a_seam_agree() {
                     for &j in list {
                         let u = &texels[j];
                         let near = footprint(t.tri).min(footprint(u.tri));
-                        if u.tri == t.tri
-                            || j < i
-                            || u.p.distance(t.p) > near
-                            || u.n.dot(t.n) < 0.99
-                        {
-                            continue;
-                        }
+                        // the same surface (a seam, not two surfaces that
+                        // merely lie close), texels not inside a solid
                         let (a, b) = (
                             (t.y * lm.width + t.x) as usize,
                             (u.y * lm.width + u.x) as usize,
                         );
+                        if u.tri == t.tri
+                            || j < i
+                            || u.p.distance(t.p) > near
+                            || surf.tri_surface[u.tri as usize] != surf.tri_surface[t.tri as usize]
+                            || lm.std_error[a] == Vec3::ZERO
+                            || lm.std_error[b] == Vec3::ZERO
+                        {
+                            continue;
+                        }
                         for c in 0..3 {
                             let s =
                                 (lm.std_error[a][c].powi(2) + lm.std_error[b][c].powi(2)).sqrt();

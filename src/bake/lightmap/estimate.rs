@@ -38,8 +38,9 @@
 //!   counts; otherwise a hit counts at once if it is nearer than what the
 //!   rays of its sector and its two neighbours met, and else only if a
 //!   ray from p to it (both lifted by δ) is unoccluded. A wall standing on
-//!   a floor thus cuts the floor's kernel. A texel whose every sector ray
-//!   leaves through the back of a face is inside a closed solid (under a
+//!   a floor thus cuts the floor's kernel. A texel whose sector rays meet
+//!   no front of a face and, half of them or more, the back of one is
+//!   inside a closed solid (under a
 //!   wall standing on the floor) and takes no light: the hits at the
 //!   wall's foot, whose 16-bit chart coordinates may put them a hair
 //!   inside its footprint, would reach it otherwise. The kernel mass m is then that of
@@ -107,6 +108,9 @@ enum Key {
     Curved(u32, bool),
 }
 
+/// A group's decoded hits: points, normals (curved shapes only), powers.
+type Decoded = (Vec<Vec3>, Vec<Vec3>, Vec<u32>);
+
 /// The hits of one group, in a kd-tree.
 struct Group {
     tree: ImmutableKdTree<f32, 3>,
@@ -135,8 +139,7 @@ impl HitIndex {
         chunk: u64,
     ) -> Result<HitIndex, HitFileError> {
         let scene = &world.scene;
-        let mut parts: std::collections::BTreeMap<Key, (Vec<Vec3>, Vec<Vec3>, Vec<u32>)> =
-            Default::default();
+        let mut parts: std::collections::BTreeMap<Key, Decoded> = Default::default();
         for run in source.runs() {
             let Some(surf) = surfaces.get(run.surface) else {
                 continue;
@@ -416,18 +419,23 @@ impl<'a> Estimator<'a> {
             let own_shape = surf.shape;
             let lift = (0.02 * h).min(self.lift);
             let o = offset_point(p, n, n) + n * lift;
-            let mut backs = 0;
+            let (mut backs, mut fronts) = (0, 0);
             for (s, f) in free.iter_mut().enumerate().take(sectors) {
                 let a = -PI + (s as f32 + 0.5) * 2.0 * PI / sectors as f32;
                 let d = frame.s * a.cos() + frame.t * a.sin();
                 let (t, back) = self.reach(o, d, h, own_shape, surf.kind);
                 *f = t / h;
-                backs += usize::from(back);
+                if t < h {
+                    backs += usize::from(back);
+                    fronts += usize::from(!back);
+                }
             }
-            // Every ray left through the back of a face: p is inside a
-            // closed solid (a texel under a wall standing on the floor),
-            // and takes no light whatever hits lie near it
-            if backs == sectors {
+            // No ray met the front of a face and most left through the
+            // back of one: p is inside a closed solid (a texel under a
+            // wall standing on the floor; the rays along the wall may
+            // meet nothing within h), and takes no light whatever hits lie
+            // near it
+            if fronts == 0 && 2 * backs >= sectors {
                 return TexelEstimate {
                     h,
                     ..Default::default()
@@ -569,7 +577,7 @@ impl<'a> Estimator<'a> {
             .unsorted()
             .execute()
             .into_iter()
-            .map(|r| (r.item as u32, r.distance))
+            .map(|r| (r.item, r.distance))
             .collect();
         Some((h2, found))
     }
