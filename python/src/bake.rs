@@ -5,12 +5,15 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
-use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use kalos::bake::job::{BakeError, BakeEvent, BakeJob, Baked};
+use kalos::bake::lightmap::bake::{self as lmbake, LightmapBake, LightmapSettings};
+use kalos::bake::lightmap::estimate::Options;
+use kalos::bake::lightmap::Lightmap as Atlas;
 use kalos::bake::{self as kbake, BakedMesh as Mesh};
 use kalos::job::SceneInput;
 use kalos::methods::density;
@@ -177,6 +180,126 @@ impl Bake {
     }
 }
 
+/// `v` (row-major from the top row) as a float32 array (height, width, 3).
+fn atlas_array<'py>(
+    py: Python<'py>,
+    v: &[Vec3],
+    width: u32,
+    height: u32,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let flat: Vec<f32> = v.iter().flat_map(|p| p.to_array()).collect();
+    PyArray1::from_vec(py, flat).reshape([height as usize, width as usize, 3])
+}
+
+/// A lightmap bake (`kalos.bake(scene, lightmap=True)`): the atlas of
+/// irradiance E (W/m², linear RGB; a Lambertian surface of albedo R shows
+/// R·E/π) and its standard errors, float32 (height, width, 3), row 0 at
+/// the top; `covered`, bool (height, width), the texels a triangle covers
+/// (the others are padding); the figures in `stats`. `save(path)` writes
+/// the atlas as .exr; `save_error(path)` the error map.
+#[pyclass(frozen, module = "kalos")]
+pub struct LightmapResult {
+    /// The irradiance, float32 (height, width, 3).
+    #[pyo3(get)]
+    atlas: Py<PyArray3<f32>>,
+    /// The standard error of each texel and channel, float32 (height,
+    /// width, 3).
+    #[pyo3(get)]
+    error: Py<PyArray3<f32>>,
+    /// Whether a triangle covers each texel, bool (height, width).
+    #[pyo3(get)]
+    covered: Py<PyArray2<bool>>,
+    /// Figures of the bake, as a dict.
+    #[pyo3(get)]
+    stats: Py<PyDict>,
+    baked: LightmapBake,
+    world: std::sync::Arc<kalos::world::World>,
+}
+
+#[pymethods]
+impl LightmapResult {
+    /// Writes the lightmapped asset as .glb (the scene's file whole when it
+    /// is glTF, with TEXCOORD_1 and the atlas, and the float atlas beside it
+    /// as PATH.lightmap.exr), or the atlas alone as .exr (atomically);
+    /// raises ImageError naming the file.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        if path.extension().and_then(|e| e.to_str()) == Some("glb") {
+            let scene = &self.world.scene;
+            let source = std::path::Path::new(&scene.source);
+            let source = source.is_file().then_some(source);
+            return py
+                .detach(|| {
+                    kalos::bake::lightmap::glb::write_lightmapped(
+                        &path,
+                        scene,
+                        source,
+                        &self.baked.uv,
+                        &self.baked.lightmap,
+                    )
+                })
+                .map(|_| ())
+                .map_err(|e| ImageError::new_err(e.to_string()));
+        }
+        self.write(py, path, lmbake::irradiance_image(&self.baked.lightmap))
+    }
+
+    /// Writes the error map as .exr (atomically).
+    fn save_error(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        self.write(py, path, lmbake::error_image(&self.baked.lightmap))
+    }
+
+    fn __repr__(&self) -> String {
+        let m = &self.baked.lightmap;
+        format!(
+            "<kalos.LightmapResult {}×{} texels, {} particles>",
+            m.width, m.height, self.baked.stats.particles
+        )
+    }
+}
+
+impl LightmapResult {
+    fn write(&self, py: Python<'_>, path: PathBuf, img: kalos::film::Image) -> PyResult<()> {
+        if path.extension().and_then(|e| e.to_str()) != Some("exr") {
+            return Err(PyValueError::new_err(format!(
+                "{}: a lightmap is saved as .glb (the asset with its lightmap) or .exr",
+                path.display()
+            )));
+        }
+        py.detach(|| {
+            kalos::image_io::write_image(&path, &img, &kalos::image_io::PngOptions::default())
+        })
+        .map_err(|e| ImageError::new_err(e.to_string()))
+    }
+
+    fn new(
+        py: Python<'_>,
+        baked: LightmapBake,
+        world: std::sync::Arc<kalos::world::World>,
+    ) -> PyResult<Self> {
+        let m: &Atlas = &baked.lightmap;
+        let (w, h) = (m.width, m.height);
+        let covered =
+            PyArray1::from_vec(py, m.covered.clone()).reshape([h as usize, w as usize])?;
+        let st = &baked.stats;
+        let stats = PyDict::new(py);
+        stats.set_item("particles", st.particles)?;
+        stats.set_item("hits", st.hits)?;
+        stats.set_item("rays", st.rays)?;
+        stats.set_item("texels", st.texels)?;
+        stats.set_item("t_trace", st.t_trace)?;
+        stats.set_item("t_index", st.t_index)?;
+        stats.set_item("t_estimate", st.t_estimate)?;
+        Ok(LightmapResult {
+            atlas: atlas_array(py, &m.irradiance, w, h)?.unbind(),
+            error: atlas_array(py, &m.std_error, w, h)?.unbind(),
+            covered: covered.unbind(),
+            stats: stats.unbind(),
+            baked,
+            world,
+        })
+    }
+}
+
 /// Bakes the view-independent lighting of `scene` by density estimation
 /// (as `kalos bake`): particle tracing, kernel density estimation,
 /// decimated display mesh. The density method's settings are keyword
@@ -185,8 +308,18 @@ impl Bake {
 /// is called between units of work with the phase in `p.phase`; Ctrl-C
 /// stops the bake, removes its scratch files and raises
 /// KeyboardInterrupt. Returns a `kalos.Bake`.
+///
+/// `lightmap=True` bakes a lightmap instead (as `kalos bake --lightmap`):
+/// `texel_density` (texels per metre) or `lightmap_size` (texels a side,
+/// default 512), `neighbours` (the estimator's k) and `sectors` (its
+/// visibility rays), `time` (seconds) and `rays` limits; `output`, if
+/// given, is where the atlas is saved (.exr). Returns a
+/// `kalos.LightmapResult` whose `atlas` and `error` are numpy arrays.
 #[pyfunction]
-#[pyo3(signature = (scene, *, seed=0, max_depth=None, progress=None, max_memory=None, **settings))]
+#[pyo3(signature = (scene, *, seed=0, max_depth=None, progress=None, max_memory=None,
+    lightmap=false, texel_density=None, lightmap_size=None, neighbours=None, sectors=None,
+    time=None, rays=None, output=None, **settings))]
+#[allow(clippy::too_many_arguments)]
 pub fn bake(
     py: Python<'_>,
     scene: &Bound<'_, Scene>,
@@ -194,8 +327,26 @@ pub fn bake(
     max_depth: Option<u32>,
     progress: Option<Py<PyAny>>,
     max_memory: Option<&Bound<'_, PyAny>>,
+    lightmap: bool,
+    texel_density: Option<f32>,
+    lightmap_size: Option<u32>,
+    neighbours: Option<usize>,
+    sectors: Option<usize>,
+    time: Option<f64>,
+    rays: Option<&Bound<'_, PyAny>>,
+    output: Option<PathBuf>,
     settings: Option<&Bound<'_, PyDict>>,
-) -> PyResult<Bake> {
+) -> PyResult<Py<PyAny>> {
+    let lm_only = texel_density.is_some()
+        || lightmap_size.is_some()
+        || neighbours.is_some()
+        || sectors.is_some()
+        || output.is_some();
+    if lm_only && !lightmap {
+        return Err(PyValueError::new_err(
+            "texel_density, lightmap_size, neighbours, sectors and output need lightmap=True",
+        ));
+    }
     let MethodConfig::Density(s) = method_config("density", settings)? else {
         unreachable!("the density row builds density settings")
     };
@@ -210,25 +361,51 @@ pub fn bake(
     );
     job.max_memory = count("max_memory", max_memory)?;
     job.max_memory_flag = "max_memory";
+    job.time = time;
+    job.rays = count("rays", rays)?;
+    if lightmap {
+        let d = Options::default();
+        job.lightmap = Some(LightmapSettings {
+            texel_density,
+            size: lightmap_size,
+            atlas: output,
+            error: None,
+            estimator: Options {
+                neighbours: neighbours.unwrap_or(d.neighbours),
+                sectors: sectors.unwrap_or(d.sectors),
+                ..d
+            },
+        });
+    }
     let checked = job.check().map_err(bake_error)?;
 
     let cancel = AtomicBool::new(false);
     let mut watch = Watch::new(progress.as_ref(), &cancel);
     let outcome = py.detach(|| {
-        checked.run(None, Some(&cancel), &mut |e| {
-            if let BakeEvent::Tick(t) = e {
-                watch.report(Progress {
-                    passes: 0,
-                    rays: t.rays,
-                    elapsed: t.elapsed,
-                    fraction: t.bake_fraction(),
-                    phase: Some(t.phase.name().to_string()),
-                })
-            }
+        checked.run(None, Some(&cancel), &mut |e| match e {
+            BakeEvent::Tick(t) => watch.report(Progress {
+                passes: 0,
+                rays: t.rays,
+                elapsed: t.elapsed,
+                fraction: t.bake_fraction(),
+                phase: Some(t.phase.name().to_string()),
+            }),
+            BakeEvent::Texels { done, total } => watch.report(Progress {
+                passes: 0,
+                rays: 0,
+                elapsed: 0.0,
+                fraction: done as f64 / total.max(1) as f64,
+                phase: Some("estimating texels".to_string()),
+            }),
+            _ => {}
         })
     });
     if let Some(e) = watch.failure() {
         return Err(e);
+    }
+    let outcome = outcome.map_err(bake_error)?;
+    if let Some(lm) = outcome.lightmap {
+        return Ok(Py::new(py, LightmapResult::new(py, lm, world.clone())?)?.into_any());
     }
     // a bake in this process (no dataflow) always gives its meshes
     let Baked {
@@ -236,7 +413,6 @@ pub fn bake(
         lit,
         unlit,
     } = outcome
-        .map_err(bake_error)?
         .baked
         .ok_or_else(|| RenderError::new_err("the bake gave no meshes"))?;
     let meshes = (lit, unlit);
@@ -253,14 +429,15 @@ pub fn bake(
     stats.set_item("tris_after", st.tris_after)?;
     stats.set_item("max_brightness_error", st.max_brightness_error)?;
     stats.set_item("mean_brightness_error", st.mean_brightness_error)?;
-    Ok(Bake {
+    let bake = Bake {
         lit: Py::new(py, BakedMesh::new(py, &meshes.0, b.w0)?)?,
         unlit: Py::new(py, BakedMesh::new(py, &meshes.1, b.w0)?)?,
         w0: b.w0,
         stats: stats.unbind(),
         meshes,
         camera: world.scene.camera.clone(),
-    })
+    };
+    Ok(Py::new(py, bake)?.into_any())
 }
 
 /// A bake job's error as Python raises it: ValueError for bad settings,
@@ -269,7 +446,8 @@ pub fn bake(
 fn bake_error(e: BakeError) -> PyErr {
     match e {
         BakeError::Settings(e) => PyValueError::new_err(e.0),
-        BakeError::MaxDepth => PyValueError::new_err(e.to_string()),
+        BakeError::MaxDepth | BakeError::Budget(_) => PyValueError::new_err(e.to_string()),
+        BakeError::Lightmap(lmbake::LightmapError::Settings(m)) => PyValueError::new_err(m),
         BakeError::NoLight { scene } => RenderError::new_err(format!(
             "{scene}: the scene has no emitters that emit light: nothing to bake"
         )),

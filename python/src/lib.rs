@@ -59,6 +59,7 @@ fn _kalos(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<render::RenderResult>()?;
     m.add_class::<bake::Bake>()?;
     m.add_class::<bake::BakedMesh>()?;
+    m.add_class::<bake::LightmapResult>()?;
     m.add_function(wrap_pyfunction!(scene::load, m)?)?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(render::methods, m)?)?;

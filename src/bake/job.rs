@@ -5,21 +5,31 @@
 //! threads or processes), write the display mesh atomically. The command
 //! line (`kalos bake`) and the Python package (`kalos.bake`) only translate
 //! their arguments and show progress.
+//!
+//! With [`BakeJob::lightmap`] set, the job bakes a lightmap instead of the
+//! display mesh ([`crate::bake::lightmap::bake`]): the same particles, the
+//! irradiance estimated at every texel of an atlas, written as EXR images
+//! (the atlas and its standard errors).
 
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
 
+use crate::bake::lightmap::bake::{
+    self as lightmap, LightmapBake, LightmapError, LightmapSettings,
+};
+use crate::bake::lightmap::glb as lightmap_glb;
 use crate::bake::{gltf, ply, BakedMesh};
 use crate::image_io::ImageIoError;
 use crate::job::{self, SceneInput, SetupEvent};
-use crate::methods::density::control::{Control, Limits, Tick};
+use crate::methods::density::control::{Control, Limits, Phase, Tick};
 use crate::methods::density::dataflow::{self, DataflowError, Workers};
 use crate::methods::density::{self, DensityError, Storage};
 use crate::methods::{MethodConfig, MethodError};
 use crate::outputs::{self, OutputError};
 use crate::render::{self, MemoryError};
+use crate::scene::ReadPolicy;
 use crate::scene::SceneError;
 use crate::world::World;
 
@@ -43,6 +53,16 @@ pub struct BakeJob {
     /// The name of [`BakeJob::max_memory`] in the front end, which the
     /// error names ("--max-memory").
     pub max_memory_flag: &'static str,
+    /// Bake a lightmap instead of the display mesh (the .glb is not
+    /// written: its writer is another stage); None: the display mesh.
+    pub lightmap: Option<LightmapSettings>,
+    /// Seconds the bake may take from the start of [`CheckedBake::run`]
+    /// (loading included): the particles stop between batches when the
+    /// rest would not fit. None: every particle.
+    pub time: Option<f64>,
+    /// Rays the bake may trace (the particles', and for a lightmap the
+    /// texels' visibility rays). None: every particle.
+    pub rays: Option<u64>,
 }
 
 impl BakeJob {
@@ -57,6 +77,9 @@ impl BakeJob {
             threads: None,
             max_memory: None,
             max_memory_flag: "--max-memory",
+            lightmap: None,
+            time: None,
+            rays: None,
         }
     }
 
@@ -73,6 +96,42 @@ impl BakeJob {
         self.settings.validate()?;
         if self.settings.max_depth == Some(0) {
             return Err(BakeError::MaxDepth);
+        }
+        if let Some(t) = self.time {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(BakeError::Budget(format!(
+                    "--time must be a positive number of seconds, got {t}"
+                )));
+            }
+        }
+        if self.rays == Some(0) {
+            return Err(BakeError::Budget("--rays must be positive".into()));
+        }
+        if let Some(lm) = &self.lightmap {
+            lm.check()?;
+            if self.ply.is_some() {
+                return Err(BakeError::Lightmap(LightmapError::Settings(
+                    "--ply writes the display mesh's irradiance; a lightmap bake has none".into(),
+                )));
+            }
+            for p in [&lm.atlas, &lm.error].into_iter().flatten() {
+                outputs::check_output(p, &["exr"])?;
+            }
+            if let Some(p) = &self.glb {
+                outputs::check_output(p, &["glb"])?;
+            }
+            // the atlas, when its size is known before loading, and the hits
+            if let Some((limit, source)) = job::memory_limit(self.max_memory, self.max_memory_flag)
+            {
+                let side = if lm.texel_density.is_none() {
+                    lm.size.unwrap_or(lightmap::DEFAULT_SIZE)
+                } else {
+                    0
+                };
+                let items = lm.memory(side, side, self.settings.particles);
+                render::check_memory(&items, limit, &source)?;
+            }
+            return Ok(CheckedBake { job: self });
         }
         if let Some((limit, source)) = job::memory_limit(self.max_memory, self.max_memory_flag) {
             // no film: only the bake's own buffers
@@ -102,6 +161,13 @@ pub enum BakeEvent<'e> {
     },
     /// The bake is done; its meshes are made and written next.
     Writing,
+    /// A lightmap's texels are being estimated: `done` of `total`.
+    Texels {
+        /// Texels done.
+        done: u64,
+        /// Texels in all.
+        total: u64,
+    },
 }
 
 /// A bake with its meshes.
@@ -117,8 +183,10 @@ pub struct Baked {
 /// What a bake gave, once its outputs are written.
 pub struct BakeOutcome {
     /// The bake; None in a bake across processes, except in process 0,
-    /// which writes the outputs.
+    /// which writes the outputs, and in a lightmap bake.
     pub baked: Option<Baked>,
+    /// The lightmap of a lightmap bake.
+    pub lightmap: Option<LightmapBake>,
     /// Seconds spent loading the scene and building the world.
     pub load_seconds: f64,
     /// Seconds spent making and writing the meshes.
@@ -165,10 +233,14 @@ impl CheckedBake {
                 scene: world.scene.source.clone(),
             });
         }
+        if let Some(lm) = &j.lightmap {
+            return self.run_lightmap(lm, &world, t0, load_seconds, cancel, on_event);
+        }
         on_event(BakeEvent::Started);
-        let Some(bake) = self.bake(&world, workers, cancel, on_event)? else {
+        let Some(bake) = self.bake(&world, t0, workers, cancel, on_event)? else {
             return Ok(BakeOutcome {
                 baked: None,
+                lightmap: None,
                 load_seconds,
                 write_seconds: 0.0,
             });
@@ -186,6 +258,76 @@ impl CheckedBake {
         }
         Ok(BakeOutcome {
             baked: Some(Baked { bake, lit, unlit }),
+            lightmap: None,
+            load_seconds,
+            write_seconds: t1.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The lightmap bake, in this process: the atlas checked against the
+    /// memory limit once its size is known (before any particle), the
+    /// bake, and the images written.
+    fn run_lightmap(
+        &self,
+        lm: &LightmapSettings,
+        world: &World,
+        start: Instant,
+        load_seconds: f64,
+        cancel: Option<&AtomicBool>,
+        on_event: &mut dyn FnMut(BakeEvent),
+    ) -> Result<BakeOutcome, BakeError> {
+        let j = &self.job;
+        let side = lightmap::atlas_side(&world.scene, lm)?;
+        if let Some((limit, source)) = job::memory_limit(j.max_memory, j.max_memory_flag) {
+            let items = lm.memory(side, side, j.settings.particles);
+            render::check_memory(&items, limit, &source)?;
+        }
+        on_event(BakeEvent::Started);
+        let mut on_tick = |t: &Tick| match t.phase {
+            Phase::Estimate => on_event(BakeEvent::Texels {
+                done: t.done,
+                total: t.total,
+            }),
+            _ => on_event(BakeEvent::Tick(t)),
+        };
+        let steer = lightmap::Steering {
+            start,
+            time: j.time,
+            rays: j.rays,
+            cancel,
+            on_tick: &mut on_tick,
+        };
+        let baked = lightmap::bake_lightmap(world, &j.settings, lm, steer)?;
+        on_event(BakeEvent::Writing);
+        let t1 = Instant::now();
+        lightmap::write_images(&baked, lm)?;
+        if let Some(glb) = &j.glb {
+            let (source, allow_read) = match &j.scene {
+                SceneInput::File {
+                    path, allow_read, ..
+                } => (
+                    path.as_deref().filter(|p| !job::is_builtin(Some(p))),
+                    &allow_read[..],
+                ),
+                SceneInput::World(_) => (None, &[][..]),
+            };
+            let read = ReadPolicy {
+                allow_read: allow_read.to_vec(),
+                memory_limit: None,
+            };
+            lightmap_glb::write_lightmapped_with(
+                glb,
+                &world.scene,
+                source,
+                &read,
+                &baked.uv,
+                &baked.lightmap,
+            )
+            .map_err(LightmapError::from)?;
+        }
+        Ok(BakeOutcome {
+            baked: None,
+            lightmap: Some(baked),
             load_seconds,
             write_seconds: t1.elapsed().as_secs_f64(),
         })
@@ -196,13 +338,19 @@ impl CheckedBake {
     fn bake(
         &self,
         world: &Arc<World>,
+        start: Instant,
         workers: Option<&Workers>,
         cancel: Option<&AtomicBool>,
         on_event: &mut dyn FnMut(BakeEvent),
     ) -> Result<Option<density::Bake>, BakeError> {
         let s = &self.job.settings;
         let mut on_tick = |t: &Tick| on_event(BakeEvent::Tick(t));
-        let mut ctl = Control::new(Instant::now(), Limits::default(), cancel).on_tick(&mut on_tick);
+        let limits = Limits {
+            time: self.job.time,
+            rays: self.job.rays,
+            view_rays: 0,
+        };
+        let mut ctl = Control::new(start, limits, cancel).on_tick(&mut on_tick);
         let Some(w) = workers else {
             return Ok(Some(density::bake_within(
                 world,
@@ -261,6 +409,12 @@ pub enum BakeError {
     /// A mesh that cannot be written.
     #[error(transparent)]
     Write(#[from] ImageIoError),
+    /// A time or ray budget that cannot work.
+    #[error("{0}")]
+    Budget(String),
+    /// A lightmap bake that cannot work, failed, or was cancelled.
+    #[error(transparent)]
+    Lightmap(#[from] LightmapError),
 }
 
 #[cfg(test)]

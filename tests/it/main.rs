@@ -27,6 +27,7 @@ mod fuzz;
 mod geometry;
 mod glb;
 mod image_io;
+mod lightmap;
 mod lightmap_glb;
 mod lightmap_uv;
 mod lights;

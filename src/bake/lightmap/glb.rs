@@ -34,6 +34,8 @@
 //! is written
 //! next to the .glb as OpenEXR ([`atlas_exr_path`]).
 
+use crate::scene::access::{FileAccess, FileKind, ReadPolicy};
+use crate::scene::gltf::Located;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -112,7 +114,20 @@ pub fn write_lightmapped(
     uv: &LightmapUv,
     lm: &Lightmap,
 ) -> Result<Written, GlbError> {
-    let (bytes, mut info) = encode_lightmapped(scene, source, uv, lm)?;
+    write_lightmapped_with(path, scene, source, &ReadPolicy::default(), uv, lm)
+}
+
+/// [`write_lightmapped`] reading the input asset's files under `read`
+/// (the `--allow-read` folders the scene was loaded with).
+pub fn write_lightmapped_with(
+    path: &Path,
+    scene: &Scene,
+    source: Option<&Path>,
+    read: &ReadPolicy,
+    uv: &LightmapUv,
+    lm: &Lightmap,
+) -> Result<Written, GlbError> {
+    let (bytes, mut info) = encode_lightmapped_with(scene, source, read, uv, lm)?;
     write_atomic(path, |w| {
         use std::io::Write;
         w.write_all(&bytes).map_err(|e| ImageIoError::Io {
@@ -139,6 +154,18 @@ pub fn encode_lightmapped(
     uv: &LightmapUv,
     lm: &Lightmap,
 ) -> Result<(Vec<u8>, Written), GlbError> {
+    encode_lightmapped_with(scene, source, &ReadPolicy::default(), uv, lm)
+}
+
+/// [`encode_lightmapped`] reading the input asset's files under `read`
+/// (the `--allow-read` folders the scene was loaded with).
+pub fn encode_lightmapped_with(
+    scene: &Scene,
+    source: Option<&Path>,
+    read: &ReadPolicy,
+    uv: &LightmapUv,
+    lm: &Lightmap,
+) -> Result<(Vec<u8>, Written), GlbError> {
     check_inputs(scene, uv, lm)?;
     let gltf_source = source.filter(|p| {
         p.extension()
@@ -149,10 +176,14 @@ pub fn encode_lightmapped(
     let mut info = Written::default();
     match gltf_source {
         Some(src) => {
-            let input = read_gltf(src)?;
+            let access = FileAccess::for_scene(src, read).map_err(|e| GlbError::Input {
+                path: src.to_path_buf(),
+                msg: e.to_string(),
+            })?;
+            let input = read_gltf(src, &access)?;
             out.root = input.json.clone();
             out.take_buffers(&input, src)?;
-            out.take_images(&input, src)?;
+            out.take_images(&input, src, &access)?;
             let lm_tex = out.lightmap_textures(lm, &mut info);
             rewrite_primitives(&mut out, &input, src, scene, uv, lm_tex, &mut info)?;
         }
@@ -257,93 +288,43 @@ struct Input {
 }
 
 /// Reads one file of the input asset (the scene file, or a buffer or image
-/// it names). Every read of the input goes through here.
-fn read_input_file(path: &Path) -> Result<Vec<u8>, GlbError> {
-    std::fs::read(path).map_err(|e| GlbError::Input {
+/// it names) through the scene's file access (see [`crate::scene::access`]:
+/// under the allowed folders, a regular file, within its kind's size).
+/// Every read of the input goes through here.
+fn read_input_file(path: &Path, kind: FileKind, access: &FileAccess) -> Result<Vec<u8>, GlbError> {
+    access.read(path, kind).map_err(|e| GlbError::Input {
         path: path.to_path_buf(),
-        msg: format!("cannot read: {e}"),
+        msg: e.to_string(),
     })
 }
 
-/// The bytes a glTF URI names: a `data:` URI decoded, else a file relative
-/// to the scene file's folder (percent-decoded).
-fn read_uri(scene_file: &Path, uri: &str) -> Result<Vec<u8>, GlbError> {
-    let err = |msg: String| GlbError::Input {
-        path: scene_file.to_path_buf(),
-        msg,
-    };
-    if let Some(rest) = uri.strip_prefix("data:") {
-        let (head, data) = rest
-            .split_once(',')
-            .ok_or_else(|| err("a data: URI without a comma".into()))?;
-        if !head.ends_with(";base64") {
-            return Err(err("a data: URI that is not base64".into()));
-        }
-        return base64_decode(data).ok_or_else(|| err("a data: URI with bad base64".into()));
-    }
-    if uri.contains("://") {
-        return Err(err(format!(
-            "URI `{uri}`: only relative files and data: URIs are read"
-        )));
-    }
-    let rel = percent_decode(uri);
+/// The bytes a glTF URI names, resolved as the glTF loader resolves it
+/// ([`crate::scene::gltf::locate`]: a `data:` URI decoded, else a file
+/// relative to the scene file's folder), read through `access`.
+fn read_uri(
+    scene_file: &Path,
+    uri: &str,
+    kind: FileKind,
+    access: &FileAccess,
+) -> Result<Vec<u8>, GlbError> {
     let base = scene_file.parent().unwrap_or(Path::new("."));
-    read_input_file(&base.join(rel))
-}
-
-/// `%XX` escapes decoded (a URI's file name).
-fn percent_decode(s: &str) -> String {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        let hex = |c: u8| (c as char).to_digit(16);
-        if b[i] == b'%' && i + 2 < b.len() {
-            if let (Some(h), Some(l)) = (hex(b[i + 1]), hex(b[i + 2])) {
-                out.push((h * 16 + l) as u8);
-                i += 3;
-                continue;
-            }
-        }
-        out.push(b[i]);
-        i += 1;
+    match crate::scene::gltf::locate(uri, base, kind, access) {
+        Ok(Located::Data(bytes, _)) => Ok(bytes),
+        Ok(Located::File(p, _)) => read_input_file(&p, kind, access),
+        Err(msg) => Err(GlbError::Input {
+            path: scene_file.to_path_buf(),
+            msg: format!("URI `{uri}`: {msg}"),
+        }),
     }
-    String::from_utf8_lossy(&out).into_owned()
-}
-
-/// Standard base64 (padding optional, whitespace skipped); None on a bad
-/// character.
-fn base64_decode(s: &str) -> Option<Vec<u8>> {
-    let mut out = Vec::with_capacity(s.len() * 3 / 4);
-    let (mut acc, mut bits) = (0u32, 0u32);
-    for c in s.bytes() {
-        let v = match c {
-            b'A'..=b'Z' => c - b'A',
-            b'a'..=b'z' => c - b'a' + 26,
-            b'0'..=b'9' => c - b'0' + 52,
-            b'+' | b'-' => 62,
-            b'/' | b'_' => 63,
-            b'=' | b' ' | b'\n' | b'\r' | b'\t' => continue,
-            _ => return None,
-        } as u32;
-        acc = (acc << 6) | v;
-        bits += 6;
-        if bits >= 8 {
-            bits -= 8;
-            out.push((acc >> bits) as u8);
-            acc &= (1 << bits) - 1;
-        }
-    }
-    Some(out)
 }
 
 /// Reads a glTF or GLB file: its JSON, the document, and its buffers.
-fn read_gltf(path: &Path) -> Result<Input, GlbError> {
+fn read_gltf(path: &Path, access: &FileAccess) -> Result<Input, GlbError> {
     let err = |msg: String| GlbError::Input {
         path: path.to_path_buf(),
         msg,
     };
-    let bytes = read_input_file(path)?;
+    let bytes = read_input_file(path, FileKind::Scene, access)?;
     let (json_bytes, blob) = if bytes.starts_with(b"glTF") {
         split_glb(&bytes).ok_or_else(|| err("a corrupt GLB container".into()))?
     } else {
@@ -360,7 +341,7 @@ fn read_gltf(path: &Path) -> Result<Input, GlbError> {
             gltf::buffer::Source::Bin => blob
                 .map(<[u8]>::to_vec)
                 .ok_or_else(|| err("buffer 0 has no URI and the file no BIN chunk".into()))?,
-            gltf::buffer::Source::Uri(uri) => read_uri(path, uri)?,
+            gltf::buffer::Source::Uri(uri) => read_uri(path, uri, FileKind::Mesh, access)?,
         };
         if data.len() < b.length() {
             return Err(err(format!(
@@ -656,14 +637,19 @@ impl Out {
     }
 
     /// Copies the images the input names by URI into the binary chunk.
-    fn take_images(&mut self, input: &Input, src: &Path) -> Result<(), GlbError> {
+    fn take_images(
+        &mut self,
+        input: &Input,
+        src: &Path,
+        access: &FileAccess,
+    ) -> Result<(), GlbError> {
         let n = self.array("images").len();
         for i in 0..n {
             let img = &input.json["images"][i];
             let Some(uri) = img["uri"].as_str() else {
                 continue;
             };
-            let bytes = read_uri(src, uri)?;
+            let bytes = read_uri(src, uri, FileKind::Image, access)?;
             let mime = img["mimeType"]
                 .as_str()
                 .map(str::to_string)
@@ -1374,20 +1360,6 @@ fn srgb_png(img: &crate::scene::TexImage) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn base64_decodes_the_rfc_examples() {
-        assert_eq!(base64_decode("Zm9vYmFy").unwrap(), b"foobar");
-        assert_eq!(base64_decode("Zm9vYg==").unwrap(), b"foob");
-        assert_eq!(base64_decode("Zm8=").unwrap(), b"fo");
-        assert!(base64_decode("Zm9v!").is_none());
-    }
-
-    #[test]
-    fn percent_escapes_decode() {
-        assert_eq!(percent_decode("a%20b.bin"), "a b.bin");
-        assert_eq!(percent_decode("100%"), "100%");
-    }
 
     #[test]
     fn new_primitive_keeps_dropped_triangles_and_order() {

@@ -115,3 +115,5 @@ pub struct Lightmap {
     /// Whether a triangle covers the texel (false: padding or empty).
     pub covered: Vec<bool>,
 }
+pub mod bake;
+pub mod estimate;

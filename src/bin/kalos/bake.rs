@@ -9,6 +9,8 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::bake::job::{BakeError, BakeEvent, BakeJob, BakeOutcome, Baked};
+use kalos::bake::lightmap::bake::{LightmapBake, LightmapError, LightmapSettings};
+use kalos::bake::lightmap::estimate;
 use kalos::job::SceneInput;
 use kalos::methods::density;
 use kalos::methods::density::control::{Phase, Tick};
@@ -51,11 +53,53 @@ pub struct BakeArgs {
     /// No progress on stderr.
     #[arg(short, long)]
     quiet: bool,
+    /// Stop tracing particles when the bake would not end within this
+    /// many seconds (loading included); default: every particle.
+    #[arg(long, value_name = "SECONDS")]
+    time: Option<f64>,
+    /// Stop tracing particles before this many rays; accepts 10M.
+    #[arg(long, value_parser = kalos::methods::cli::parse_count)]
+    rays: Option<u64>,
+    #[command(flatten)]
+    lightmap: LightmapArgs,
     /// The density method's settings.
     #[command(flatten)]
     density: density::Settings,
     #[command(flatten)]
     dataflow: DataflowArgs,
+}
+
+/// The flags of a lightmap bake.
+#[derive(Args)]
+struct LightmapArgs {
+    /// Bake a lightmap: the irradiance of every diffuse surface in an HDR
+    /// atlas on a second uv set, with per-texel standard errors, instead
+    /// of the display mesh. -o names the .glb: the asset whole, with
+    /// TEXCOORD_1 and the atlas (MOZ_lightmap); the float atlas is written
+    /// beside it (OUT.lightmap.exr).
+    #[arg(long)]
+    lightmap: bool,
+    /// Texels per metre (per scene unit) of the atlas.
+    #[arg(
+        long,
+        value_name = "D",
+        requires = "lightmap",
+        conflicts_with = "lightmap_size"
+    )]
+    texel_density: Option<f32>,
+    /// The atlas's side in texels (default 512).
+    #[arg(long, value_name = "N", requires = "lightmap")]
+    lightmap_size: Option<u32>,
+    /// Write each texel's standard error (linear RGB) to this .exr.
+    #[arg(long, value_name = "FILE.exr", requires = "lightmap")]
+    lightmap_error: Option<PathBuf>,
+    /// The estimator's k: each texel's kernel reaches its k-th nearest hit
+    /// (relative error about √(1.8/k), blur growing with k).
+    #[arg(long, value_name = "K", default_value_t = 256, requires = "lightmap")]
+    neighbours: usize,
+    /// Visibility rays per texel, cutting the kernel at walls (0: none).
+    #[arg(long, value_name = "N", default_value_t = 12, requires = "lightmap")]
+    sectors: usize,
 }
 
 /// The flags of a bake on timely dataflow (threads or processes).
@@ -104,8 +148,11 @@ fn peak_memory() -> Option<u64> {
 /// Runs `kalos bake`: the library's [`BakeJob`] does the work; this shows
 /// its progress and prints its figures.
 pub fn run(a: BakeArgs) -> Result<()> {
-    let checked = job(&a).check()?;
+    let checked = job(&a)?.check()?;
     let layout = a.dataflow.layout()?;
+    if layout.is_some() && a.lightmap.lightmap {
+        bail!("--lightmap bakes in one process: drop --workers, --process and --processes");
+    }
     let mut setup = progress::Setup::default();
     let mut bars = PhaseBars::new(a.quiet);
     let outcome = checked.run(
@@ -122,6 +169,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
                 signals::install();
             }
             BakeEvent::Tick(t) => bars.tick(t),
+            BakeEvent::Texels { done, total } => bars.texels(done, total),
             BakeEvent::Exchanged { hits, bytes } => {
                 if a.stats && hits > 0 {
                     say!(
@@ -136,7 +184,10 @@ pub fn run(a: BakeArgs) -> Result<()> {
     setup.finish();
     let outcome = match outcome {
         Ok(o) => o,
-        Err(BakeError::Density(DensityError::Cancelled { .. })) => {
+        Err(
+            BakeError::Density(DensityError::Cancelled { .. })
+            | BakeError::Lightmap(LightmapError::Density(DensityError::Cancelled { .. })),
+        ) => {
             bars.clear();
             eprintln!(
                 "interrupted: the bake was stopped and its scratch files removed; nothing written"
@@ -149,6 +200,10 @@ pub fn run(a: BakeArgs) -> Result<()> {
         }
     };
     bars.finish();
+    if let Some(lm) = &outcome.lightmap {
+        print_lightmap(&a, lm, &outcome);
+        return Ok(());
+    }
     match &outcome.baked {
         Some(b) => print_figures(&a, b, &outcome),
         None => say!(
@@ -160,8 +215,24 @@ pub fn run(a: BakeArgs) -> Result<()> {
 }
 
 /// The bake the arguments ask for.
-fn job(a: &BakeArgs) -> BakeJob {
-    BakeJob {
+fn job(a: &BakeArgs) -> Result<BakeJob> {
+    let l = &a.lightmap;
+    let lightmap = if l.lightmap {
+        Some(LightmapSettings {
+            texel_density: l.texel_density,
+            size: l.lightmap_size,
+            atlas: None,
+            error: l.lightmap_error.clone(),
+            estimator: estimate::Options {
+                neighbours: l.neighbours,
+                sectors: l.sectors,
+                ..Default::default()
+            },
+        })
+    } else {
+        None
+    };
+    Ok(BakeJob {
         scene: SceneInput::File {
             path: a.scene.clone(),
             defines: a.defines.define.clone(),
@@ -178,6 +249,39 @@ fn job(a: &BakeArgs) -> BakeJob {
         threads: a.threads,
         max_memory: a.max_memory,
         max_memory_flag: "--max-memory",
+        lightmap,
+        time: a.time,
+        rays: a.rays,
+    })
+}
+
+/// A lightmap bake's line, and with `--stats` its figures.
+fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome) {
+    let st = &lm.stats;
+    let m = &lm.lightmap;
+    for w in &lm.uv.warnings {
+        eprintln!("warning: {w}");
+    }
+    say!(
+        "{}: {}×{} lightmap, {} texels, {} particles, {} hits",
+        a.output.display(),
+        m.width,
+        m.height,
+        st.texels,
+        st.particles,
+        st.hits
+    );
+    if a.stats {
+        say!("rays             {}", st.rays);
+        say!("trace            {:.2} s", st.t_trace);
+        say!("group + index    {:.2} s", st.t_index);
+        say!("estimate texels  {:.2} s", st.t_estimate);
+        say!("load + BVH       {:.2} s", o.load_seconds);
+        say!("write            {:.2} s", o.write_seconds);
+        match peak_memory() {
+            Some(m) => say!("peak memory      {:.1} MB", m as f64 / 1e6),
+            None => say!("peak memory      unknown"),
+        }
     }
 }
 
@@ -254,6 +358,16 @@ impl PhaseBars {
         }
         if let Some((bar, ..)) = &self.bar {
             bar.set_position(t.done);
+        }
+    }
+
+    /// Moves the bar of a lightmap's texels.
+    fn texels(&mut self, done: u64, total: u64) {
+        if self.bar.as_ref().is_none_or(|b| b.1 != "estimating texels") {
+            self.start("estimating texels", total, "texels");
+        }
+        if let Some((bar, ..)) = &self.bar {
+            bar.set_position(done);
         }
     }
 

@@ -1,0 +1,724 @@
+//! Per texel, the irradiance E and its standard error, by the paper's
+//! density estimation (§3.2, eq. 2) evaluated at the texel's point.
+//!
+//! The particles are phase 1 of the density bake, as is
+//! ([`crate::methods::density::pipeline::trace_within`]): every hit on a
+//! surface with a diffuse part, grouped by surface side. Here the hits of
+//! each group (a planar surface side, or one side of a curved shape) are
+//! put in a 3D kd-tree, and at a texel's point p with normal n:
+//!
+//! - **bandwidth**: h is the distance from p to its k-th nearest hit of the
+//!   same group (k = [`Options::neighbours`], found by a pilot of
+//!   [`PILOT`] neighbours), so that about k hits fall in
+//!   the kernel's support whatever the local density of hits. Eq. (2) with
+//!   n_i hits of equal power c in a disk of radius h gives a relative error
+//!   of √(E[K²]/E[K]²/k) = √(9/5 / k) for Silverman's K2 (∫K2² = 9/(5π)
+//!   over the unit disk, uniform hits): the error is even over the atlas
+//!   (the paper's fixed h = C1·√(A/n) instead keeps the blur even and lets
+//!   the error grow where few particles land). k = 256 gives 8.4 %
+//!   per texel and channel before the colour of the particles varies.
+//! - **estimate**: Ê(p) = φ/(h² m) Σ_j c_j K2(|p − x_j|²/h²), c_j the hit's
+//!   power in units of φ = Φ/n, m the kernel mass inside the region the
+//!   hits may come from (below), as the polygon renormalisation of
+//!   [`crate::methods::density::kernel`].
+//! - **variance**: eq. (2) is a sum over the n particles of independent
+//!   terms X_i (each the kernel-weighted power of particle i's hits near p,
+//!   nearly always 0 or one hit), so Var Ê = n Var X ≈ n E[X²] (E[X]² is
+//!   k/n² times smaller), whose unbiased estimate from the same sum is
+//!   (φ/(h² m))² Σ_j c_j² K2(…)², per channel. Its square root is the
+//!   standard error of the texel. It is the error about E[Ê], which is E
+//!   blurred by the kernel: the kernel's bias is not in it (it shrinks as
+//!   h does, with more particles).
+//! - **no leaks**: a hit counts only if it lies on the same side of the
+//!   same surface (a planar group of coplanar connected triangles, or a
+//!   curved shape with the normal test of [`NORMAL_COS`]), and if it is
+//!   reachable from p along the surface: [`Options::sectors`] rays leave
+//!   p (lifted by δ along n) in the tangent plane, one per angular
+//!   sector, up to h. Where none met anything (most texels) every hit
+//!   counts; otherwise a hit counts at once if it is nearer than what the
+//!   rays of its sector and its two neighbours met, and else only if a
+//!   ray from p to it (both lifted by δ) is unoccluded. A wall standing on
+//!   a floor thus cuts the floor's kernel. A texel whose sector rays meet
+//!   no front of a face and, half of them or more, the back of one is
+//!   inside a closed solid (under a
+//!   wall standing on the floor) and takes no light: the hits at the
+//!   wall's foot, whose 16-bit chart coordinates may put them a hair
+//!   inside its footprint, would reach it otherwise. The kernel mass m is then that of
+//!   the star-shaped free region (and, for a planar surface, of the part
+//!   of it inside the surface's polygon: an 8×8 quadrature as the density
+//!   bake's renormalisation), so that a texel by a wall is not darkened.
+
+use std::f32::consts::PI;
+use std::num::NonZeroUsize;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use glam::{Vec2, Vec3};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+
+use super::{Lightmap, Texel};
+use crate::color::Rgb;
+use crate::geometry::{offset_point, Frame, Ray};
+use crate::methods::density::hitfile::HitFileError;
+use crate::methods::density::hits::{decode_rgb9e5, from_fixed, HitSource};
+use crate::methods::density::kernel::{k2, TriGrid, NORMAL_COS};
+use crate::methods::density::surfaces::{Kind, Surface, Surfaces};
+use crate::world::World;
+
+/// The pilot's neighbour count k₀ (see [`Estimator::gather`]).
+pub const PILOT: usize = 32;
+
+/// Most sectors of the visibility test.
+pub const MAX_SECTORS: usize = 32;
+
+/// Bytes a hit takes in memory while the lightmap is estimated: its point
+/// (12), its normal for curved shapes (12 at most), its power (4) and its
+/// kd-tree entry (16).
+pub const HIT_MEMORY: u64 = 44;
+
+/// Settings of the estimator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Options {
+    /// k: the bandwidth at a texel is the distance to its k-th nearest hit
+    /// of the same surface side. The relative error per texel is about
+    /// √(1.8/k); the blur grows with k.
+    pub neighbours: usize,
+    /// Visibility rays per texel, one per angular sector of the tangent
+    /// plane (0: no visibility test; at most [`MAX_SECTORS`]).
+    pub sectors: usize,
+    /// The smallest kernel mass a texel's estimate is divided by.
+    pub min_mass: f32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            neighbours: 256,
+            sectors: 12,
+            min_mass: 0.1,
+        }
+    }
+}
+
+/// Which hits a texel may use: a planar surface side, or one side of a
+/// curved shape.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+enum Key {
+    Planar(u32, bool),
+    Curved(u32, bool),
+}
+
+/// A group's decoded hits: points, normals (curved shapes only), powers.
+type Decoded = (Vec<Vec3>, Vec<Vec3>, Vec<u32>);
+
+/// The hits of one group, in a kd-tree.
+struct Group {
+    tree: ImmutableKdTree<f32, 3>,
+    pos: Vec<Vec3>,
+    /// The geometric normal at each hit (curved shapes only), on the side
+    /// the hits are for.
+    normal: Vec<Vec3>,
+    rgb: Vec<u32>,
+}
+
+/// Every hit of a bake, decoded to world points and grouped for the
+/// texels' queries.
+pub struct HitIndex {
+    keys: std::collections::HashMap<Key, usize>,
+    groups: Vec<Group>,
+    hits: u64,
+}
+
+impl HitIndex {
+    /// Reads every hit of `source` (at most `chunk` records at a time) and
+    /// builds a kd-tree per group.
+    pub fn build(
+        world: &World,
+        surfaces: &Surfaces,
+        source: &impl HitSource,
+        chunk: u64,
+    ) -> Result<HitIndex, HitFileError> {
+        let scene = &world.scene;
+        let mut parts: std::collections::BTreeMap<Key, Decoded> = Default::default();
+        for run in source.runs() {
+            let Some(surf) = surfaces.get(run.surface) else {
+                continue;
+            };
+            let back = run.surface.back;
+            let key = match surf.kind {
+                Kind::Planar => Key::Planar(run.surface.index, back),
+                Kind::Curved => Key::Curved(surf.shape, back),
+            };
+            let e = parts.entry(key).or_default();
+            let mut done = 0;
+            while done < run.count {
+                let m = (run.count - done).min(chunk.max(1));
+                let hits = source.read(run.start + done, m)?;
+                for h in hits.iter() {
+                    let (u, v) = (from_fixed(h.u), from_fixed(h.v));
+                    match surf.kind {
+                        Kind::Planar => e.0.push(surf.to_world(Vec2::new(u, v) * surf.size)),
+                        Kind::Curved => {
+                            let sp = scene.surface_point(surf.tris[0], u, v);
+                            e.0.push(sp.p);
+                            e.1.push(if back { -sp.ng } else { sp.ng });
+                        }
+                    }
+                    e.2.push(h.rgb);
+                }
+                done += m;
+            }
+        }
+        let mut keys = std::collections::HashMap::new();
+        let mut groups = Vec::with_capacity(parts.len());
+        let mut hits = 0;
+        for (key, (pos, normal, rgb)) in parts {
+            if pos.is_empty() {
+                continue;
+            }
+            let (pos, normal, rgb) = morton_order(pos, normal, rgb);
+            let pts: Vec<[f32; 3]> = pos.iter().map(|p| p.to_array()).collect();
+            let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&pts);
+            drop(pts);
+            let Ok(tree) = tree else {
+                continue;
+            };
+            hits += pos.len() as u64;
+            keys.insert(key, groups.len());
+            groups.push(Group {
+                tree,
+                pos,
+                normal,
+                rgb,
+            });
+        }
+        Ok(HitIndex { keys, groups, hits })
+    }
+
+    /// Hits held.
+    pub fn hit_count(&self) -> u64 {
+        self.hits
+    }
+
+    fn count(&self, key: Key) -> usize {
+        self.keys.get(&key).map_or(0, |&g| self.groups[g].pos.len())
+    }
+
+    /// The group a texel on surface `sid` reads, and whether it is the back
+    /// side: the front (the triangles' winding), unless only the back side
+    /// is lit (a two-sided material seen from behind): a texel holds one
+    /// value, that of the side with more hits.
+    fn group_of(&self, surf: &Surface, sid: u32) -> Option<(usize, bool)> {
+        let key = |back| match surf.kind {
+            Kind::Planar => Key::Planar(sid, back),
+            Kind::Curved => Key::Curved(surf.shape, back),
+        };
+        let back = self.count(key(true)) > self.count(key(false));
+        self.keys.get(&key(back)).map(|&g| (g, back))
+    }
+}
+
+/// The hits of a group in Morton order of their points, so that the hits
+/// a texel gathers lie together in memory (the kd-tree's items index
+/// these arrays; in the order of tracing, every gathered hit was a cache
+/// miss).
+fn morton_order(
+    pos: Vec<Vec3>,
+    normal: Vec<Vec3>,
+    rgb: Vec<u32>,
+) -> (Vec<Vec3>, Vec<Vec3>, Vec<u32>) {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for p in &pos {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let scale = 1023.0 / (hi - lo).max_element().max(1e-30);
+    let spread = |v: u32| {
+        // 10 bits to every third of 30
+        let mut x = v & 0x3ff;
+        x = (x | (x << 16)) & 0x030000ff;
+        x = (x | (x << 8)) & 0x0300f00f;
+        x = (x | (x << 4)) & 0x030c30c3;
+        (x | (x << 2)) & 0x09249249
+    };
+    let mut order: Vec<(u32, u32)> = pos
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let q = ((*p - lo) * scale).max(Vec3::ZERO);
+            let code = spread(q.x as u32) | (spread(q.y as u32) << 1) | (spread(q.z as u32) << 2);
+            (code, i as u32)
+        })
+        .collect();
+    order.sort_unstable();
+    let pos2 = order.iter().map(|&(_, i)| pos[i as usize]).collect();
+    let normal2 = if normal.is_empty() {
+        normal
+    } else {
+        order.iter().map(|&(_, i)| normal[i as usize]).collect()
+    };
+    let rgb2 = order.iter().map(|&(_, i)| rgb[i as usize]).collect();
+    (pos2, normal2, rgb2)
+}
+
+/// atan2(y, x) to about 0.01 rad (a rational approximation on each
+/// octant), enough to pick a sector: libm's is a tenth of a texel's time.
+#[inline]
+fn fast_atan2(y: f32, x: f32) -> f32 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let (a, swap) = if ay > ax {
+        (ax / ay.max(1e-30), true)
+    } else {
+        (ay / ax.max(1e-30), false)
+    };
+    // atan(a) on [0, 1]: a·(π/4 + 0.273·(1 − a)) (Rajan et al. 2006)
+    let mut r = a * (std::f32::consts::FRAC_PI_4 + 0.273 * (1.0 - a));
+    if swap {
+        r = std::f32::consts::FRAC_PI_2 - r;
+    }
+    if x < 0.0 {
+        r = PI - r;
+    }
+    if y < 0.0 {
+        -r
+    } else {
+        r
+    }
+}
+
+/// The sector of direction (x, y) in the tangent plane, of `sectors`
+/// (sector s spans the angles −π + [s, s + 1)·2π/sectors).
+#[inline]
+fn sector(x: f32, y: f32, sectors: usize) -> usize {
+    if sectors == 0 {
+        return 0;
+    }
+    let a = fast_atan2(y, x);
+    let s = ((a + PI) / (2.0 * PI) * sectors as f32) as usize;
+    s.min(sectors - 1)
+}
+
+/// A planar surface's polygon in its chart, for the kernel mass.
+struct Polygon {
+    verts: Vec<Vec2>,
+    tris: Vec<[u32; 3]>,
+    grid: TriGrid,
+}
+
+impl Polygon {
+    fn new(scene: &crate::scene::Scene, surf: &Surface) -> Polygon {
+        let ct = surf.chart_tris(scene);
+        let mut verts = Vec::with_capacity(ct.len() * 3);
+        let mut tris = Vec::with_capacity(ct.len());
+        for t in &ct {
+            let b = verts.len() as u32;
+            verts.extend_from_slice(t);
+            tris.push([b, b + 1, b + 2]);
+        }
+        let grid = TriGrid::new(&verts, &tris);
+        Polygon { verts, tris, grid }
+    }
+
+    fn inside(&self, surf: &Surface, c: Vec2) -> bool {
+        if surf.rectangle {
+            // a hair of slack: a point on the edge is inside
+            let e = 1e-5 * surf.size.max_element();
+            return c.x >= -e && c.y >= -e && c.x <= surf.size.x + e && c.y <= surf.size.y + e;
+        }
+        self.grid.inside(&self.verts, &self.tris, c)
+    }
+}
+
+/// The estimate of one texel: irradiance and standard error (W/m², RGB).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TexelEstimate {
+    /// Irradiance Ê.
+    pub e: Rgb,
+    /// Standard error of Ê.
+    pub se: Rgb,
+    /// The bandwidth h (world units; 0 without hits).
+    pub h: f32,
+    /// Hits that counted (inside the kernel and reachable).
+    pub used: u32,
+}
+
+/// What every texel's estimate reads.
+pub struct Estimator<'a> {
+    world: &'a World,
+    surfaces: &'a Surfaces,
+    index: &'a HitIndex,
+    phi: f32,
+    opts: Options,
+    polygons: Vec<Option<Polygon>>,
+    /// The largest lift δ off the surface for the visibility rays.
+    lift: f32,
+}
+
+impl<'a> Estimator<'a> {
+    /// An estimator over `index`'s hits, φ = Φ/n in W per unit of hit
+    /// power.
+    pub fn new(
+        world: &'a World,
+        surfaces: &'a Surfaces,
+        index: &'a HitIndex,
+        phi: f64,
+        opts: Options,
+    ) -> Self {
+        let scene = &world.scene;
+        let polygons = surfaces
+            .list
+            .par_iter()
+            .map(|s| {
+                (s.kind == Kind::Planar && s.diffuse && !s.rectangle)
+                    .then(|| Polygon::new(scene, s))
+            })
+            .collect();
+        let (lo, hi) = scene.bounds();
+        let diag = (hi - lo).length();
+        let lift = if diag.is_finite() { 1e-3 * diag } else { 1e-3 };
+        Estimator {
+            world,
+            surfaces,
+            index,
+            phi: phi as f32,
+            opts: Options {
+                sectors: opts.sectors.min(MAX_SECTORS),
+                neighbours: opts.neighbours.max(1),
+                ..opts
+            },
+            polygons,
+            lift,
+        }
+    }
+
+    /// The estimate at a texel's point.
+    pub fn texel(&self, t: &Texel) -> TexelEstimate {
+        let Some(&sid) = self.surfaces.tri_surface.get(t.tri as usize) else {
+            return TexelEstimate::default();
+        };
+        let surf = &self.surfaces.list[sid as usize];
+        if !surf.diffuse {
+            return TexelEstimate::default();
+        }
+        let Some((gi, back)) = self.index.group_of(surf, sid) else {
+            return TexelEstimate::default();
+        };
+        let g = &self.index.groups[gi];
+        let n = if back { -t.n } else { t.n };
+        let p = t.p;
+        let Some((h2, found)) = self.gather(g, p) else {
+            return TexelEstimate::default();
+        };
+        let h = h2.sqrt();
+
+        // What the sector rays met, in units of h (1: nothing within h)
+        let frame = Frame::from_normal(n);
+        let sectors = self.opts.sectors;
+        let mut free = [1.0f32; MAX_SECTORS];
+        if sectors > 0 {
+            let own_shape = surf.shape;
+            let lift = (0.02 * h).min(self.lift);
+            let o = offset_point(p, n, n) + n * lift;
+            let (mut backs, mut fronts) = (0, 0);
+            for (s, f) in free.iter_mut().enumerate().take(sectors) {
+                let a = -PI + (s as f32 + 0.5) * 2.0 * PI / sectors as f32;
+                let d = frame.s * a.cos() + frame.t * a.sin();
+                let (t, back) = self.reach(o, d, h, own_shape, surf.kind);
+                *f = t / h;
+                if t < h {
+                    backs += usize::from(back);
+                    fronts += usize::from(!back);
+                }
+            }
+            // No ray met the front of a face and most left through the
+            // back of one: p is inside a closed solid (a texel under a
+            // wall standing on the floor; the rays along the wall may
+            // meet nothing within h), and takes no light whatever hits lie
+            // near it
+            if fronts == 0 && 2 * backs >= sectors {
+                return TexelEstimate {
+                    h,
+                    ..Default::default()
+                };
+            }
+        }
+        let sector_of = |x: f32, y: f32| sector(x, y, sectors);
+
+        // Only a texel whose kernel some ray was cut in tests the sectors
+        let open = free[..sectors].iter().all(|&f| f >= 1.0);
+        let (mut sum, mut sum2, mut used) = (Vec3::ZERO, Vec3::ZERO, 0u32);
+        for &(j, d2) in &found {
+            let j = j as usize;
+            if !g.normal.is_empty() && g.normal[j].dot(n) < NORMAL_COS {
+                continue;
+            }
+            let w = k2(d2 / h2);
+            if w <= 0.0 {
+                continue;
+            }
+            if !open && !self.reachable(p, n, g, j, d2.sqrt(), &free[..sectors], &frame, h) {
+                continue;
+            }
+            let c = decode_rgb9e5(g.rgb[j]);
+            sum += c * w;
+            sum2 += c * c * (w * w);
+            used += 1;
+        }
+
+        // The kernel mass of the region the hits may come from
+        let inner = |c: Vec2| {
+            surf.rectangle
+                && c.x >= h
+                && c.y >= h
+                && c.x <= surf.size.x - h
+                && c.y <= surf.size.y - h
+        };
+        let mass = match (surf.kind, &self.polygons[sid as usize]) {
+            (Kind::Planar, _) if open && inner(surf.to_chart(p)) => 1.0,
+            (Kind::Curved, _) if open => 1.0,
+            (Kind::Planar, poly) => {
+                const N: usize = 8;
+                let step = 2.0 / N as f32;
+                let (mut m, mut total) = (0.0, 0.0);
+                for jy in 0..N {
+                    for ix in 0..N {
+                        let o = Vec2::new(
+                            -1.0 + (ix as f32 + 0.5) * step,
+                            -1.0 + (jy as f32 + 0.5) * step,
+                        );
+                        let w = k2(o.length_squared());
+                        if w <= 0.0 {
+                            continue;
+                        }
+                        total += w;
+                        if !open && o.length() >= free[sector_of(o.x, o.y)] {
+                            continue;
+                        }
+                        let y = p + (frame.s * o.x + frame.t * o.y) * h;
+                        let c = surf.to_chart(y);
+                        let inside = match poly {
+                            Some(poly) => poly.inside(surf, c),
+                            None => {
+                                surf.rectangle
+                                    && c.x >= 0.0
+                                    && c.y >= 0.0
+                                    && c.x <= surf.size.x
+                                    && c.y <= surf.size.y
+                            }
+                        };
+                        if inside {
+                            m += w;
+                        }
+                    }
+                }
+                if total > 0.0 {
+                    m / total
+                } else {
+                    1.0
+                }
+            }
+            (Kind::Curved, _) => {
+                // the star-shaped free region: ∫ K2 over a sector to radius
+                // t (in units of h) is (1 − (1 − t²)³)/S
+                let s = sectors.max(1);
+                free[..s]
+                    .iter()
+                    .map(|&t| {
+                        let t = t.min(1.0);
+                        let u = 1.0 - t * t;
+                        1.0 - u * u * u
+                    })
+                    .sum::<f32>()
+                    / s as f32
+            }
+        };
+        let scale = self.phi / (h2 * mass.max(self.opts.min_mass));
+        TexelEstimate {
+            e: sum * scale,
+            se: Vec3::new(sum2.x.sqrt(), sum2.y.sqrt(), sum2.z.sqrt()) * scale,
+            h,
+            used,
+        }
+    }
+
+    /// The bandwidth² h² at `p` and the hits within h (index, squared
+    /// distance). h is found from a pilot: the distance r to the k₀-th
+    /// nearest hit (k₀ = min(k, 32)) holds k₀ hits, so for a density even
+    /// at the scale of h, the disk of radius r·√(k/k₀) holds about k
+    /// (a full k-nearest query keeps a heap of k and costs several times
+    /// more). Groups of at most k hits use them all, h just past the
+    /// farthest.
+    fn gather(&self, g: &Group, p: Vec3) -> Option<(f32, Vec<(u32, f32)>)> {
+        let k = self.opts.neighbours;
+        let q = p.to_array();
+        let h2 = if g.pos.len() <= k {
+            let far = g
+                .pos
+                .iter()
+                .map(|x| x.distance_squared(p))
+                .fold(0.0f32, f32::max);
+            far * 1.0001
+        } else {
+            let k0 = k.min(PILOT);
+            let near = g
+                .tree
+                .query(&q)
+                .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k0)?)
+                .execute();
+            near.last()?.distance * (k as f32 / k0 as f32)
+        };
+        if !(h2 > 0.0 && h2.is_finite()) {
+            return None;
+        }
+        let found = g
+            .tree
+            .query(&q)
+            .within::<SquaredEuclidean<f32>>(h2)
+            .unsorted()
+            .execute()
+            .into_iter()
+            .map(|r| (r.item, r.distance))
+            .collect();
+        Some((h2, found))
+    }
+
+    /// Whether hit `j` of `g`, at distance `d` from `p`, is reachable from
+    /// `p` along the surface: at once when it is nearer than what the rays
+    /// of its sector and of the two next to it met (a wall that cuts the
+    /// kernel is met by them), otherwise by a ray between the two points,
+    /// both lifted off the surface (a wall seen edge-on between two sector
+    /// rays, such as the one a texel under a wall stands in, would
+    /// otherwise let through hits beyond its end).
+    #[allow(clippy::too_many_arguments)]
+    fn reachable(
+        &self,
+        p: Vec3,
+        n: Vec3,
+        g: &Group,
+        j: usize,
+        d: f32,
+        free: &[f32],
+        frame: &Frame,
+        h: f32,
+    ) -> bool {
+        let s = free.len();
+        let q = g.pos[j];
+        let v = q - p;
+        let k = sector(v.dot(frame.s), v.dot(frame.t), s);
+        let near = free[k].min(free[(k + 1) % s]).min(free[(k + s - 1) % s]);
+        if d < near * h {
+            return true;
+        }
+        let lift = (0.02 * h).min(self.lift);
+        let nq = if g.normal.is_empty() { n } else { g.normal[j] };
+        let a = offset_point(p, n, n) + n * lift;
+        let b = offset_point(q, nq, nq) + nq * lift;
+        !self.world.accel.occluded(a, b)
+    }
+
+    /// How far a ray from `o` along `d` goes, up to `tmax`, before it meets
+    /// geometry other than its own curved shape (a planar surface's own
+    /// plane it cannot meet: it runs parallel to it, lifted), and whether
+    /// what it met was the back of a face (its winding's normal along `d`).
+    fn reach(&self, o: Vec3, d: Vec3, tmax: f32, own_shape: u32, kind: Kind) -> (f32, bool) {
+        let scene = &self.world.scene;
+        let mut ray = Ray {
+            o,
+            d,
+            tmin: 0.0,
+            tmax,
+        };
+        for _ in 0..4 {
+            let Some(hit) = self.world.accel.intersect(&ray) else {
+                return (tmax, false);
+            };
+            let same = kind == Kind::Curved && scene.tri_shape[hit.tri as usize] == own_shape;
+            if !same {
+                let [a, b, c] = scene.tri_vertices(hit.tri);
+                return (hit.t, (b - a).cross(c - a).dot(d) > 0.0);
+            }
+            ray.tmin = hit.t * (1.0 + 1e-5) + 1e-6 * tmax;
+            if ray.tmin >= tmax {
+                return (tmax, false);
+            }
+        }
+        (tmax, false)
+    }
+}
+
+/// Estimates every texel of `texels` into a `width` × `height` atlas (in
+/// parallel; the same bytes whatever the thread count). Stops early, with
+/// the atlas as far as it got, once `cancel` is set; `progress` hears the
+/// texels done, from the calling thread.
+pub fn estimate_texels(
+    est: &Estimator,
+    texels: &[Texel],
+    width: u32,
+    height: u32,
+    cancel: Option<&AtomicBool>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Lightmap {
+    let n = width as usize * height as usize;
+    let mut lm = Lightmap {
+        width,
+        height,
+        irradiance: vec![Rgb::ZERO; n],
+        std_error: vec![Rgb::ZERO; n],
+        covered: vec![false; n],
+    };
+    const SLICE: usize = 1 << 14;
+    let total = texels.len() as u64;
+    progress(0, total);
+    for (i, slice) in texels.chunks(SLICE).enumerate() {
+        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+            break;
+        }
+        let out: Vec<TexelEstimate> = slice.par_iter().map(|t| est.texel(t)).collect();
+        for (t, e) in slice.iter().zip(out) {
+            if t.x >= width || t.y >= height {
+                continue;
+            }
+            let k = t.y as usize * width as usize + t.x as usize;
+            lm.irradiance[k] = e.e;
+            lm.std_error[k] = e.se;
+            lm.covered[k] = true;
+        }
+        progress((i * SLICE + slice.len()) as u64, total);
+    }
+    lm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_fast_atan2_is_close() {
+        for i in 0..1000 {
+            let a = -PI + 2.0 * PI * (i as f32 + 0.5) / 1000.0;
+            let (y, x) = (3.0 * a.sin(), 3.0 * a.cos());
+            assert!(
+                (fast_atan2(y, x) - a).abs() < 0.01,
+                "{a}: {}",
+                fast_atan2(y, x)
+            );
+        }
+    }
+
+    #[test]
+    fn the_k2_sector_mass_is_the_integral_of_the_kernel() {
+        // ∫_0^t 2π r K2(r) dr = 1 − (1 − t²)³, by a midpoint rule
+        for t in [0.25f32, 0.5, 0.9, 1.0] {
+            let n = 10_000;
+            let dr = t / n as f32;
+            let m: f32 = (0..n)
+                .map(|i| {
+                    let r = (i as f32 + 0.5) * dr;
+                    2.0 * PI * r * k2(r * r) * dr
+                })
+                .sum();
+            let exact = 1.0 - (1.0 - t * t).powi(3);
+            assert!((m - exact).abs() < 1e-4, "t {t}: {m} against {exact}");
+        }
+    }
+}
