@@ -4,6 +4,7 @@
 //! diffuse surfaces). `ZB=1` uses the z-buffer instead of the painter.
 //! The hit points of pixel column 32 go to stderr.
 //! Usage: bundle_direct SCENE DIRS MAP_RES [EDGE]
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 use std::path::Path;
 
 use glam::Vec3;

@@ -14,6 +14,7 @@
 //! status 101), an abort or other signal, or a hang (killed after
 //! `--timeout` seconds). Two cases run at a time, each on one thread.
 
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 #[path = "../tests/it/fuzz/cases.rs"]
 mod cases;
 

@@ -1,6 +1,7 @@
 //! Diagnostic: directions where the painter's pairs differ from the
 //! z-buffer's for the emitters' light (emission only), and the patches that
 //! receive differently in the worst one. Usage: painter_vs_z SCENE DIRS MAP_RES
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 use std::path::Path;
 
 use glam::Vec3;

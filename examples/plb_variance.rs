@@ -14,6 +14,7 @@
 //! `phase=P`, `pop=C`, `discard=D` and `variant=V` that docs/notebook/plb.md
 //! records are read as those flags.
 
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 use std::time::Instant;
 
 use kalos::methods::{self, Budget, Common, World};

@@ -3,6 +3,7 @@
 //! estimate (`--max-depth 2`) from the camera toward the point, split into
 //! its two MIS halves. The wall albedo 0.05 is assumed when turning path's
 //! radiance into irradiance. Usage: probe_direct SCENE x y z nx ny nz
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 use std::path::Path;
 
 use glam::Vec3;

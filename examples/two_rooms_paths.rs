@@ -11,6 +11,7 @@
 //! cargo run --release --example two_rooms_paths -- scenes/two-rooms/scene.xml [PATHS]
 //! ```
 
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 use std::ops::ControlFlow;
 
 use kalos::methods::World;

@@ -37,7 +37,7 @@ use crate::metrics::{self, MetricsError};
 use crate::outputs::{self, OutputError};
 use crate::partial::{self, Meta, Partial, PartialError, Shard, State};
 use crate::render::{self, MemoryError, Render};
-use crate::scene::{self, Scene, SceneError};
+use crate::scene::{self, LoadOptions, ReadPolicy, Scene, SceneError};
 use crate::world::{BuildEvent, World};
 
 /// Where a job's scene comes from.
@@ -50,6 +50,8 @@ pub enum SceneInput {
         path: Option<PathBuf>,
         /// `-D NAME=VALUE`: fills `$NAME` in a Mitsuba scene.
         defines: Vec<(String, String)>,
+        /// `--allow-read DIR`: folders the scene may read besides its own.
+        allow_read: Vec<PathBuf>,
         /// The film's resolution, overriding the scene's.
         res: Option<(u32, u32)>,
     },
@@ -64,6 +66,7 @@ impl SceneInput {
         SceneInput::File {
             path: None,
             defines: Vec::new(),
+            allow_read: Vec::new(),
             res: None,
         }
     }
@@ -89,16 +92,15 @@ pub struct LoadedScene {
 }
 
 /// Loads the scene at `path`, or the built-in Cornell box when it is None
-/// or `builtin` ([`is_builtin`]), with `defines` filling a Mitsuba scene's
-/// `$NAME`s. Nothing is printed: the warnings and notes are returned.
-pub fn load_scene(
-    path: Option<&Path>,
-    defines: &[(String, String)],
-) -> Result<LoadedScene, SceneError> {
+/// or `builtin` ([`is_builtin`]), with `opts`: its `defines` fill a
+/// Mitsuba scene's `$NAME`s, its read policy says what else the scene may
+/// read and allocate. Nothing is printed: the warnings and notes are
+/// returned.
+pub fn load_scene(path: Option<&Path>, opts: &LoadOptions) -> Result<LoadedScene, SceneError> {
     let builtin = is_builtin(path);
     let scene = match path {
-        Some(p) if !builtin => scene::load_with(p, defines)?,
-        _ => scene::builtin::cornell_box_with(defines)?,
+        Some(p) if !builtin => scene::load_opts(p, opts)?,
+        _ => scene::builtin::cornell_box_with(&opts.defines)?,
     };
     let warnings = scene
         .warnings
@@ -112,6 +114,24 @@ pub fn load_scene(
         warnings,
         notes,
     })
+}
+
+/// The options a job loads its scene with: its `-D`s, its `--allow-read`
+/// folders, and its memory limit ([`memory_limit`]), which the loaders
+/// check the scene's data against before allocating it.
+pub(crate) fn load_options(
+    defines: &[(String, String)],
+    allow_read: &[PathBuf],
+    max_memory: Option<u64>,
+    max_memory_flag: &str,
+) -> LoadOptions {
+    LoadOptions {
+        defines: defines.to_vec(),
+        read: ReadPolicy {
+            allow_read: allow_read.to_vec(),
+            memory_limit: memory_limit(max_memory, max_memory_flag),
+        },
+    }
 }
 
 /// The memory limit of a render or a bake and where it comes from: `flag`
@@ -157,12 +177,12 @@ pub enum SetupEvent<'e> {
 /// reporting each step, warning and note to `on_event`.
 pub(crate) fn load_step(
     path: Option<&Path>,
-    defines: &[(String, String)],
+    opts: &LoadOptions,
     res: Option<(u32, u32)>,
     on_event: &mut dyn FnMut(SetupEvent),
 ) -> Result<Scene, SceneError> {
     on_event(SetupEvent::Load(path.filter(|_| !is_builtin(path))));
-    let loaded = load_scene(path, defines)?;
+    let loaded = load_scene(path, opts)?;
     for w in loaded.warnings {
         on_event(SetupEvent::Warning(w));
     }
@@ -459,14 +479,26 @@ impl CheckedRender {
     /// The world to render: the one given, or the scene loaded, checked
     /// against the settings and built.
     fn world(&self, on_event: &mut dyn FnMut(SetupEvent)) -> Result<Arc<World>, JobError> {
-        let (path, defines, res) = match &self.job.scene {
+        let input = match &self.job.scene {
             SceneInput::World(w) => {
                 self.check_memory(w.camera.width, w.camera.height)?;
                 return Ok(w.clone());
             }
-            SceneInput::File { path, defines, res } => (path, defines, res),
+            SceneInput::File {
+                path,
+                defines,
+                allow_read,
+                res,
+            } => (path, defines, allow_read, res),
         };
-        let scene = load_step(path.as_deref(), defines, *res, on_event)?;
+        let (path, defines, allow_read, res) = input;
+        let opts = load_options(
+            defines,
+            allow_read,
+            self.job.max_memory,
+            self.job.max_memory_flag,
+        );
+        let scene = load_step(path.as_deref(), &opts, *res, on_event)?;
         if scene.emitters.is_empty() {
             return Err(JobError::NoEmitters {
                 scene: scene.source.clone(),
@@ -735,6 +767,7 @@ mod tests {
         SceneInput::File {
             path: None,
             defines: Vec::new(),
+            allow_read: Vec::new(),
             res: Some((n, n)),
         }
     }
@@ -749,6 +782,7 @@ mod tests {
             SceneInput::File {
                 path: Some("no-such-scene-kalos.xml".into()),
                 defines: Vec::new(),
+                allow_read: Vec::new(),
                 res: None,
             },
             path(),

@@ -138,8 +138,14 @@ def load(
     *,
     defines: Optional[dict[str, str]] = None,
     res: Optional[Tuple[int, int]] = None,
+    allow_read: Optional[list[_Path]] = None,
+    max_memory: Optional[int] = None,
 ) -> Scene:
-    """Load a scene file (or the built-in Cornell box when path is None)."""
+    """Load a scene file (or the built-in Cornell box when path is None).
+
+    The scene may read only the files under its own folder; ``allow_read``
+    (folders) widens that, as ``--allow-read``. ``max_memory`` (bytes) caps
+    what the scene's data may take (default: the machine's memory)."""
 
 @overload
 def render(

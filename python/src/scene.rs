@@ -131,15 +131,21 @@ impl Scene {
 /// library reads it), or the built-in Cornell box when `path` is None or
 /// "builtin". `defines` fills a Mitsuba scene's `$name`s (as `kalos
 /// render -D name=value`); `res=(width, height)` overrides the film size.
+/// The scene may read only the files under its own folder: `allow_read`
+/// (a list of folders) widens that, as `--allow-read`; `max_memory` (bytes)
+/// caps what its data may take, as `--max-memory` (default: the machine's
+/// memory).
 /// The loader's warnings are issued as Python warnings and kept in
 /// `Scene.warnings`. Raises SceneError, naming the file and the line.
 #[pyfunction]
-#[pyo3(signature = (path=None, *, defines=None, res=None))]
+#[pyo3(signature = (path=None, *, defines=None, res=None, allow_read=None, max_memory=None))]
 pub fn load(
     py: Python<'_>,
     path: Option<PathBuf>,
     defines: Option<&Bound<'_, PyDict>>,
     res: Option<(u32, u32)>,
+    allow_read: Option<Vec<PathBuf>>,
+    max_memory: Option<u64>,
 ) -> PyResult<Scene> {
     // {name: value}, a value in any type that prints as the scene expects
     let defines = match defines {
@@ -157,7 +163,14 @@ pub fn load(
         }
     }
     let loaded = py.detach(|| {
-        let loaded = job::load_scene(path.as_deref(), &defines)?;
+        let opts = kalos::scene::LoadOptions {
+            defines,
+            read: kalos::scene::ReadPolicy {
+                allow_read: allow_read.unwrap_or_default(),
+                memory_limit: job::memory_limit(max_memory, "max_memory"),
+            },
+        };
+        let loaded = job::load_scene(path.as_deref(), &opts)?;
         let mut s = loaded.scene;
         if let Some((w, h)) = res {
             s.set_resolution(w, h);

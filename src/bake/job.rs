@@ -148,9 +148,15 @@ impl CheckedBake {
         let t0 = Instant::now();
         let world = match &j.scene {
             SceneInput::World(w) => w.clone(),
-            SceneInput::File { path, defines, res } => {
+            SceneInput::File {
+                path,
+                defines,
+                allow_read,
+                res,
+            } => {
                 let on = &mut |e: SetupEvent| on_event(BakeEvent::Setup(e));
-                job::build_step(job::load_step(path.as_deref(), defines, *res, on)?, on)
+                let opts = job::load_options(defines, allow_read, j.max_memory, j.max_memory_flag);
+                job::build_step(job::load_step(path.as_deref(), &opts, *res, on)?, on)
             }
         };
         let load_seconds = t0.elapsed().as_secs_f64();

@@ -22,5 +22,6 @@ pub fn cornell_box_with(defines: &[(String, String)]) -> Result<Scene, SceneErro
         Path::new("."),
         "builtin:cornell-box",
         defines,
+        &super::access::FileAccess::nothing(),
     )
 }

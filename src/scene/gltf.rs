@@ -28,6 +28,7 @@
 //! triangles. A file with no emissive material is lit by a constant white
 //! environment, with a note in [`Scene::notes`].
 
+use crate::scene::access::FileAccess;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -42,7 +43,8 @@ use super::{CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, TexIma
 const MAX_NODES: u64 = 1 << 20;
 
 /// Loads a glTF 2.0 file as a scene.
-pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
+pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
+    let _ = access;
     let err = |msg: String| SceneError::new(path, 0, msg);
     let (doc, buffers, images) = import(path)?;
     let mut scene = Scene::empty(path.display().to_string());

@@ -7,6 +7,7 @@
 //! OBJ files have no camera: one is synthesised looking at the bounding box
 //! along −z (the usual "front" of y-up OBJ files), and a warning says so.
 
+use crate::scene::access::FileAccess;
 use std::path::Path;
 
 use glam::{Vec2, Vec3};
@@ -162,7 +163,8 @@ pub fn load_obj(path: &Path, flip_tex_coords: bool) -> Result<MeshData, SceneErr
 }
 
 /// A standalone OBJ file (with its MTL) as a scene, with a synthesised camera.
-pub fn load_obj_scene(path: &Path) -> Result<Scene, SceneError> {
+pub fn load_obj_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
+    let _ = access;
     let (models, mtls, mtl_warning) = load_models(path)?;
     let mut scene = Scene::empty(path.display().to_string());
     scene.warnings.extend(mtl_warning);

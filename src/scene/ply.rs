@@ -7,6 +7,7 @@
 //! scalar types. Polygons are fan-triangulated. Every other element and
 //! property (lists included) is read and skipped.
 
+use crate::scene::access::FileAccess;
 use std::path::Path;
 
 use glam::{Vec2, Vec3};
@@ -131,7 +132,8 @@ pub fn load_ply(path: &Path) -> Result<MeshData, SceneError> {
 
 /// A standalone PLY file as a scene: one shape with Mitsuba's default
 /// material (diffuse 0.5) and a synthesised camera.
-pub fn load_ply_scene(path: &Path) -> Result<Scene, SceneError> {
+pub fn load_ply_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
+    let _ = access;
     let mut mesh = load_ply(path)?;
     if mesh.normals.is_none() {
         mesh.compute_vertex_normals();

@@ -13,6 +13,7 @@
 //! and nothing else: a test that needs what CI lacks must skip itself by
 //! another check, or `--ignored` would run it there.
 
+#![allow(clippy::disallowed_methods)] // std::fs is denied only in the scene loaders (clippy.toml)
 mod common;
 
 mod bsdf;
@@ -27,6 +28,7 @@ mod fuzz_found;
 mod geometry;
 mod glb;
 mod image_io;
+mod lightmap_uv;
 mod lights;
 mod loader;
 mod loader_limits;

@@ -19,6 +19,9 @@
 //!
 //! This file holds the types the stages hand each other.
 
+pub mod raster;
+pub mod uv;
+
 use glam::{Vec2, Vec3};
 
 use crate::color::Rgb;
@@ -41,6 +44,12 @@ pub struct LightmapUv {
     pub charts: u32,
     /// Where the coordinates came from.
     pub source: UvSource,
+    /// Per scene triangle, its chart (`0 .. charts`), or `u32::MAX` for a
+    /// degenerate triangle, which has no texels.
+    pub tri_chart: Vec<u32>,
+    /// What the user should hear about: an asset uv set found unusable,
+    /// degenerate triangles skipped. One line each.
+    pub warnings: Vec<String>,
 }
 
 /// Where a scene's second uv set came from.

@@ -165,6 +165,7 @@ fn job(a: &BakeArgs) -> BakeJob {
         scene: SceneInput::File {
             path: a.scene.clone(),
             defines: a.defines.define.clone(),
+            allow_read: a.defines.allow_read.clone(),
             res: None,
         },
         settings: density::Settings {

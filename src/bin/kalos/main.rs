@@ -1,6 +1,8 @@
 //! The `kalos` command line: parses arguments, shows progress and writes
 //! files. Everything else lives in the library.
 #![deny(clippy::undocumented_unsafe_blocks)]
+// std::fs is denied only in the scene loaders (see clippy.toml)
+#![allow(clippy::disallowed_methods)]
 
 mod bake;
 mod bench;
@@ -177,6 +179,23 @@ struct Defines {
     /// its `<default name="NAME">` (repeatable).
     #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = parse_define)]
     define: Vec<(String, String)>,
+    /// Let the scene read files under DIR too (repeatable). By default a
+    /// scene may read only the files under its own folder.
+    #[arg(long = "allow-read", value_name = "DIR")]
+    allow_read: Vec<PathBuf>,
+}
+
+impl Defines {
+    /// The load options they give, with the machine's memory as the limit.
+    fn options(&self) -> kalos::scene::LoadOptions {
+        kalos::scene::LoadOptions {
+            defines: self.define.clone(),
+            read: kalos::scene::ReadPolicy {
+                allow_read: self.allow_read.clone(),
+                memory_limit: job::memory_limit(None, "--max-memory"),
+            },
+        }
+    }
 }
 
 fn parse_define(s: &str) -> Result<(String, String), String> {
@@ -192,10 +211,10 @@ fn load_scene(path: Option<&Path>, defines: &Defines) -> Result<Scene> {
     let loaded = match path {
         Some(p) if !job::is_builtin(path) => {
             progress::with_spinner(&format!("loading {}", p.display()), |_| {
-                job::load_scene(path, &defines.define)
+                job::load_scene(path, &defines.options())
             })?
         }
-        _ => job::load_scene(path, &defines.define)?,
+        _ => job::load_scene(path, &defines.options())?,
     };
     for w in &loaded.warnings {
         eprintln!("warning: {w}");

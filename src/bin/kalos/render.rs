@@ -197,6 +197,7 @@ fn job(a: &RenderArgs, method: methods::MethodConfig) -> RenderJob {
         scene: SceneInput::File {
             path: a.scene.clone(),
             defines: a.defines.define.clone(),
+            allow_read: a.defines.allow_read.clone(),
             res: a.res,
         },
         method,

