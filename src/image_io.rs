@@ -460,17 +460,34 @@ pub fn write_rgb8_png(path: &Path, buf: &RgbImage) -> Result<(), ImageIoError> {
 /// `.png`, `.jpg`/`.jpeg` (taken as sRGB and converted to linear; alpha is
 /// dropped).
 pub fn read_image(path: &Path) -> Result<Image, ImageIoError> {
-    let format = format_of(path).ok_or_else(|| ImageIoError::UnknownFormat {
+    format_of(path).ok_or_else(|| unknown_read_format(path))?;
+    let bytes = std::fs::read(path).map_err(|e| ImageIoError::io(path, e))?;
+    decode_image(&bytes, path)
+}
+
+fn unknown_read_format(path: &Path) -> ImageIoError {
+    ImageIoError::UnknownFormat {
         path: path.to_path_buf(),
         expected: ".exr, .pfm, .hdr, .png, .jpg or .jpeg",
-    })?;
-    if format == Format::Pfm {
-        let bytes = std::fs::read(path).map_err(|e| ImageIoError::io(path, e))?;
-        return decode_pfm(&bytes).map_err(|reason| ImageIoError::pfm(path, reason));
     }
+}
 
-    let decoded = image::ImageReader::open(path)
-        .map_err(|e| ImageIoError::io(path, e))?
+/// Decodes the bytes of an image file as [`read_image`] reads it: the
+/// format is the one `path`'s extension names, and `path` only names the
+/// file in errors. For the scene loaders, which read a scene's files
+/// through [`crate::scene::FileAccess`] and decode what they read.
+pub fn decode_image(bytes: &[u8], path: &Path) -> Result<Image, ImageIoError> {
+    let format = format_of(path).ok_or_else(|| unknown_read_format(path))?;
+    let image_format = match format {
+        Format::Pfm => {
+            return decode_pfm(bytes).map_err(|reason| ImageIoError::pfm(path, reason));
+        }
+        Format::Exr => ImageFormat::OpenExr,
+        Format::Png => ImageFormat::Png,
+        Format::Jpeg => ImageFormat::Jpeg,
+        Format::Hdr => ImageFormat::Hdr,
+    };
+    let decoded = image::ImageReader::with_format(std::io::Cursor::new(bytes), image_format)
         .decode()
         .map_err(|e| ImageIoError::codec(path, e))?;
     let rgb = decoded.to_rgb32f();

@@ -153,7 +153,12 @@ fn append(a: &mut MeshData, b: MeshData) {
 
 /// Loads every object of an OBJ file as one mesh (triangulated, one index
 /// per vertex). Normals and uvs are kept only when every object has them.
-pub fn load_obj(path: &Path, flip_tex_coords: bool) -> Result<MeshData, SceneError> {
+pub fn load_obj(
+    path: &Path,
+    flip_tex_coords: bool,
+    access: &FileAccess,
+) -> Result<MeshData, SceneError> {
+    let _ = access;
     let (models, _, _) = load_models(path)?;
     let mut mesh = MeshData::default();
     for m in &models {

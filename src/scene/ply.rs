@@ -124,7 +124,8 @@ impl Reader<'_> {
 }
 
 /// Loads a PLY file from disk.
-pub fn load_ply(path: &Path) -> Result<MeshData, SceneError> {
+pub fn load_ply(path: &Path, access: &FileAccess) -> Result<MeshData, SceneError> {
+    let _ = access;
     let bytes = std::fs::read(path)
         .map_err(|e| SceneError::new(path, 0, format!("cannot read PLY file: {e}")))?;
     parse_ply(&bytes, path)
@@ -134,7 +135,7 @@ pub fn load_ply(path: &Path) -> Result<MeshData, SceneError> {
 /// material (diffuse 0.5) and a synthesised camera.
 pub fn load_ply_scene(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
     let _ = access;
-    let mut mesh = load_ply(path)?;
+    let mut mesh = load_ply(path, access)?;
     if mesh.normals.is_none() {
         mesh.compute_vertex_normals();
     }

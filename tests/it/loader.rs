@@ -529,6 +529,7 @@ fn check_quad(m: &kalos::scene::MeshData) {
 #[test]
 fn ply_ascii_and_binary_round_trip() {
     let d = tmp("ply");
+    let access = kalos::scene::FileAccess::for_dir(&d, &Default::default()).unwrap();
     let mut ascii = ply_header("ascii");
     ascii += "2 7 8 0.5\n";
     for v in QUAD {
@@ -540,7 +541,8 @@ fn ply_ascii_and_binary_round_trip() {
     std::fs::write(d.join("le.ply"), binary_ply(true)).unwrap();
     std::fs::write(d.join("be.ply"), binary_ply(false)).unwrap();
     for f in ["a.ply", "le.ply", "be.ply"] {
-        let m = kalos::scene::ply::load_ply(&d.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        let m =
+            kalos::scene::ply::load_ply(&d.join(f), &access).unwrap_or_else(|e| panic!("{f}: {e}"));
         check_quad(&m);
     }
 
@@ -562,12 +564,12 @@ fn ply_ascii_and_binary_round_trip() {
     for cut in [full.len() - 3, full.len() - 20, 200] {
         let p = d.join("cut.ply");
         std::fs::write(&p, &full[..cut]).unwrap();
-        let e = kalos::scene::ply::load_ply(&p).unwrap_err();
+        let e = kalos::scene::ply::load_ply(&p, &access).unwrap_err();
         assert!(e.to_string().contains("cut.ply"), "{e}");
     }
     let p = d.join("cut.ply");
     std::fs::write(&p, &ascii[..ascii.len() - 4]).unwrap();
-    assert!(kalos::scene::ply::load_ply(&p).is_err());
+    assert!(kalos::scene::ply::load_ply(&p, &access).is_err());
 }
 
 #[test]

@@ -38,4 +38,5 @@ mod plb;
 mod reference;
 mod replay;
 mod transport;
+mod untrusted_mp;
 mod view;

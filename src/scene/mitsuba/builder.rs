@@ -6,6 +6,7 @@ use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::scene::access::FileAccess;
 use crate::scene::{Scene, SceneError, TexImage, Texture};
 
 use super::props::Props;
@@ -16,6 +17,8 @@ use super::Result;
 // Building: the tree to a Scene
 
 pub(super) struct Builder<'t> {
+    /// What the scene's files are read through.
+    pub(super) access: &'t FileAccess,
     pub(super) files: &'t [PathBuf],
     pub(super) main_dir: &'t Path,
     pub(super) ids: HashMap<&'t str, &'t El>,

@@ -72,7 +72,11 @@
 //! or plugin type (`point`, `spot` and `directional` lights included: kalos's
 //! methods need lights with an area), an unknown parameter of a known plugin
 //! (STYLE.md rule 10: a misspelt name is reported, not ignored), a bad number,
-//! a missing mesh, image or included file, and a dangling `<ref>`.
+//! a missing mesh, image or included file, a file the scene may not read
+//! (outside its folder and the `--allow-read` folders, not a regular file,
+//! or past its kind's size limit: see [`crate::scene::access`]), an image
+//! past the memory limit (declared from its header before it is decoded),
+//! and a dangling `<ref>`.
 //!
 //! # uv conventions
 //!
@@ -87,6 +91,7 @@
 mod bsdf;
 mod builder;
 mod emitter;
+pub(crate) mod files;
 mod props;
 mod sensor;
 mod shape;
@@ -109,18 +114,17 @@ type Result<T> = std::result::Result<T, SceneError>;
 /// does not use is a warning in [`Scene::warnings`]. Files are read through
 /// `access`.
 pub fn load_with(path: &Path, defines: &[(String, String)], access: &FileAccess) -> Result<Scene> {
-    let _ = access;
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| SceneError::new(path, 0, format!("cannot read scene file: {e}")))?;
+    let text = files::read_main_text(path, access)
+        .map_err(|e| SceneError::new(path, 0, files::main_message(&e)))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    load_impl(&text, &base, path.to_path_buf(), defines)
+    load_impl(&text, &base, path.to_path_buf(), defines, access)
 }
 
 /// Loads a Mitsuba 3 scene from a string (a built-in scene); relative paths
 /// resolve against `base_dir`, and `name` stands for the file in messages.
+/// The files it names are read through `access`.
 pub fn load_str(xml: &str, base_dir: &Path, name: &str, access: &FileAccess) -> Result<Scene> {
-    let _ = access;
-    load_impl(xml, base_dir, PathBuf::from(name), &[])
+    load_impl(xml, base_dir, PathBuf::from(name), &[], access)
 }
 
 /// [`load_str`] with `-D name=value` parameters, as [`load_with`].
@@ -131,8 +135,7 @@ pub fn load_str_with(
     defines: &[(String, String)],
     access: &FileAccess,
 ) -> Result<Scene> {
-    let _ = access;
-    load_impl(xml, base_dir, PathBuf::from(name), defines)
+    load_impl(xml, base_dir, PathBuf::from(name), defines, access)
 }
 
 fn load_impl(
@@ -140,6 +143,7 @@ fn load_impl(
     base_dir: &Path,
     file: PathBuf,
     defines: &[(String, String)],
+    access: &FileAccess,
 ) -> Result<Scene> {
     // Read the documents: splice includes, substitute `$name`s
     let mut reader = Reader {
@@ -150,6 +154,7 @@ fn load_impl(
         used: HashSet::new(),
         stack: vec![file.canonicalize().unwrap_or_else(|_| file.clone())],
         includes: 0,
+        access: access.clone(),
     };
     let mut top = Vec::new();
     reader.read_document(text, 0, 0, &mut top)?;
@@ -162,6 +167,7 @@ fn load_impl(
 
     // Index the ids, then build the scene from the top-level elements
     let mut b = Builder {
+        access,
         files: &files,
         main_dir: &main_dir,
         ids: HashMap::new(),

@@ -12,7 +12,10 @@ use glam::{Mat3, Mat4, Vec3};
 use crate::scene::shapes::{self, MeshData};
 use crate::scene::{Material, Rgb, Texture};
 
+use crate::scene::access::FileKind;
+
 use super::builder::Builder;
+use super::files;
 use super::props::Props;
 use super::xml::{resolve, El};
 use super::Result;
@@ -139,19 +142,14 @@ impl<'t> Builder<'t> {
         let face_normals = self.boolean(p, "face_normals", false)?;
         let flip_tex = self.boolean(p, "flip_tex_coords", ty == "obj")?;
         let path = resolve(self.main_dir, &self.file(el), filename);
-        if !path.is_file() {
-            return Err(self.err(
-                el,
-                format!(
-                    "mesh file `{filename}` not found (looked for {})",
-                    path.display()
-                ),
-            ));
-        }
+        // refused here, naming this shape's line, before the loader opens it
+        self.access
+            .check(&path, FileKind::Mesh)
+            .map_err(|e| self.err(el, files::message("mesh file", filename, &e)))?;
         let mut mesh = if ty == "obj" {
-            crate::scene::obj::load_obj(&path, flip_tex)
+            crate::scene::obj::load_obj(&path, flip_tex, self.access)
         } else {
-            crate::scene::ply::load_ply(&path).map(|mut m| {
+            crate::scene::ply::load_ply(&path, self.access).map(|mut m| {
                 if flip_tex {
                     if let Some(uvs) = &mut m.uvs {
                         uvs.iter_mut().for_each(|t| t.y = 1.0 - t.y);

@@ -6,7 +6,10 @@ use glam::{Affine2, Mat2, Mat4, Vec2};
 
 use crate::scene::{Rgb, TexImage, Texture};
 
+use crate::scene::access::FileKind;
+
 use super::builder::{addr, Builder};
+use super::files;
 use super::props::Props;
 use super::xml::{resolve, El};
 use super::Result;
@@ -75,15 +78,13 @@ impl<'t> Builder<'t> {
         if let Some(img) = self.images.get(&(path.clone(), srgb)) {
             return Ok(img.clone());
         }
-        if !path.is_file() {
-            return Err(self.err(
-                el,
-                format!(
-                    "image file `{filename}` not found (looked for {})",
-                    path.display()
-                ),
-            ));
-        }
+        let bytes = self
+            .access
+            .read(&path, FileKind::Image)
+            .map_err(|e| self.err(el, files::message("image file", filename, &e)))?;
+        // its pixels' memory, from the header, before decoding them
+        files::reserve_image(self.access, &bytes, &path, filename)
+            .map_err(|e| self.err(el, e.to_string()))?;
         let cannot =
             |e: String| self.err(el, format!("cannot read image `{}`: {e}", path.display()));
         let is_pfm = path
@@ -91,11 +92,16 @@ impl<'t> Builder<'t> {
             .is_some_and(|e| e.eq_ignore_ascii_case("pfm"));
         let (width, height, data) = if is_pfm {
             // PFM holds linear floats; the `image` crate does not read it
-            let bytes = std::fs::read(&path).map_err(|e| cannot(e.to_string()))?;
             let img = crate::image_io::decode_pfm(&bytes).map_err(cannot)?;
             (img.width, img.height, img.data)
         } else {
-            let img = image::open(&path).map_err(|e| cannot(e.to_string()))?;
+            // the format the extension names, as `image::open` chooses it
+            let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes[..]));
+            if let Ok(format) = image::ImageFormat::from_path(&path) {
+                reader.set_format(format);
+            }
+            let img = reader.decode().map_err(|e| cannot(e.to_string()))?;
+            drop(bytes);
             let linear = matches!(
                 img,
                 image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)

@@ -4,6 +4,7 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
+use crate::scene::access::{FileAccess, FileKind};
 use crate::scene::SceneError;
 
 use super::Result;
@@ -69,6 +70,8 @@ pub(super) struct Reader {
     pub(super) stack: Vec<PathBuf>,
     /// `<include>`s read so far.
     pub(super) includes: usize,
+    /// What the included files are read through.
+    pub(super) access: FileAccess,
 }
 
 /// The byte offsets of a text's line breaks, to find an element's line by
@@ -224,13 +227,10 @@ impl Reader {
         let from_path = self.files.get(from).cloned().unwrap_or_default();
         let path = resolve(&self.main_dir, &from_path, filename);
         let err = |msg: String| SceneError::new(&from_path, line, msg);
-        if !path.is_file() {
-            return Err(err(format!(
-                "included file `{filename}` not found (looked for {})",
-                path.display()
-            )));
-        }
-        let canon = path.canonicalize().unwrap_or_else(|_| path.clone());
+        let refused = |e| err(super::files::message("included file", filename, &e));
+        // checked (inside the allowed folders, a regular file) before
+        // anything else is done with it
+        let (canon, _) = self.access.check(&path, FileKind::Scene).map_err(refused)?;
         if self.stack.contains(&canon) {
             return Err(err(format!("include cycle: `{filename}` includes itself")));
         }
@@ -247,8 +247,10 @@ impl Reader {
                 self.stack.len()
             )));
         }
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| err(format!("cannot read included file `{filename}`: {e}")))?;
+        let text = self
+            .access
+            .read_string(&path, FileKind::Scene)
+            .map_err(refused)?;
         self.files.push(path);
         self.stack.push(canon);
         let idx = self.files.len() - 1;

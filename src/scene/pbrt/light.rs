@@ -10,6 +10,8 @@ use super::lexer::Directive;
 use super::params::Params;
 use super::spectra::Kind;
 use super::{Builder, Result};
+use crate::scene::access::FileKind;
+use crate::scene::mitsuba::files;
 use crate::scene::{CameraDesc, EmitterDesc, Rgb, TexImage, Texture};
 
 /// The camera as declared; built once the film's size is known.
@@ -296,17 +298,17 @@ impl Builder {
         if let Some(img) = self.images.get(&key) {
             return Ok(img.clone());
         }
-        if !path.is_file() {
-            return Err(self.cx.err(
-                line,
-                format!(
-                    "image file `{file}` not found (looked for {})",
-                    path.display()
-                ),
-            ));
-        }
-        let img = crate::image_io::read_image(&path)
+        let bytes = self
+            .cx
+            .access
+            .read(&path, FileKind::Image)
+            .map_err(|e| self.cx.err(line, files::message("image file", file, &e)))?;
+        // its pixels' memory, from the header, before decoding them
+        files::reserve_image(&self.cx.access, &bytes, &path, file)
+            .map_err(|e| self.cx.err(line, e.to_string()))?;
+        let img = crate::image_io::decode_image(&bytes, &path)
             .map_err(|e| self.cx.err(line, format!("cannot read image: {e}")))?;
+        drop(bytes);
         let float = path
             .extension()
             .and_then(|e| e.to_str())

@@ -60,11 +60,15 @@
 //! Every error names the file and the line: an unknown directive, shape,
 //! material, texture or light type; `point`, `spot`, `distant`,
 //! `goniometric` and `projection` lights (kalos's methods need lights with
-//! an area); an unknown or ill-typed parameter; a missing file; a `.gz` file
-//! that is not valid gzip or expands to more than 4 GiB; an unmatched
-//! `AttributeEnd`. Includes nest at most 16 deep and a scene reads at most
-//! 4096 of them. Files whose names end in `.gz` (`.pbrt.gz`, `.ply.gz`,
-//! spectra) are decompressed as they are read.
+//! an area); an unknown or ill-typed parameter; a missing file; a file
+//! the scene may not read (outside its folder and the `--allow-read`
+//! folders, not a regular file, or past its kind's size limit: see
+//! [`crate::scene::access`]); a `.gz` file that is not valid gzip or
+//! expands past that limit; a scene past the memory limit (its meshes,
+//! instance copies and images are declared before they are made); an
+//! unmatched `AttributeEnd`. Includes nest at most 16 deep and a scene
+//! reads at most 4096 of them. Files whose names end in `.gz`
+//! (`.pbrt.gz`, `.ply.gz`, spectra) are decompressed as they are read.
 
 mod lexer;
 mod light;
@@ -73,7 +77,7 @@ mod params;
 mod shape;
 pub mod spectra;
 
-use crate::scene::access::FileAccess;
+use crate::scene::access::{FileAccess, FileKind};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -96,6 +100,8 @@ const MAX_INCLUDES: usize = 4096;
 pub(super) struct Ctx {
     file: PathBuf,
     main_dir: PathBuf,
+    /// What the scene's files are read through.
+    access: FileAccess,
 }
 
 impl Ctx {
@@ -169,12 +175,12 @@ struct Builder {
 
 /// Loads a pbrt-v4 scene file, reading its files through `access`.
 pub fn load(path: &Path, access: &FileAccess) -> Result<Scene> {
-    let _ = access;
     let main_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut b = Builder {
         cx: Ctx {
             file: path.to_path_buf(),
             main_dir,
+            access: access.clone(),
         },
         scene: Scene::empty(path.display().to_string()),
         g: Graphics {
@@ -227,14 +233,21 @@ impl Builder {
     /// Reads one file (the main one, or an `Include`/`Import` from `line`
     /// of the including file) and runs its directives.
     fn read_file(&mut self, path: &Path, depth: usize, line: u32) -> Result<()> {
-        let text = spectra::read_text(path).map_err(|e| {
-            let msg = format!("cannot read scene file `{}`: {e}", path.display());
-            if depth == 0 {
-                SceneError::new(path, 0, msg)
-            } else {
-                self.cx.err(line, msg)
-            }
-        })?;
+        let text = if depth == 0 {
+            let bytes = crate::scene::mitsuba::files::read_main(path, &self.cx.access)
+                .and_then(|b| spectra::gunzip(&self.cx.access, path, b, FileKind::Scene))
+                .map_err(|e| {
+                    SceneError::new(path, 0, crate::scene::mitsuba::files::main_message(&e))
+                })?;
+            spectra::utf8(bytes).map_err(|m| SceneError::new(path, 0, m))?
+        } else {
+            let bytes = spectra::read_file(&self.cx.access, path, FileKind::Scene)
+                .map_err(|e| self.cx.err(line, e.to_string()))?;
+            spectra::utf8(bytes).map_err(|m| {
+                self.cx
+                    .err(line, format!("scene file `{}`: {m}", path.display()))
+            })?
+        };
         let outer = std::mem::replace(&mut self.cx.file, path.to_path_buf());
         let r = lexer::tokenize(&text)
             .and_then(|t| lexer::directives(&t))
@@ -398,16 +411,13 @@ impl Builder {
             ));
         }
         let path = self.cx.resolve(name);
-        if !path.is_file() {
-            return Err(self.cx.err(
-                line,
-                format!(
-                    "{} file `{name}` not found (looked for {})",
-                    d.name,
-                    path.display()
-                ),
-            ));
-        }
+        // checked (inside the allowed folders, a regular file) before it
+        // is read, naming this line
+        self.cx.access.check(&path, FileKind::Scene).map_err(|e| {
+            let what = format!("{} file", d.name);
+            self.cx
+                .err(line, crate::scene::mitsuba::files::message(&what, name, &e))
+        })?;
         self.read_file(&path, depth + 1, line)
     }
 

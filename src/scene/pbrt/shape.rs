@@ -13,6 +13,8 @@ use pbrt4::param::ParamType;
 use super::lexer::Directive;
 use super::params::Params;
 use super::{Builder, Result};
+use crate::scene::access::FileKind;
+use crate::scene::mitsuba::files;
 use crate::scene::shapes::{self, MeshData};
 use crate::scene::{Rgb, MAX_TRIANGLES};
 
@@ -35,6 +37,14 @@ pub(super) struct Built {
     geom: Geom,
     material: u32,
     emission: Option<Rgb>,
+}
+
+/// The bytes a mesh takes in the scene: per vertex a position, a normal
+/// and a uv, per triangle its indices and its shape.
+fn mesh_bytes(m: &MeshData) -> u64 {
+    let vertex = 2 * std::mem::size_of::<Vec3>() + std::mem::size_of::<Vec2>();
+    let triangle = std::mem::size_of::<[u32; 3]>() + std::mem::size_of::<u32>();
+    (m.positions.len() * vertex + m.indices.len() * triangle) as u64
 }
 
 /// Puts an object-space mesh into world space with pbrt's orientation (see
@@ -344,19 +354,8 @@ impl Builder {
             }
         }
         let path = self.cx.resolve(file);
-        if !path.is_file() {
-            return Err(self.cx.err(
-                d.line,
-                format!(
-                    "PLY file `{file}` not found (looked for {})",
-                    path.display()
-                ),
-            ));
-        }
-        let bytes = super::spectra::read_file(&path).map_err(|e| {
-            self.cx
-                .err(d.line, format!("cannot read PLY file `{file}`: {e}"))
-        })?;
+        let bytes = super::spectra::read_file(&self.cx.access, &path, FileKind::Mesh)
+            .map_err(|e| self.cx.err(d.line, files::message("PLY file", file, &e)))?;
         let mesh = crate::scene::ply::parse_ply(&bytes, &path).map_err(|e| {
             self.cx
                 .err(d.line, format!("in the mesh of this shape: {e}"))
@@ -372,6 +371,12 @@ impl Builder {
                 if tris > MAX_TRIANGLES {
                     return Err(self.cx.err(line, format!("this shape brings the scene to {tris} triangles; kalos loads at most {MAX_TRIANGLES}")));
                 }
+                // what the scene's copy of the mesh takes, before it is made
+                let item = format!("shape `{}` ({} triangles)", b.name, m.indices.len());
+                self.cx
+                    .access
+                    .reserve(item, mesh_bytes(&m))
+                    .map_err(|e| self.cx.err(line, e.to_string()))?;
                 self.scene.add_mesh(
                     b.name,
                     &m.positions,
@@ -429,9 +434,19 @@ impl Builder {
                 format!("this instance brings the scene past {MAX_TRIANGLES} triangles"),
             ));
         }
-        let shapes = obj.shapes.clone();
+        // one shape copied at a time, each reserved before the scene's copy
+        // of it is made (see `add_built`)
+        let count = obj.shapes.len();
         let m = self.g.ctm;
-        for mut s in shapes {
+        for i in 0..count {
+            let Some(mut s) = self
+                .objects
+                .get(name)
+                .and_then(|o| o.shapes.get(i))
+                .cloned()
+            else {
+                break;
+            };
             s.geom = match s.geom {
                 Geom::Mesh(mut mesh) => {
                     mesh.transform(&m);

@@ -29,6 +29,7 @@ use pbrt4::param::ParamType;
 use super::lexer::{Param, Values};
 use super::params::Params;
 use super::Ctx;
+use crate::scene::access::{AccessError, FileAccess, FileKind};
 use crate::scene::mitsuba::tables::{conductor_table, spectrum_to_rgb};
 use crate::scene::{luminance, Rgb, SceneError, Texture};
 
@@ -131,19 +132,23 @@ fn named(name: &str, kind: Kind) -> Option<Rgb> {
 /// Reads a spectrum file: whitespace-separated λ/value pairs, `#` comments.
 fn read_spd(cx: &Ctx, line: u32, file: &str) -> Result<Vec<(f32, f32)>> {
     let path = cx.resolve(file);
-    if !path.is_file() {
-        return Err(cx.err(
-            line,
-            format!(
-                "`{file}` is neither a named spectrum ({KNOWN}) nor a spectrum file (looked for {})",
-                path.display()
-            ),
-        ));
-    }
-    let text = read_text(&path).map_err(|e| {
+    let bytes = read_file(&cx.access, &path, FileKind::Spectrum).map_err(|e| {
+        if crate::scene::mitsuba::files::not_found(&e) {
+            cx.err(
+                line,
+                format!(
+                    "`{file}` is neither a named spectrum ({KNOWN}) nor a spectrum file (looked for {})",
+                    path.display()
+                ),
+            )
+        } else {
+            cx.err(line, format!("cannot read spectrum file `{file}`: {e}"))
+        }
+    })?;
+    let text = utf8(bytes).map_err(|m| {
         cx.err(
             line,
-            format!("cannot read spectrum file `{}`: {e}", path.display()),
+            format!("cannot read spectrum file `{}`: {m}", path.display()),
         )
     })?;
     let mut nums = Vec::new();
@@ -180,39 +185,43 @@ fn pairs_from(nums: &[f32]) -> std::result::Result<Vec<(f32, f32)>, String> {
     Ok(pairs)
 }
 
-/// The most bytes a gzip-compressed input may expand to: a small file that
-/// claims more (a "zip bomb") is refused before it fills the memory.
-pub(super) const MAX_GUNZIPPED: u64 = 1 << 32;
+/// Reads a file of `kind` through `access`, decompressing it when its name
+/// ends in `.gz` (pbrt-v4 scenes ship gzip-compressed `.pbrt.gz` and
+/// `.ply.gz` files); the decompressed bytes are held to `kind`'s limit.
+pub(super) fn read_file(
+    access: &FileAccess,
+    path: &Path,
+    kind: FileKind,
+) -> std::result::Result<Vec<u8>, AccessError> {
+    let bytes = access.read(path, kind)?;
+    gunzip(access, path, bytes, kind)
+}
 
-/// Reads a file, decompressing it when its name ends in `.gz` (pbrt-v4
-/// scenes ship gzip-compressed `.pbrt.gz` and `.ply.gz` files).
-pub(super) fn read_file(path: &Path) -> std::io::Result<Vec<u8>> {
-    use std::io::Read;
-    let bytes = std::fs::read(path)?;
+/// `bytes` read from `path`, decompressed when its name ends in `.gz`.
+pub(super) fn gunzip(
+    access: &FileAccess,
+    path: &Path,
+    bytes: Vec<u8>,
+    kind: FileKind,
+) -> std::result::Result<Vec<u8>, AccessError> {
     if !path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("gz"))
     {
         return Ok(bytes);
     }
-    let mut out = Vec::new();
-    flate2::read::GzDecoder::new(&bytes[..])
-        .take(MAX_GUNZIPPED + 1)
-        .read_to_end(&mut out)
-        .map_err(|e| std::io::Error::new(e.kind(), format!("not a valid gzip file ({e})")))?;
-    if out.len() as u64 > MAX_GUNZIPPED {
-        return Err(std::io::Error::other(format!(
-            "it decompresses to more than {} GiB",
-            MAX_GUNZIPPED >> 30
-        )));
-    }
-    Ok(out)
+    access.gunzip(path, &bytes, kind).map_err(|e| match e {
+        AccessError::Io { named, source } => AccessError::Io {
+            named,
+            source: std::io::Error::new(source.kind(), format!("not a valid gzip file ({source})")),
+        },
+        e => e,
+    })
 }
 
-/// [`read_file`] as UTF-8 text.
-pub(super) fn read_text(path: &Path) -> std::io::Result<String> {
-    String::from_utf8(read_file(path)?)
-        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"))
+/// Bytes read from a file as UTF-8 text; the error is a reason.
+pub(super) fn utf8(bytes: Vec<u8>) -> std::result::Result<String, String> {
+    String::from_utf8(bytes).map_err(|_| "not UTF-8 text".to_string())
 }
 
 /// A spectrum parameter's value as RGB (not a texture).
