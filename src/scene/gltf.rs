@@ -1057,6 +1057,13 @@ fn check_glb_lengths(path: &Path, bytes: &[u8]) -> Result<(), SceneError> {
         u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]) as u64
     };
     let claimed = word(8);
+    // shorter than the header itself: the gltf crate subtracts 12 from it
+    // unchecked (gltf 1.4.1), which debug builds panic on
+    if claimed < 12 {
+        return Err(err(format!(
+            "GLB header claims {claimed} bytes, fewer than the 12 of the header itself: corrupt"
+        )));
+    }
     if claimed > size {
         return Err(err(format!(
             "GLB header claims {claimed} bytes, but the file has {size}: truncated or corrupt"

@@ -24,6 +24,7 @@ mod density;
 mod driver;
 mod farm;
 mod fuzz;
+mod fuzz_found;
 mod geometry;
 mod glb;
 mod image_io;

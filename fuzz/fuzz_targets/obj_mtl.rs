@@ -1,0 +1,9 @@
+//! OBJ with its MTL file(s) and side files.
+//! The input is in the container format of `kalos_fuzz` (main file first).
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(init: kalos_fuzz::init(), |data: &[u8]| {
+    kalos_fuzz::run("scene.obj", data);
+});
