@@ -259,7 +259,8 @@ fn without_lightmap_the_bake_is_unchanged() {
 fn the_lightmap_flags() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = |f: &str| dir.path().join(f).to_str().expect("utf-8").to_string();
-    let (atlas, err) = (d("atlas.exr"), d("err.exr"));
+    // -o names the .glb; the float atlas is written beside it
+    let (out, atlas, err) = (d("out.glb"), d("out.lightmap.exr"), d("err.exr"));
     let o = common::kalos(&[
         "bake",
         "--lightmap",
@@ -269,10 +270,12 @@ fn the_lightmap_flags() {
         "100000",
         "-q",
         "-o",
-        &atlas,
+        &out,
         "--lightmap-error",
         &err,
     ]);
+    let glb_bytes = std::fs::read(&out).expect("the .glb written");
+    assert_eq!(&glb_bytes[..4], b"glTF");
     assert!(o.status.success(), "{}", common::stderr(&o));
     for f in [&atlas, &err] {
         let img = kalos::image_io::read_image(std::path::Path::new(f)).expect("an EXR");
@@ -294,7 +297,7 @@ fn the_lightmap_flags() {
         &["bake", "--lightmap-error", &err, "-o", &glb],
         "--lightmap",
     );
-    refused(&["bake", "--lightmap", "-o", &glb], "must end in .exr");
+    refused(&["bake", "--lightmap", "-o", &atlas], "must end in .glb");
     refused(
         &[
             "bake",
@@ -304,16 +307,16 @@ fn the_lightmap_flags() {
             "--texel-density",
             "10",
             "-o",
-            &atlas,
+            &glb,
         ],
         "cannot be used with",
     );
     refused(
-        &["bake", "--lightmap", "--lightmap-size", "0", "-o", &atlas],
+        &["bake", "--lightmap", "--lightmap-size", "0", "-o", &glb],
         "--lightmap-size must be between",
     );
     refused(
-        &["bake", "--lightmap", "--texel-density=-3", "-o", &atlas],
+        &["bake", "--lightmap", "--texel-density=-3", "-o", &glb],
         "--texel-density must be",
     );
     refused(
@@ -321,7 +324,7 @@ fn the_lightmap_flags() {
             "bake",
             "--lightmap",
             "-o",
-            &atlas,
+            &glb,
             "--lightmap-error",
             &d("e.png"),
         ],
@@ -338,10 +341,10 @@ fn the_lightmap_flags() {
             "--max-memory",
             "1G",
             "-o",
-            &d("big.exr"),
+            &d("big.glb"),
         ],
         "the lightmap atlas (16384×16384 texels) needs",
     );
     assert!(t.elapsed().as_secs_f64() < 5.0, "refused only after work");
-    assert!(!dir.path().join("big.exr").exists());
+    assert!(!dir.path().join("big.glb").exists());
 }
