@@ -22,12 +22,21 @@ def test_lightmap_arrays_and_save(tmp_path, run_cli):
     assert np.median(err[lit > 0] / lit[lit > 0]) < 0.5
     assert lm.stats["particles"] == 100_000
     assert out.is_file()
-    # the command line's atlas, same seed and settings: the same texels
-    cli = tmp_path / "cli.exr"
+    # the command line's .glb, same seed and settings: its float atlas,
+    # written beside it, holds the same texels
+    cli = tmp_path / "cli.glb"
     run_cli("bake", "--lightmap", "--lightmap-size", "64", "--particles", "100000",
             "--seed", "4", "-q", "-o", cli)
-    assert np.array_equal(kalos.read_image(out), kalos.read_image(cli))
+    assert cli.read_bytes()[:4] == b"glTF"
+    cli_atlas = tmp_path / "cli.lightmap.exr"
+    assert np.array_equal(kalos.read_image(out), kalos.read_image(cli_atlas))
     assert np.array_equal(kalos.read_image(out), lm.atlas)
+    # save() writes the asset with its lightmap as a .glb, and its atlas
+    # beside it
+    glb = tmp_path / "py.glb"
+    lm.save(glb)
+    assert glb.read_bytes()[:4] == b"glTF"
+    assert np.array_equal(kalos.read_image(tmp_path / "py.lightmap.exr"), lm.atlas)
 
 
 def test_lightmap_settings_need_lightmap():
