@@ -625,6 +625,31 @@ fn import(path: &Path, access: &FileAccess) -> Result<Imported, SceneError> {
         buffers.push(gltf::buffer::Data(data));
     }
 
+    let images = read_images(path, &text, &document, &buffers, image_src, access)?;
+    Ok((document, buffers, images))
+}
+
+/// The images of `document` used as a base colour (None for the others),
+/// each read from where `image_src` says ([`locate`]d by [`import`]) or
+/// from its buffer view, and declared to `access` from its header before
+/// it is decoded. `text` is the glTF's JSON text, to name a URI's line.
+fn read_images(
+    path: &Path,
+    text: &[u8],
+    document: &gltf::Document,
+    buffers: &[gltf::buffer::Data],
+    image_src: Vec<Option<Located>>,
+    access: &FileAccess,
+) -> Result<Vec<Option<gltf::image::Data>>, SceneError> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let fail = |what: String, uri: &str, e: String| {
+        SceneError::new(
+            path,
+            uri_line(text, uri),
+            format!("{what} (`{}`): {e}", short_uri(uri)),
+        )
+    };
+    let json = document.as_json();
     // the images used as a base colour, each declared from its header
     // before it is decoded
     let mut used = vec![false; json.images.len()];
@@ -659,7 +684,7 @@ fn import(path: &Path, access: &FileAccess) -> Result<Imported, SceneError> {
             None => match img
                 .buffer_view
                 .as_ref()
-                .and_then(|v| view_bytes(&document, &buffers, v.value()))
+                .and_then(|v| view_bytes(document, buffers, v.value()))
             {
                 Some(b) => (b.into(), mime),
                 None => {
@@ -678,7 +703,7 @@ fn import(path: &Path, access: &FileAccess) -> Result<Imported, SceneError> {
             .map_err(|e| fail(format!("image {i}"), uri, e))?;
         images.push(image);
     }
-    Ok((document, buffers, images))
+    Ok(images)
 }
 
 /// Where a glTF URI points: bytes it holds (a `data:` URI, with its media
