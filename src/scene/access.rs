@@ -488,27 +488,26 @@ fn open_nonblocking(path: &Path) -> std::io::Result<File> {
 mod tests {
     use super::*;
 
-    fn access(dir: &Path) -> FileAccess {
-        FileAccess::for_dir(dir, &ReadPolicy::default()).unwrap()
+    fn access(dir: &Path) -> Result<FileAccess, AccessError> {
+        FileAccess::for_dir(dir, &ReadPolicy::default())
     }
 
     #[test]
-    fn reads_a_file_inside_and_refuses_one_outside_until_allowed() {
-        let root = tempfile::tempdir().unwrap();
+    fn reads_a_file_inside_and_refuses_one_outside_until_allowed(
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        let root = tempfile::tempdir()?;
         let scene = root.path().join("scene");
         let outside = root.path().join("outside");
-        std::fs::create_dir_all(&scene).unwrap();
-        std::fs::create_dir_all(&outside).unwrap();
-        std::fs::write(scene.join("a.txt"), "inside").unwrap();
-        std::fs::write(outside.join("secret.png"), "secret").unwrap();
-        let a = access(&scene);
-        assert_eq!(
-            a.read(&scene.join("a.txt"), FileKind::Scene).unwrap(),
-            b"inside"
-        );
+        std::fs::create_dir_all(&scene)?;
+        std::fs::create_dir_all(&outside)?;
+        std::fs::write(scene.join("a.txt"), "inside")?;
+        std::fs::write(outside.join("secret.png"), "secret")?;
+        let a = access(&scene)?;
+        assert_eq!(a.read(&scene.join("a.txt"), FileKind::Scene)?, b"inside");
         let e = a
             .read(&scene.join("../outside/secret.png"), FileKind::Image)
-            .unwrap_err();
+            .err()
+            .ok_or("expected an error")?;
         assert!(matches!(e, AccessError::Outside { .. }), "{e}");
         let msg = e.to_string();
         assert!(
@@ -519,30 +518,36 @@ mod tests {
             allow_read: vec![outside.clone()],
             ..Default::default()
         };
-        let wide = FileAccess::for_dir(&scene, &policy).unwrap();
+        let wide = FileAccess::for_dir(&scene, &policy)?;
         let bytes = wide.read(&scene.join("../outside/secret.png"), FileKind::Image);
-        assert_eq!(bytes.unwrap(), b"secret");
+        assert_eq!(bytes?, b"secret");
+        Ok(())
     }
 
     #[cfg(unix)]
     #[test]
-    fn a_symlink_out_of_the_folder_is_refused() {
-        let root = tempfile::tempdir().unwrap();
+    fn a_symlink_out_of_the_folder_is_refused() -> Result<(), Box<dyn std::error::Error>> {
+        let root = tempfile::tempdir()?;
         let scene = root.path().join("scene");
-        std::fs::create_dir_all(&scene).unwrap();
-        std::fs::write(root.path().join("secret"), "x").unwrap();
-        std::os::unix::fs::symlink(root.path().join("secret"), scene.join("link")).unwrap();
-        let e = access(&scene)
+        std::fs::create_dir_all(&scene)?;
+        std::fs::write(root.path().join("secret"), "x")?;
+        std::os::unix::fs::symlink(root.path().join("secret"), scene.join("link"))?;
+        let e = access(&scene)?
             .read(&scene.join("link"), FileKind::Mesh)
-            .unwrap_err();
+            .err()
+            .ok_or("expected an error")?;
         assert!(matches!(e, AccessError::Outside { .. }), "{e}");
+        Ok(())
     }
 
     #[cfg(unix)]
     #[test]
-    fn devices_and_fifos_are_refused_without_reading() {
-        let a = FileAccess::for_dir(Path::new("/dev"), &ReadPolicy::default()).unwrap();
-        let e = a.read(Path::new("/dev/zero"), FileKind::Mesh).unwrap_err();
+    fn devices_and_fifos_are_refused_without_reading() -> Result<(), Box<dyn std::error::Error>> {
+        let a = FileAccess::for_dir(Path::new("/dev"), &ReadPolicy::default())?;
+        let e = a
+            .read(Path::new("/dev/zero"), FileKind::Mesh)
+            .err()
+            .ok_or("expected an error")?;
         assert!(
             matches!(
                 e,
@@ -553,17 +558,21 @@ mod tests {
             ),
             "{e}"
         );
-        let dir = tempfile::tempdir().unwrap();
+        let dir = tempfile::tempdir()?;
         let fifo = dir.path().join("pipe");
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
         if made.is_ok_and(|s| s.success()) {
-            let e = access(dir.path()).read(&fifo, FileKind::Mesh).unwrap_err();
+            let e = access(dir.path())?
+                .read(&fifo, FileKind::Mesh)
+                .err()
+                .ok_or("expected an error")?;
             assert!(matches!(e, AccessError::NotRegular { .. }), "{e}");
             assert!(e.to_string().contains("FIFO"), "{e}");
         }
-        let e = access(dir.path())
+        let e = access(dir.path())?
             .read(dir.path(), FileKind::Mesh)
-            .unwrap_err();
+            .err()
+            .ok_or("expected an error")?;
         assert!(
             matches!(
                 e,
@@ -574,52 +583,59 @@ mod tests {
             ),
             "{e}"
         );
+        Ok(())
     }
 
     #[test]
-    fn a_file_over_its_kinds_limit_is_refused_before_reading() {
-        let dir = tempfile::tempdir().unwrap();
+    fn a_file_over_its_kinds_limit_is_refused_before_reading(
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        let dir = tempfile::tempdir()?;
         let big = dir.path().join("big.spd");
-        let f = File::create(&big).unwrap();
-        f.set_len(FileKind::Spectrum.limit() + 1).unwrap(); // sparse: no disk used
-        let e = access(dir.path())
+        let f = File::create(&big)?;
+        f.set_len(FileKind::Spectrum.limit() + 1)?; // sparse: no disk used
+        let e = access(dir.path())?
             .read(&big, FileKind::Spectrum)
-            .unwrap_err();
+            .err()
+            .ok_or("expected an error")?;
         assert!(matches!(e, AccessError::TooLarge { .. }), "{e}");
+        Ok(())
     }
 
     #[test]
-    fn a_gzip_bomb_is_bounded() {
+    fn a_gzip_bomb_is_bounded() -> Result<(), Box<dyn std::error::Error>> {
         use std::io::Write;
         let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
         let zeros = vec![0u8; 1 << 20];
         for _ in 0..17 {
-            enc.write_all(&zeros).unwrap();
+            enc.write_all(&zeros)?;
         }
-        let gz = enc.finish().unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let e = access(dir.path())
+        let gz = enc.finish()?;
+        let dir = tempfile::tempdir()?;
+        let e = access(dir.path())?
             .gunzip(Path::new("bomb.spd.gz"), &gz, FileKind::Spectrum)
-            .unwrap_err();
+            .err()
+            .ok_or("expected an error")?;
         assert!(matches!(e, AccessError::TooLarge { .. }), "{e}");
+        Ok(())
     }
 
     #[test]
-    fn memory_past_the_limit_names_the_largest_item() {
-        let dir = tempfile::tempdir().unwrap();
+    fn memory_past_the_limit_names_the_largest_item() -> Result<(), Box<dyn std::error::Error>> {
+        let dir = tempfile::tempdir()?;
         let policy = ReadPolicy {
             memory_limit: Some((1000, "--max-memory".into())),
             ..Default::default()
         };
-        let a = FileAccess::for_dir(dir.path(), &policy).unwrap();
-        a.reserve("mesh a", 400).unwrap();
-        a.reserve("texture b", 500).unwrap();
-        let e = a.reserve("mesh c", 200).unwrap_err();
+        let a = FileAccess::for_dir(dir.path(), &policy)?;
+        a.reserve("mesh a", 400)?;
+        a.reserve("texture b", 500)?;
+        let e = a.reserve("mesh c", 200).err().ok_or("expected an error")?;
         let msg = e.to_string();
         assert!(
             msg.contains("texture b") && msg.contains("--max-memory"),
             "{msg}"
         );
         assert_eq!(a.reserved(), 1100);
+        Ok(())
     }
 }

@@ -100,15 +100,15 @@ mod tests {
     use super::*;
 
     #[test]
-    fn dimensions_come_from_the_header() {
+    fn dimensions_come_from_the_header() -> Result<(), Box<dyn std::error::Error>> {
         let pfm = b"PF\n3 2\n-1.0\n";
         assert_eq!(image_dimensions(pfm, Path::new("a.pfm")), Some((3, 2)));
         let mut png = Vec::new();
         image::RgbImage::new(5, 4)
-            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .unwrap();
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
         assert_eq!(image_dimensions(&png, Path::new("a.png")), Some((5, 4)));
         assert_eq!(image_dimensions(b"junk", Path::new("a.png")), None);
         assert_eq!(image_bytes(5, 4), 5 * 4 * 12);
+        Ok(())
     }
 }

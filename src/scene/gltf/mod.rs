@@ -1,0 +1,562 @@
+//! glTF 2.0 scenes (`.gltf` with its buffers and images, or `.glb`), through
+//! the `gltf` crate.
+//!
+//! What is read, and how the metallic–roughness model maps onto kalos's
+//! materials (a choice: glTF's BRDF is not one of Mitsuba's plugins):
+//!
+//! - every triangle primitive of every mesh node of the default scene, with
+//!   the node's world transform (a negative determinant reverses the winding,
+//!   as the glTF specification says), normals and the first uv set; the
+//!   second uv set is kept in [`Scene::uv1`], and each shape records the
+//!   node, mesh and primitive it came from ([`super::ShapeSource`]);
+//! - `baseColorFactor` × `baseColorTexture` (sRGB) → `diffuse` for
+//!   non-metals (`metallicFactor` < 0.5); metals become a mirror-Fresnel
+//!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
+//!   tinted by the base colour (glTF's F0 of a metal);
+//! - `doubleSided` → `twosided`;
+//! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
+//!   area emitter with that radiance (glTF's emission is unitless: it is
+//!   read as W/(m²·sr), with a warning); negative emission is an error;
+//! - the first perspective camera (glTF cameras look along −z with +x to the
+//!   right; kalos's along +z with +x to the left, so the camera's world
+//!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
+//!   synthesised, with a warning.
+//!
+//! Skipped with a warning: non-triangle primitives, emissive and
+//! metallic-roughness textures, texture transforms, and punctual lights.
+//!
+//! Refused before anything is allocated: GLB lengths beyond the file, node
+//! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
+//! triangles. A file with no emissive material is lit by a constant white
+//! environment, with a note in [`Scene::notes`].
+//!
+//! The file, its buffers and its images are read through the scene's
+//! [`FileAccess`], not by the `gltf` crate: a URI is a `data:` URI (decoded
+//! in memory), or a relative path (percent-decoded, against the file's
+//! folder) or a `file:` URI, read only if the access allows it. Every file the glTF names is checked before any is
+//! read; the memory of its instanced meshes, its buffers and its base
+//! colour images (their sizes from the image headers) is declared
+//! ([`FileAccess::reserve`]) before it is allocated. Images that no
+//! material uses as its base colour are checked, not read.
+
+use crate::scene::access::{FileAccess, FileKind};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::{Mat3, Mat4, Vec2, Vec3};
+
+use super::shapes::MeshData;
+use super::{
+    CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, ShapeSource, TexImage, Texture,
+};
+
+/// Largest number of node instances visited: a node referenced from many
+/// parents is walked once per path to it, so a small file can describe an
+/// exponentially large tree.
+mod checks;
+mod read;
+
+use checks::*;
+use read::*;
+pub(crate) use read::{locate, Located};
+
+const MAX_NODES: u64 = 1 << 20;
+
+/// Loads a glTF 2.0 file as a scene.
+pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
+    let err = |msg: String| SceneError::new(path, 0, msg);
+    let (doc, buffers, images) = import(path, access)?;
+    let mut scene = Scene::empty(path.display().to_string());
+
+    // Materials, each with its emission
+    let mut mats = Vec::new();
+    let mut textures: Vec<Option<Arc<TexImage>>> = vec![None; images.len()];
+    for m in doc.materials() {
+        mats.push(material(&m, &images, &mut textures, &mut scene, path)?);
+    }
+
+    // Walk the node tree of the default scene
+    let gscene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .ok_or_else(|| err("glTF file has no scene".into()))?;
+    check_instancing(&doc, &gscene, path)?;
+    let mut walk = Walk {
+        path,
+        buffers: &buffers,
+        mats: &mats,
+        default_mat: None,
+        scene,
+        camera_seen: false,
+    };
+    walk.nodes(&gscene)?;
+    let Walk {
+        mut scene,
+        camera_seen,
+        ..
+    } = walk;
+    if scene.triangles.is_empty() {
+        return Err(err("glTF file has no triangles".into()));
+    }
+    if !scene.uv1.is_empty() {
+        scene.uv1.resize(scene.positions.len(), Vec2::ZERO);
+    }
+    if !camera_seen {
+        super::obj::synthesise_camera(&mut scene, path);
+    }
+    scene.light_if_dark(path);
+    Ok(scene)
+}
+
+/// Adds a warning about the file to the scene.
+fn warn(scene: &mut Scene, path: &Path, msg: String) {
+    scene.warnings.push(format!("{}: {msg}", path.display()));
+}
+
+/// Adds one glTF material to the scene (see the module doc for the
+/// mapping) and returns its index with its emitted radiance, if any.
+/// `textures` caches the decoded images, by image index (`images` holds
+/// those used as a base colour).
+fn material(
+    m: &gltf::Material,
+    images: &[Option<gltf::image::Data>],
+    textures: &mut [Option<Arc<TexImage>>],
+    scene: &mut Scene,
+    path: &Path,
+) -> Result<(u32, Option<Rgb>), SceneError> {
+    let pbr = m.pbr_metallic_roughness();
+    let f = pbr.base_color_factor();
+    let factor = Rgb::new(f[0], f[1], f[2]);
+    if !(factor.is_finite() && factor.min_element() >= 0.0) {
+        return Err(SceneError::new(
+            path,
+            0,
+            format!(
+                "material {} `{}`: baseColorFactor must be non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(m),
+                factor.x,
+                factor.y,
+                factor.z
+            ),
+        ));
+    }
+    let base = match pbr.base_color_texture() {
+        Some(info) => base_color_texture(m, &info, factor, images, textures, scene, path),
+        None => Texture::Constant(factor),
+    };
+    if pbr.metallic_roughness_texture().is_some() || m.emissive_texture().is_some() {
+        warn(
+            scene,
+            path,
+            format!(
+                "material `{}`: metallic-roughness and emissive textures are ignored",
+                name_of(m)
+            ),
+        );
+    }
+    let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
+    let material = if pbr.metallic_factor() >= 0.5 {
+        // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+        let (eta, k) = (Rgb::ZERO, Rgb::ONE);
+        if roughness <= 0.0 {
+            Material::Conductor {
+                eta,
+                k,
+                specular_reflectance: base,
+            }
+        } else {
+            Material::RoughConductor {
+                distribution: MicrofacetKind::Ggx,
+                alpha: (roughness * roughness).max(1e-3),
+                eta,
+                k,
+                specular_reflectance: base,
+            }
+        }
+    } else {
+        Material::Diffuse { reflectance: base }
+    };
+    let material = if m.double_sided() {
+        Material::TwoSided(Box::new(material))
+    } else {
+        material
+    };
+    let emission = emission(m, scene, path)?;
+    Ok((scene.add_material(material), emission))
+}
+
+/// The base colour of a material with a `baseColorTexture`: the image
+/// (decoded once, through `textures`) times `factor`, or `factor` alone,
+/// with a warning, when the image's format is not supported.
+fn base_color_texture(
+    m: &gltf::Material,
+    info: &gltf::texture::Info,
+    factor: Rgb,
+    images: &[Option<gltf::image::Data>],
+    textures: &mut [Option<Arc<TexImage>>],
+    scene: &mut Scene,
+    path: &Path,
+) -> Texture {
+    let i = info.texture().source().index();
+    if info.tex_coord() != 0 {
+        warn(
+            scene,
+            path,
+            format!("material `{}`: only uv set 0 is read", name_of(m)),
+        );
+    }
+    let img = match textures.get(i).cloned().flatten() {
+        Some(img) => Some(img),
+        None => {
+            let img = images
+                .get(i)
+                .and_then(Option::as_ref)
+                .and_then(to_tex_image)
+                .map(Arc::new);
+            if let (Some(img), Some(slot)) = (&img, textures.get_mut(i)) {
+                *slot = Some(img.clone());
+            }
+            img
+        }
+    };
+    match img {
+        Some(img) => {
+            let img = if factor == Rgb::ONE {
+                img
+            } else {
+                Arc::new(img.map(|c| c * factor))
+            };
+            // glTF's uv (0, 0) is the image's top-left corner, as
+            // Mitsuba's; TexImage puts v = 0 at the bottom
+            Texture::Bitmap {
+                image: img,
+                to_uv: glam::Affine2::from_mat2_translation(
+                    glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
+                    Vec2::new(0.0, 1.0),
+                ),
+            }
+        }
+        None => {
+            warn(
+                scene,
+                path,
+                format!("material `{}`: unsupported texture format", name_of(m)),
+            );
+            Texture::Constant(factor)
+        }
+    }
+}
+
+/// A material's emitted radiance: `emissiveFactor` ×
+/// `KHR_materials_emissive_strength`, `None` when black. Emission is
+/// unitless in glTF, so a warning says how it is read.
+fn emission(m: &gltf::Material, scene: &mut Scene, path: &Path) -> Result<Option<Rgb>, SceneError> {
+    // KHR_materials_emissive_strength scales the [0, 1] factor (Blender
+    // writes emission strengths above 1 this way)
+    let e = Rgb::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+    if !(e.is_finite() && e.min_element() >= 0.0) {
+        return Err(SceneError::new(
+            path,
+            0,
+            format!(
+                "material {} `{}`: emission (emissiveFactor × emissiveStrength) must be finite \
+                 and non-negative, found ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(m),
+                e.x,
+                e.y,
+                e.z
+            ),
+        ));
+    }
+    let emission = (e.max_element() > 0.0).then_some(e);
+    if emission.is_some() {
+        warn(
+            scene,
+            path,
+            format!(
+                "material `{}`: glTF emission is unitless; read as radiance ({}, {}, {}) \
+                 W/(m²·sr){}",
+                name_of(m),
+                e.x,
+                e.y,
+                e.z,
+                if m.emissive_strength().is_none() && e.max_element() <= 1.0 {
+                    // an exporter's display white, not a lamp's output:
+                    // Blender writes lamps as KHR_lights_punctual, and
+                    // emission strengths above 1 as emissiveStrength
+                    " (at most 1, as viewers show it: a dim light; the file has no \
+                     KHR_materials_emissive_strength, and punctual lights are not read)"
+                } else {
+                    ""
+                }
+            ),
+        );
+    }
+    Ok(emission)
+}
+
+/// The walk of a glTF scene's node tree: what it adds meshes with, and
+/// the scene it adds them to.
+struct Walk<'a> {
+    path: &'a Path,
+    buffers: &'a [gltf::buffer::Data],
+    /// Each glTF material's index in the scene, and its emission.
+    mats: &'a [(u32, Option<Rgb>)],
+    /// The white diffuse material of primitives without one, once added.
+    default_mat: Option<u32>,
+    scene: Scene,
+    /// Whether a camera was read (the first perspective one is used).
+    camera_seen: bool,
+}
+
+impl Walk<'_> {
+    /// Walks the nodes of `gscene` depth first, each with its world
+    /// transform, adding their mesh primitives and the first camera.
+    fn nodes(&mut self, gscene: &gltf::Scene) -> Result<(), SceneError> {
+        let mut stack: Vec<(gltf::Node, Mat4)> =
+            gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+        while let Some((node, parent)) = stack.pop() {
+            let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+            if let Some(mesh) = node.mesh() {
+                for (k, prim) in mesh.primitives().enumerate() {
+                    self.primitive(&node, &mesh, k, &prim, world)?;
+                }
+            }
+            if let (Some(cam), false) = (node.camera(), self.camera_seen) {
+                if let Some(c) = camera(&cam, world) {
+                    self.scene.camera = c;
+                    self.camera_seen = true;
+                }
+            }
+            for c in node.children() {
+                stack.push((c, world));
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds primitive `k` of a node's mesh in world space, or skips it with
+    /// a warning when it is not made of triangles or has no readable
+    /// positions.
+    fn primitive(
+        &mut self,
+        node: &gltf::Node,
+        mesh: &gltf::Mesh,
+        k: usize,
+        prim: &gltf::Primitive,
+        world: Mat4,
+    ) -> Result<(), SceneError> {
+        let (path, scene) = (self.path, &mut self.scene);
+        let err = |msg: String| SceneError::new(path, 0, msg);
+        if prim.mode() != gltf::mesh::Mode::Triangles {
+            warn(
+                scene,
+                path,
+                format!(
+                    "mesh `{}`: non-triangle primitive skipped",
+                    mesh.name().unwrap_or("?")
+                ),
+            );
+            return Ok(());
+        }
+        check_accessor_types(prim)
+            .map_err(|e| err(format!("mesh {} primitive {k}: {e}", mesh.index())))?;
+        let buffers = self.buffers;
+        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let Some(positions) = reader.read_positions() else {
+            warn(
+                scene,
+                path,
+                format!(
+                    "mesh {} primitive {k}: no readable POSITION (missing, or outside \
+                     its buffer): skipped",
+                    mesh.index()
+                ),
+            );
+            return Ok(());
+        };
+        let positions: Vec<Vec3> = positions.map(Vec3::from).collect();
+        super::check_finite(
+            path,
+            &format!("mesh {} primitive {k}", mesh.index()),
+            &positions,
+        )?;
+        let n = positions.len();
+        let normals: Option<Vec<Vec3>> = reader
+            .read_normals()
+            .map(|it| it.map(Vec3::from).collect::<Vec<_>>())
+            .filter(|v| v.len() == n);
+        let uvs: Option<Vec<Vec2>> = reader
+            .read_tex_coords(0)
+            .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
+            .filter(|v| v.len() == n);
+        let uv1: Option<Vec<Vec2>> = reader
+            .read_tex_coords(1)
+            .map(|t| t.into_f32().map(Vec2::from).collect::<Vec<_>>())
+            .filter(|v| v.len() == n);
+        let flat: Vec<u32> = match reader.read_indices() {
+            Some(ix) => ix.into_u32().collect(),
+            None => (0..n as u32).collect(),
+        };
+        let indices = flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let mut m = MeshData {
+            positions,
+            normals,
+            uvs,
+            indices,
+        };
+        m.transform(&world);
+        let mirrored = Mat3::from_mat4(world).determinant() < 0.0;
+        if mirrored {
+            m.reverse_winding();
+        }
+        let (material, emission) = match prim.material().index().and_then(|i| self.mats.get(i)) {
+            Some(&(mat, e)) => (mat, e),
+            None => {
+                let d = *self.default_mat.get_or_insert_with(|| {
+                    scene.add_material(Material::Diffuse {
+                        reflectance: Texture::Constant(Rgb::ONE),
+                    })
+                });
+                (d, None)
+            }
+        };
+        let name = format!("{}.{k}", node.name().or(mesh.name()).unwrap_or("mesh"));
+        let first_vertex = scene.positions.len() as u32;
+        let shape = scene.add_mesh(
+            name,
+            &m.positions,
+            m.normals.as_deref(),
+            m.uvs.as_deref(),
+            &m.indices,
+            material,
+            emission,
+        );
+        keep_uv1(scene, first_vertex, n, uv1.as_deref());
+        let s = &scene.shapes[shape as usize];
+        let kept = kept_triangles(
+            &scene.triangles[s.first_tri as usize..][..s.tri_count as usize],
+            &m.indices,
+            first_vertex,
+        );
+        scene.shapes[shape as usize].source = Some(Box::new(ShapeSource {
+            node: node.index() as u32,
+            mesh: mesh.index() as u32,
+            primitive: k as u32,
+            first_vertex,
+            vertex_count: n as u32,
+            prim_triangles: m.indices.len() as u32,
+            kept,
+            mirrored,
+        }));
+        Ok(())
+    }
+}
+
+/// Appends a primitive's TEXCOORD_1 (`n` vertices from `first_vertex`) to
+/// [`Scene::uv1`], which stays empty until a primitive has one: then the
+/// vertices before get zeros, as do later primitives without one.
+fn keep_uv1(scene: &mut Scene, first_vertex: u32, n: usize, uv1: Option<&[Vec2]>) {
+    if uv1.is_none() && scene.uv1.is_empty() {
+        return;
+    }
+    scene.uv1.resize(first_vertex as usize, Vec2::ZERO);
+    match uv1 {
+        Some(t) => scene.uv1.extend_from_slice(t),
+        None => scene.uv1.resize(first_vertex as usize + n, Vec2::ZERO),
+    }
+}
+
+/// For each triangle the scene kept of a primitive (`kept`, on scene
+/// vertices), the index of the primitive triangle (`all`, on the
+/// primitive's vertices, which start at scene vertex `base`) it is; empty
+/// when every triangle was kept. The scene keeps them in order, so one pass
+/// matches them.
+fn kept_triangles(kept: &[[u32; 3]], all: &[[u32; 3]], base: u32) -> Vec<u32> {
+    if kept.len() == all.len() {
+        return Vec::new();
+    }
+    let mut out = Vec::with_capacity(kept.len());
+    let mut j = 0;
+    for t in kept {
+        let local = t.map(|i| i - base);
+        while j < all.len() && all[j] != local {
+            j += 1;
+        }
+        out.push(j as u32);
+        j += 1;
+    }
+    out
+}
+
+/// A perspective glTF camera placed by `world`, as kalos's camera (`None`
+/// for an orthographic camera, or one kalos cannot build).
+fn camera(cam: &gltf::Camera, world: Mat4) -> Option<CameraDesc> {
+    let gltf::camera::Projection::Perspective(p) = cam.projection() else {
+        return None;
+    };
+    let aspect = p.aspect_ratio().filter(|a| *a > 0.0).unwrap_or(1.0);
+    let height = 512u32;
+    let width = ((height as f32 * aspect).round() as u32).clamp(1, 1 << 16);
+    let to_world = world * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+    let mut c = CameraDesc::from_fov(to_world, p.yfov().to_degrees(), "y", width, height)?;
+    c.near_clip = p.znear().max(1e-6);
+    Some(c)
+}
+
+fn name_of(m: &gltf::Material) -> String {
+    m.name().unwrap_or("(unnamed)").to_string()
+}
+
+/// A decoded glTF image as linear RGB: 8- and 16-bit data are sRGB-encoded
+/// (base colour textures are, by the specification), float data linear.
+fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
+    use gltf::image::Format as F;
+    let (channels, bytes, float) = match d.format {
+        F::R8 => (1, 1, false),
+        F::R8G8 => (2, 1, false),
+        F::R8G8B8 => (3, 1, false),
+        F::R8G8B8A8 => (4, 1, false),
+        F::R16 => (1, 2, false),
+        F::R16G16 => (2, 2, false),
+        F::R16G16B16 => (3, 2, false),
+        F::R16G16B16A16 => (4, 2, false),
+        F::R32G32B32FLOAT => (3, 4, true),
+        F::R32G32B32A32FLOAT => (4, 4, true),
+    };
+    let px = channels * bytes;
+    let count = (d.width as usize).checked_mul(d.height as usize)?;
+    if d.pixels.len() < count.checked_mul(px)? || count == 0 {
+        return None;
+    }
+    let read = |b: &[u8]| -> f32 {
+        match (bytes, float) {
+            (1, _) => b[0] as f32 / 255.0,
+            (2, _) => u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0,
+            _ => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        }
+    };
+    let decode = |c: f32| {
+        if float {
+            c
+        } else if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let data = d.pixels[..count * px]
+        .chunks_exact(px)
+        .map(|p| {
+            let ch = |i: usize| decode(read(&p[i * bytes..(i + 1) * bytes]));
+            match channels {
+                1 => Rgb::splat(ch(0)),
+                2 => Rgb::new(ch(0), ch(1), 0.0),
+                _ => Rgb::new(ch(0), ch(1), ch(2)),
+            }
+        })
+        .collect();
+    Some(TexImage::new(d.width, d.height, data))
+}
