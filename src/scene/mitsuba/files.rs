@@ -4,20 +4,14 @@
 
 use std::path::Path;
 
-use crate::scene::access::{AccessError, FileAccess, FileKind, ReadPolicy};
+use crate::scene::access::{AccessError, FileAccess, FileKind};
 
 /// Reads the scene file the user named (`kind` [`FileKind::Scene`]'s
-/// checks: a regular file within the size limit). The user named it, so
-/// when it is a symbolic link to another folder it is read all the same;
-/// the files it names are still held to `access`'s folders.
+/// checks: a regular file within the size limit). [`FileAccess::for_scene`]
+/// admits that file even when it is a symbolic link to another folder; the
+/// files it names are still held to `access`'s folders.
 pub(crate) fn read_main(path: &Path, access: &FileAccess) -> Result<Vec<u8>, AccessError> {
-    match access.read(path, FileKind::Scene) {
-        Err(AccessError::Outside { resolved, .. }) => {
-            FileAccess::for_scene(&resolved, &ReadPolicy::default())?
-                .read(&resolved, FileKind::Scene)
-        }
-        r => r,
-    }
+    access.read(path, FileKind::Scene)
 }
 
 /// [`read_main`] as UTF-8 text.
