@@ -165,6 +165,67 @@ impl Material {
         }
     }
 
+    /// The texture of the material's diffuse (Lambertian) part: a diffuse
+    /// material's reflectance, a plastic's or Phong's diffuse base; None for
+    /// metals and glass, which have none.
+    pub fn diffuse_texture(&self) -> Option<&Texture> {
+        match self.base() {
+            Material::Diffuse { reflectance } => Some(reflectance),
+            Material::Phong {
+                diffuse_reflectance,
+                ..
+            }
+            | Material::Plastic {
+                diffuse_reflectance,
+                ..
+            }
+            | Material::RoughPlastic {
+                diffuse_reflectance,
+                ..
+            } => Some(diffuse_reflectance),
+            _ => None,
+        }
+    }
+
+    /// The texture that colours the material as a whole (glTF's base
+    /// colour): the diffuse part's, else a metal's specular reflectance,
+    /// else glass's transmittance.
+    pub fn base_texture(&self) -> &Texture {
+        match self.base() {
+            Material::Conductor {
+                specular_reflectance,
+                ..
+            }
+            | Material::RoughConductor {
+                specular_reflectance,
+                ..
+            } => specular_reflectance,
+            Material::Dielectric {
+                specular_transmittance,
+                ..
+            }
+            | Material::ThinDielectric {
+                specular_transmittance,
+                ..
+            } => specular_transmittance,
+            Material::Diffuse { reflectance } => reflectance,
+            Material::Phong {
+                diffuse_reflectance,
+                ..
+            }
+            | Material::Plastic {
+                diffuse_reflectance,
+                ..
+            }
+            | Material::RoughPlastic {
+                diffuse_reflectance,
+                ..
+            } => diffuse_reflectance,
+            // not reached: base() has taken the wrappers off
+            Material::TwoSided(inner) => inner.base_texture(),
+        }
+    }
+
     /// The material under any `twosided` wrappers.
     fn base(&self) -> &Material {
         match self {

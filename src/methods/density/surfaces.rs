@@ -211,27 +211,6 @@ pub fn diffuse_reflectance(m: &Material, uv: Vec2) -> Option<Vec3> {
     }
 }
 
-/// The texture of a material's diffuse albedo, if it has a diffuse part.
-fn diffuse_texture(m: &Material) -> Option<&Texture> {
-    match m {
-        Material::Diffuse { reflectance } => Some(reflectance),
-        Material::Phong {
-            diffuse_reflectance,
-            ..
-        }
-        | Material::Plastic {
-            diffuse_reflectance,
-            ..
-        }
-        | Material::RoughPlastic {
-            diffuse_reflectance,
-            ..
-        } => Some(diffuse_reflectance),
-        Material::TwoSided(inner) => diffuse_texture(inner),
-        _ => None,
-    }
-}
-
 /// Whether a material's surfaces record hits (`diffuse` always, as the
 /// paper's Lambertian surfaces, even black ones; the other models when
 /// their diffuse albedo is not zero everywhere), and whether that albedo is
@@ -244,7 +223,7 @@ fn records_hits(m: &Material) -> (bool, bool) {
             _ => false,
         }
     }
-    match (lambertian(m), diffuse_texture(m)) {
+    match (lambertian(m), m.diffuse_texture()) {
         (true, Some(t)) => (true, !matches!(t, Texture::Constant(_))),
         (false, Some(t)) => (
             t.mean().max_element() > 0.0,

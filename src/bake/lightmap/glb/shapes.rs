@@ -101,46 +101,10 @@ pub(super) fn shapes_document(
 /// The texture of a material's diffuse (or, without one, specular) colour
 /// when it is a bitmap, with its uv transform.
 pub(super) fn bitmap_of(m: &Material) -> Option<(&crate::scene::TexImage, glam::Affine2)> {
-    let t = base_texture(m);
+    let t = m.base_texture();
     match t {
         Texture::Bitmap { image, to_uv } => Some((image, *to_uv)),
         _ => None,
-    }
-}
-
-/// The texture that gives a material its glTF base colour.
-pub(super) fn base_texture(m: &Material) -> &Texture {
-    match m {
-        Material::Diffuse { reflectance } => reflectance,
-        Material::Phong {
-            diffuse_reflectance,
-            ..
-        }
-        | Material::Plastic {
-            diffuse_reflectance,
-            ..
-        }
-        | Material::RoughPlastic {
-            diffuse_reflectance,
-            ..
-        } => diffuse_reflectance,
-        Material::Conductor {
-            specular_reflectance,
-            ..
-        }
-        | Material::RoughConductor {
-            specular_reflectance,
-            ..
-        } => specular_reflectance,
-        Material::Dielectric {
-            specular_transmittance,
-            ..
-        }
-        | Material::ThinDielectric {
-            specular_transmittance,
-            ..
-        } => specular_transmittance,
-        Material::TwoSided(inner) => base_texture(inner),
     }
 }
 
@@ -162,7 +126,7 @@ pub(super) fn material_json(out: &mut Out, scene: &Scene, i: u32, info: &mut Wri
         _ => (0.0, 1.0),
     };
     let mut pbr = json!({ "metallicFactor": metallic, "roughnessFactor": num(roughness) });
-    match base_texture(inner) {
+    match inner.base_texture() {
         Texture::Constant(c) => {
             let c = c.clamp(Vec3::ZERO, Vec3::ONE);
             pbr["baseColorFactor"] = json!([num(c.x), num(c.y), num(c.z), 1.0]);
