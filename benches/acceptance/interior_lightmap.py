@@ -15,8 +15,10 @@ Debian's Chromium, /usr/bin/chromium or --chromium), run with software WebGL
 DIR keeps every image, the bake and a log; with --reuse a step whose output
 is already in DIR is not run again (the converged renders take the longest:
 two path renders of --ref-time seconds each, one thread each, side by side;
-a render cut short by its checkpoint can be continued with --reuse and a
-longer --ref-time). The bake runs alone, on --threads (2).
+each keeps its checkpoint, ref-SEED.kpart, so that with --reuse, its .pfm
+removed and a longer --ref-time, it is continued, not restarted). The bake
+runs alone, on --threads (2). --display-mesh measures the paper's display
+mesh (kalos bake without --lightmap) instead.
 
 What it measures, each against the converged render of seed A (`ref-A`):
 
@@ -180,7 +182,7 @@ def screenshot(a, glb, w, h, out, logf):
             err = pg.evaluate("window.kalos.error")
             if err:
                 sys.exit(f"viewer error: {err}")
-            if not pg.evaluate("window.kalos.lightmapped"):
+            if a.lightmap and not pg.evaluate("window.kalos.lightmapped"):
                 sys.exit("the viewer found no MOZ_lightmap")
             if not pg.evaluate("window.kalos.sceneCamera"):
                 sys.exit("the .glb has no scene camera")
@@ -420,6 +422,9 @@ def main():
     ap.add_argument("--res", default="480x320", help="the render's and the viewport's size")
     ap.add_argument("--bake-time", type=float, default=120)
     ap.add_argument("--bake-args", default="", help="more arguments for kalos bake")
+    ap.add_argument("--display-mesh", dest="lightmap", action="store_false",
+                    help="measure the paper's display mesh (kalos bake without --lightmap) "
+                         "instead of the lightmap")
     ap.add_argument("--threads", default="2", help="threads of the bake and the short render")
     ap.add_argument("--ref-method", default="path")
     ap.add_argument("--ref-time", type=float, default=2700, help="seconds per converged render")
@@ -450,13 +455,13 @@ def main():
                                   a.res, "--seed", str(short_seed), "--time", str(a.short_time),
                                   "--threads", a.threads, "-q", "-o", short], logf)
     # 3. the bake, alone
-    glb = os.path.join(a.work, "bake.glb")
+    kind = "lightmap" if a.lightmap else "display-mesh"
+    glb = os.path.join(a.work, f"bake-{kind}.glb")
     if not (a.reuse and os.path.exists(glb)):
-        run_step("bake", [a.kalos, "bake", scene, "--lightmap", "--time", str(a.bake_time),
-                          "--threads", a.threads, "--stats", "-o", glb] + a.bake_args.split(),
-                 logf)
-    # 4. the viewer
-    shot = os.path.join(a.work, "view.png")
+        run_step("bake", [a.kalos, "bake", scene] + (["--lightmap"] if a.lightmap else [])
+                 + ["--time", str(a.bake_time), "--threads", a.threads, "--stats", "-o", glb]
+                 + a.bake_args.split(), logf)
+    shot = os.path.join(a.work, f"view-{kind}.png")
     if not (a.reuse and os.path.exists(shot)):
         screenshot(a, glb, w, h, shot, logf)
 
@@ -471,7 +476,8 @@ def main():
     view = luminance(read_png(shot))
     short_lum = luminance(srgb8(read_pfm(short)))
     images = [
-        ("viewer, bake --time %g" % a.bake_time, view),
+        (f"viewer, bake{' --lightmap' if a.lightmap else ''} --time {a.bake_time:g}"
+         + (f" {a.bake_args}" if a.bake_args else ""), view),
         (f"converged, seed {a.seeds[1]}", luminance(srgb8(lin[a.seeds[1]]))),
         (f"{a.ref_method} {a.short_time:g} s, seed {short_seed}", short_lum),
     ]
@@ -504,8 +510,8 @@ def main():
     img[masks["S"]] = 0.5 * img[masks["S"]] + [0, 0, 127]
     img[masks["D"]] = 0.5 * img[masks["D"]] + [127, 0, 127]
     img[y0:y1, [x0, x1 - 1]] = img[[y0, y1 - 1], x0:x1] = [0, 255, 0]
-    write_png(os.path.join(a.work, "regions.png"), img)
-    log(f"regions drawn on the screenshot: {os.path.join(a.work, 'regions.png')}", logf)
+    write_png(os.path.join(a.work, f"regions-{kind}.png"), img)
+    log(f"regions drawn on the screenshot: {os.path.join(a.work, f'regions-{kind}.png')}", logf)
 
 
 if __name__ == "__main__":
