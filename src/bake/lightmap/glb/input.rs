@@ -347,7 +347,16 @@ pub(super) fn rewrite_primitives(
             attrs.insert(name, json!(idx));
         }
         let uv1: Vec<[f32; 2]> = np.uv1.iter().map(|v| v.to_array()).collect();
-        attrs.insert("TEXCOORD_1".into(), json!(out.floats(&uv1, false)));
+        let uv1 = json!(out.floats(&uv1, false));
+        // glTF numbers a primitive's uv sets from 0 without gaps
+        // (MESH_PRIMITIVE_INDEXED_SEMANTIC_CONTINUITY): a primitive without
+        // uvs of its own (Blender writes none for a mesh without a uv map)
+        // gets the lightmap's as TEXCOORD_0 too, the same accessor; its
+        // material has no texture that could read them
+        if !attrs.contains_key("TEXCOORD_0") {
+            attrs.insert("TEXCOORD_0".into(), uv1.clone());
+        }
+        attrs.insert("TEXCOORD_1".into(), uv1);
         pj["attributes"] = Value::Object(attrs);
         // morph targets
         let mut targets = Vec::new();
