@@ -8,6 +8,7 @@ use glam::{Vec2, Vec3};
 use super::camera_pass::camera_share;
 use super::Vertex;
 use crate::bsdf::{shading_normal_correction_over, Mode};
+use crate::emitter::EmissionSample;
 use crate::film::Film;
 use crate::geometry::offset_point;
 use crate::scene::Rgb;
@@ -95,6 +96,45 @@ pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mu
         .occluded(offset_point(p, n, d), world.camera.position())
     {
         film.splat(pix.x, pix.y, phi_pos * (cos * g));
+    }
+    1
+}
+
+/// Connects the emission vertex of `es` to the camera, into `film`: an
+/// area light's point as [`connect_emission`] does, a point or spot light's
+/// position with weight `phi_pos` × its falloff toward the camera × g(x)
+/// (`scale` multiplies both). The environment and directional lights cannot
+/// be joined to a pinhole. Returns the rays traced (0 or 1).
+#[inline(always)]
+pub fn connect_emission_sample(
+    world: &World,
+    es: &EmissionSample,
+    scale: f32,
+    film: &mut Film,
+) -> u64 {
+    if es.is_env {
+        return 0;
+    }
+    if es.punctual == u32::MAX {
+        return connect_emission(world, es.p, es.n, es.phi_pos * scale, film);
+    }
+    connect_punctual(world, es, scale, film)
+}
+
+/// The punctual branch of [`connect_emission_sample`].
+#[inline(never)]
+fn connect_punctual(world: &World, es: &EmissionSample, scale: f32, film: &mut Film) -> u64 {
+    let Some((pix, g)) = world.camera.project(es.p) else {
+        return 0;
+    };
+    let cam = world.camera.position();
+    let wc = (cam - es.p).normalize_or_zero();
+    let profile = world.lights.punctual_profile(es.punctual, wc);
+    if profile <= 0.0 {
+        return 0;
+    }
+    if !world.accel.occluded(es.p, cam) {
+        film.splat(pix.x, pix.y, es.phi_pos * (scale * profile * g));
     }
     1
 }
