@@ -269,8 +269,10 @@ pub struct EmissionSample {
     pub tri: u32,
     /// Index of the punctual light in [`Lights::punctual`] (u32::MAX for
     /// the others). For a point or spot, `le` is its intensity I (W/sr),
-    /// `n` the travel direction, and `phi_pos` = I/pmf is joined to the
-    /// camera times the falloff toward it ([`Lights::punctual_profile`]).
+    /// `n` the travel direction, and `phi_pos` = I/pmf (the weight the
+    /// emission vertex would have toward direction w, times
+    /// [`Lights::punctual_profile`]; the methods do not join it to the
+    /// camera, see [`crate::transport::connect_emission_sample`]).
     pub punctual: u32,
 }
 

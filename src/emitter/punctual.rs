@@ -18,6 +18,10 @@
 //! keeps to the emitting triangles; punctual lights and the environment
 //! take their power share before the tree is consulted.
 //!
+//! The camera never sees a punctual light directly (no camera ray can hit
+//! a point or a direction): light-based methods do not join their
+//! emission vertex to the eye, so that they agree with `path`.
+//!
 //! Emission (light particles): a point emits from its position in uniform
 //! directions, a spot uniformly inside its outer cone (weighted by the
 //! falloff), a directional light parallel rays from the disk of the scene's
@@ -103,9 +107,8 @@ pub(super) fn sample_li(
 }
 
 /// A particle leaving `l` (light `index`), chosen with probability `pmf`.
-/// Points and spots: `phi_pos` = I/pmf, to be multiplied by the falloff
-/// toward the camera ([`PunctualLight::profile`]) and g(x) when the
-/// emission vertex is joined to the eye; `le` is I. Directional lights
+/// Points and spots: `phi_pos` = I/pmf, the vertex's weight toward w
+/// once multiplied by the falloff ([`PunctualLight::profile`]); `le` is I. Directional lights
 /// start on the disk of radius `radius` around `center`, as the
 /// environment does (`is_env`), and cannot be joined to a pinhole.
 pub(super) fn emission(

@@ -100,11 +100,14 @@ pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mu
     1
 }
 
-/// Connects the emission vertex of `es` to the camera, into `film`: an
-/// area light's point as [`connect_emission`] does, a point or spot light's
-/// position with weight `phi_pos` × its falloff toward the camera × g(x)
-/// (`scale` multiplies both). The environment and directional lights cannot
-/// be joined to a pinhole. Returns the rays traced (0 or 1).
+/// Connects the emission vertex of `es` to the camera, into `film`, as
+/// [`connect_emission`] does, with `phi_pos` × `scale`: for area lights
+/// only. The environment and directional lights cannot be joined to a
+/// pinhole, and points and spots are not seen by the camera: no camera ray
+/// can hit a point, so `path` never shows one, nor do Blender or glTF
+/// viewers; joining their emission vertex would put a dot of light where
+/// `path` has none. Their light reaches the image through the surfaces it
+/// lights. Returns the rays traced (0 or 1).
 #[inline(always)]
 pub fn connect_emission_sample(
     world: &World,
@@ -112,29 +115,8 @@ pub fn connect_emission_sample(
     scale: f32,
     film: &mut Film,
 ) -> u64 {
-    if es.is_env {
+    if es.is_env || es.punctual != u32::MAX {
         return 0;
     }
-    if es.punctual == u32::MAX {
-        return connect_emission(world, es.p, es.n, es.phi_pos * scale, film);
-    }
-    connect_punctual(world, es, scale, film)
-}
-
-/// The punctual branch of [`connect_emission_sample`].
-#[inline(never)]
-fn connect_punctual(world: &World, es: &EmissionSample, scale: f32, film: &mut Film) -> u64 {
-    let Some((pix, g)) = world.camera.project(es.p) else {
-        return 0;
-    };
-    let cam = world.camera.position();
-    let wc = (cam - es.p).normalize_or_zero();
-    let profile = world.lights.punctual_profile(es.punctual, wc);
-    if profile <= 0.0 {
-        return 0;
-    }
-    if !world.accel.occluded(es.p, cam) {
-        film.splat(pix.x, pix.y, es.phi_pos * (scale * profile * g));
-    }
-    1
+    connect_emission(world, es.p, es.n, es.phi_pos * scale, film)
 }
