@@ -522,3 +522,67 @@ fn path_and_light_agree_with_a_point_lamp() {
     assert!(z <= 5.0, "block {block}: z = {z}");
     eprintln!("room: worst block z {z:.2}");
 }
+
+// ---------------------------------------------------------------------------
+// A file written by Blender
+
+/// Blender's glTF exporter (5.0.1, `punctual/make_blender_lamps.py`) writes
+/// a P-watt point or spot lamp as P/(4π) · 683 cd and a sun of S W/m² as
+/// S · 683 lx; read back, each has the intensity Cycles renders it with
+/// (P/(4π) W/sr, S W/m²), its Blender position and −z direction (Blender's
+/// z-up axes become glTF's y-up ones: (x, y, z) → (x, z, −y)), and the
+/// spot's cone (outer = size/2, inner = outer · (1 − blend)).
+#[test]
+fn blender_lamps_come_back_with_their_power() {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/it/punctual/blender-lamps.gltf");
+    let s = scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+    let l = punctual(&s);
+    assert_eq!(l.len(), 3);
+    let by_name = |n: &str| *l.iter().find(|l| l.name == n).expect(n);
+    let to_gltf = |v: Vec3| Vec3::new(v.x, v.z, -v.y);
+    let close = |a: Vec3, b: Vec3| (a - b).abs().max_element() < 1e-4 * (1.0 + b.length());
+    let four_pi = 4.0 * std::f32::consts::PI;
+
+    let pt = by_name("pt");
+    assert_eq!(pt.kind, PunctualKind::Point);
+    assert!(close(pt.position, to_gltf(Vec3::new(0.0, 0.0, 2.0))));
+    assert!(
+        close(pt.intensity, Vec3::splat(100.0 / four_pi)),
+        "{}",
+        pt.intensity
+    );
+
+    let sp = by_name("sp");
+    assert!(close(sp.position, to_gltf(Vec3::new(1.0, 0.0, 2.0))));
+    let blender_dir = glam::Mat3::from_rotation_x(0.3) * Vec3::NEG_Z;
+    assert!(
+        close(sp.direction, to_gltf(blender_dir)),
+        "{}",
+        sp.direction
+    );
+    assert!(
+        close(sp.intensity, Vec3::splat(200.0 / four_pi)),
+        "{}",
+        sp.intensity
+    );
+    let PunctualKind::Spot {
+        cos_inner,
+        cos_outer,
+    } = sp.kind
+    else {
+        panic!("sp is a {:?}", sp.kind)
+    };
+    assert!((cos_outer - 30f32.to_radians().cos()).abs() < 1e-5);
+    assert!((cos_inner - 22.5f32.to_radians().cos()).abs() < 1e-5);
+
+    let sun = by_name("sun");
+    assert_eq!(sun.kind, PunctualKind::Directional);
+    // Blender's XYZ Euler angles: R = Rz · Ry · Rx
+    let r = glam::Mat3::from_euler(glam::EulerRot::ZYX, 0.0, 0.2, 0.5);
+    assert!(
+        close(sun.direction, to_gltf(r * Vec3::NEG_Z)),
+        "{}",
+        sun.direction
+    );
+    assert!(close(sun.intensity, Vec3::splat(3.0)), "{}", sun.intensity);
+}
