@@ -4,7 +4,10 @@
 //! forms say: the irradiance of a point light at distance d, I cos θ / d²;
 //! a spot's cone (full inside, nothing outside, the smooth falloff
 //! between); a directional light on a plane tilted by θ, cos θ · E⊥. And
-//! `path` and `light` agree on a small room lit by a point lamp.
+//! `path`, `light` and `plb` agree on a small room lit by a point lamp;
+//! both selections give a lamp its power share; `bundle` refuses a lamp
+//! only in the paper's form; a file written by Blender comes back with its
+//! lamps' power.
 //!
 //! Tolerances: each render is compared by blocks of pixels, the variance of
 //! a block's mean measured from two independent renders (the spread of
@@ -18,7 +21,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use kalos::geometry::look_at;
-use kalos::methods::{light, MethodConfig};
+use kalos::methods::{light, plb, MethodConfig};
 use kalos::scene::{
     self, CameraDesc, EmitterDesc, Material, PunctualKind, PunctualLight, Rgb, Scene, Texture,
 };
@@ -434,14 +437,14 @@ fn directional_light_on_a_tilted_plane() {
 }
 
 // ---------------------------------------------------------------------------
-// path against light
+// path against the light-based methods
 
 /// A small room (floor, back and side walls, a floating occluder) lit by a
-/// point lamp and a dim emitting quad: `path` and `light` agree block by
-/// block (8 × 8 pixels at 32 × 32, z ≤ 5 with the measured variance of
-/// both), shadows and inter-reflections included.
+/// point lamp and a dim emitting quad: `light` and `plb` agree with `path`
+/// block by block (8 × 8 pixels at 32 × 32, z ≤ 5 with the measured
+/// variance of both), shadows and inter-reflections included.
 #[test]
-fn path_and_light_agree_with_a_point_lamp() {
+fn path_light_and_plb_agree_with_a_point_lamp() {
     let mut s = Scene::empty("punctual room");
     let m = s.add_material(Material::Diffuse {
         reflectance: Texture::Constant(Vec3::new(0.7, 0.6, 0.5)),
@@ -519,8 +522,11 @@ fn path_and_light_agree_with_a_point_lamp() {
     let lit = p.iter().flatten().filter(|(m, _)| m[0] > 0.01).count();
     assert!(lit >= 8, "the room is lit ({lit} blocks)");
     let (z, block) = max_block_z(&p, &l, 1e-4);
-    assert!(z <= 5.0, "block {block}: z = {z}");
-    eprintln!("room: worst block z {z:.2}");
+    assert!(z <= 5.0, "light, block {block}: z = {z}");
+    let g = stats(&crate::common::plb(plb::Settings::default()), (5, 6), 64);
+    let (zg, block) = max_block_z(&p, &g, 1e-4);
+    assert!(zg <= 5.0, "plb, block {block}: z = {zg}");
+    eprintln!("room: worst block z light {z:.2}, plb {zg:.2}");
 }
 
 // ---------------------------------------------------------------------------
@@ -585,4 +591,130 @@ fn blender_lamps_come_back_with_their_power() {
         sun.direction
     );
     assert!(close(sun.intensity, Vec3::splat(3.0)), "{}", sun.intensity);
+}
+
+// ---------------------------------------------------------------------------
+// Selection, and the method that refuses lamps
+
+/// With 144 ceiling quads (a light tree whose choices depend on the
+/// shading point), a point lamp and a constant environment, both
+/// selections choose the lamp with its power share, 4π lum(I)/Φ (the
+/// tree's part is only the triangles'); the environment's share stays the
+/// one `pdf_li_env` gives, and a lamp sample is always `delta` with
+/// `pdf` equal to the share. Tolerance: 4 binomial standard deviations of
+/// the observed frequency.
+#[test]
+fn lamps_take_their_power_share_under_both_selections() {
+    use kalos::emitter::LightSelection;
+    let mut s = Scene::empty("ceiling and lamp");
+    let m = s.add_material(Material::Diffuse {
+        reflectance: Texture::Constant(Vec3::splat(0.5)),
+    });
+    for i in 0..12 {
+        for j in 0..12 {
+            let o = Vec3::new(i as f32 - 5.5, j as f32 - 5.5, 3.0);
+            let c = [
+                o + Vec3::new(-0.3, -0.3, 0.0),
+                o + Vec3::new(-0.3, 0.3, 0.0),
+                o + Vec3::new(0.3, 0.3, 0.0),
+                o + Vec3::new(0.3, -0.3, 0.0),
+            ];
+            s.add_mesh(
+                "q",
+                &c,
+                None,
+                None,
+                &[[0, 1, 2], [0, 2, 3]],
+                m,
+                Some(Rgb::ONE),
+            );
+        }
+    }
+    let i_lamp = 2.0f32;
+    s.emitters.push(EmitterDesc::Punctual(PunctualLight {
+        kind: PunctualKind::Point,
+        position: Vec3::new(0.0, 0.0, 2.0),
+        direction: Vec3::NEG_Z,
+        intensity: Rgb::splat(i_lamp),
+        name: "lamp".into(),
+    }));
+    s.emitters.push(EmitterDesc::Constant {
+        radiance: Rgb::splat(0.01),
+    });
+    let lights = World::new(s).lights;
+    let share = (4.0 * std::f64::consts::PI * i_lamp as f64) / lights.total_power();
+    assert!(share > 0.05 && share < 0.95, "share {share}");
+    let mut rng = kalos::sampling::Pcg32::new(9, 0);
+    let n = 40_000;
+    for sel in [LightSelection::Power, LightSelection::Spatial] {
+        let (mut lamp, mut env) = (0u32, 0u32);
+        let p = Vec3::new(-5.0, -5.0, 0.0);
+        for _ in 0..n {
+            let Some(ls) = lights.sample_li_from(sel, p, Vec3::Z, rng.next_f32(), rng.next_2d())
+            else {
+                continue;
+            };
+            if ls.delta {
+                lamp += 1;
+                assert!(
+                    ((ls.pdf as f64) - share).abs() < 1e-4 * share,
+                    "{sel:?} pdf {}",
+                    ls.pdf
+                );
+            } else if ls.is_env {
+                env += 1;
+            }
+        }
+        let f = lamp as f64 / n as f64;
+        let sd = (share * (1.0 - share) / n as f64).sqrt();
+        assert!(
+            (f - share).abs() <= 4.0 * sd,
+            "{sel:?}: lamp chosen {f}, share {share}"
+        );
+        let env_share = lights.selection_pmf(sel, p, Vec3::Z, u32::MAX) as f64;
+        let fe = env as f64 / n as f64;
+        let sde = (env_share * (1.0 - env_share) / n as f64).sqrt();
+        assert!(
+            (fe - env_share).abs() <= 4.0 * sde + 1e-9,
+            "{sel:?}: environment chosen {fe}, share {env_share}"
+        );
+    }
+}
+
+/// `bundle --direct bundles` refuses a scene with a lamp, naming it and
+/// saying why; the default first shot (`--direct nee`) renders it.
+#[test]
+fn bundle_refuses_lamps_only_in_the_papers_form() {
+    use kalos::methods::bundle::{self, Direct};
+    use kalos::methods::Budget;
+    use kalos::render::Render;
+    let s = plane_scene(PunctualLight {
+        kind: PunctualKind::Point,
+        position: Vec3::new(0.0, 0.0, 1.5),
+        direction: Vec3::NEG_Z,
+        intensity: Rgb::splat(3.0),
+        name: "desk lamp".into(),
+    });
+    let world = World::new(s.clone());
+    let run = |direct| {
+        Render::new(&world)
+            .method(MethodConfig::Bundle(bundle::Settings {
+                direct,
+                patches: 200,
+                ..Default::default()
+            }))
+            .budget(Budget {
+                passes: Some(1),
+                ..Default::default()
+            })
+            .run(|_| {})
+    };
+    let e = run(Direct::Bundles).err().expect("refused").to_string();
+    assert!(
+        e.contains("desk lamp") && e.contains("--direct nee") && e.contains("no surface"),
+        "{e}"
+    );
+    let r = run(Direct::Nee).unwrap_or_else(|e| panic!("{e}"));
+    let mean: f32 = r.image.data.iter().map(|p| p.x).sum::<f32>() / r.image.data.len() as f32;
+    assert!(mean > 0.01, "the first shot lights the plane: mean {mean}");
 }
