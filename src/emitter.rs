@@ -1,7 +1,7 @@
 //! Light sources ready for sampling: area lights chosen by power or by
 //! their importance at the shading point ([`LightSelection`]), punctual
 //! lights (points, spots and directional lights: delta lights, see
-//! [`punctual`]), and the environment (constant or an importance-sampled
+//! `emitter/punctual.rs`), and the environment (constant or an importance-sampled
 //! lat-long map).
 //!
 //! Two uses: next-event estimation from a surface point (`sample_li`,

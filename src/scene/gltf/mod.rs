@@ -20,7 +20,7 @@
 //! - `KHR_lights_punctual` point, spot and directional lights on nodes,
 //!   placed by the node's world transform, their candela and lux divided
 //!   by 683 lm/W into W/sr and W/m² (Blender's exporter's convention;
-//!   `range` ignored): see [`lights`];
+//!   `range` ignored): see `gltf/lights.rs`;
 //! - the first perspective camera (glTF cameras look along −z with +x to the
 //!   right; kalos's along +z with +x to the left, so the camera's world
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
