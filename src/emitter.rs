@@ -1,11 +1,14 @@
 //! Light sources ready for sampling: area lights chosen by power or by
-//! their importance at the shading point ([`LightSelection`]), and the
-//! environment (constant or an importance-sampled lat-long map).
+//! their importance at the shading point ([`LightSelection`]), punctual
+//! lights (points, spots and directional lights: delta lights, see
+//! `emitter/punctual.rs`), and the environment (constant or an importance-sampled
+//! lat-long map).
 //!
 //! Two uses: next-event estimation from a surface point (`sample_li`,
 //! `pdf_li`) for camera paths, and emission of particles (`sample_emission`)
 //! for light tracing, density estimation and light path building.
 
+mod punctual;
 mod tree;
 
 use std::f32::consts::PI;
@@ -16,7 +19,7 @@ use crate::geometry::Frame;
 use crate::sampling::{
     concentric_disk, cosine_hemisphere, uniform_sphere, uniform_triangle, Distribution1D,
 };
-use crate::scene::{luminance, EmitterDesc, Rgb, Scene, TexImage};
+use crate::scene::{luminance, EmitterDesc, PunctualLight, Rgb, Scene, TexImage};
 use tree::LightTree;
 
 /// How next-event estimation chooses the light to sample.
@@ -228,10 +231,17 @@ pub struct LightSample {
     pub n: Vec3,
     /// Emitted radiance toward the shading point.
     pub le: Rgb,
-    /// Solid-angle pdf, selection included.
+    /// Solid-angle pdf, selection included; for a delta light (`delta`),
+    /// the probability of choosing it alone.
     pub pdf: f32,
-    /// True for the environment (the shadow ray is unbounded).
+    /// True for the environment and directional lights (the shadow ray is
+    /// unbounded).
     pub is_env: bool,
+    /// True for a punctual light: `le` is then the irradiance at the
+    /// shading point on a plane facing the light (W/m²), `pdf` carries no
+    /// density, and no BSDF-sampled ray can find the light, so the sample
+    /// takes full MIS weight.
+    pub delta: bool,
 }
 
 /// A sampled particle leaving a light.
@@ -252,10 +262,18 @@ pub struct EmissionSample {
     pub phi_pos: Rgb,
     /// Radiance emitted at `p` (per unit projected area and solid angle).
     pub le: Rgb,
-    /// True for the environment.
+    /// True for the environment and directional lights (the particle
+    /// starts outside the scene).
     pub is_env: bool,
-    /// Emitting triangle (u32::MAX for the environment).
+    /// Emitting triangle (u32::MAX for the environment and punctual lights).
     pub tri: u32,
+    /// Index of the punctual light in [`Lights::punctual`] (u32::MAX for
+    /// the others). For a point or spot, `le` is its intensity I (W/sr),
+    /// `n` the travel direction, and `phi_pos` = I/pmf (the weight the
+    /// emission vertex would have toward direction w, times
+    /// [`Lights::punctual_profile`]; the methods do not join it to the
+    /// camera, see [`crate::transport::connect_emission_sample`]).
+    pub punctual: u32,
 }
 
 impl EmissionSample {
@@ -287,6 +305,8 @@ enum Entry {
         corners: [Vec3; 3],
         n: Vec3,
     },
+    /// Punctual light i of [`Lights::punctual`].
+    Punctual(u32),
     Env,
 }
 
@@ -294,7 +314,8 @@ enum Entry {
 /// tree that choose among them.
 #[derive(Clone, Debug)]
 pub struct Lights {
-    /// Emitting triangles first, then the environment if it has power.
+    /// Emitting triangles first, then the punctual lights, then the
+    /// environment if it has power.
     entries: Vec<Entry>,
     dist: Distribution1D,
     /// The emitting triangles for [`LightSelection::Spatial`]: light i of
@@ -303,6 +324,17 @@ pub struct Lights {
     /// Probability of choosing the environment under either selection (its
     /// power share; zero without one).
     p_env: f32,
+    /// Probability of choosing a light that is not a triangle (punctual or
+    /// the environment) under either selection: `p_env` without punctual
+    /// lights. [`LightSelection::Spatial`] consults the tree for the rest.
+    p_other: f32,
+    /// The entries from `first_other` on (punctual lights, environment) by
+    /// power, for [`LightSelection::Spatial`] when there are punctual lights.
+    other: Distribution1D,
+    /// Index of the first entry that is not a triangle.
+    first_other: u32,
+    /// The punctual lights, in the order of their entries.
+    punctual: Vec<PunctualLight>,
     /// The tree's choices do not depend on the shading point (one emitting
     /// quad, as in cbox): [`LightSelection::Spatial`] is then the power
     /// selection, and takes its cheaper path.
@@ -399,6 +431,18 @@ impl Lights {
         }
         let phi: Vec<f32> = weights.iter().map(|&w| w as f32).collect();
         let tree = LightTree::new(&corners, &normals, &phi);
+        let first_other = entries.len() as u32;
+        let mut punctual = Vec::new();
+        for e in &scene.emitters {
+            if let EmitterDesc::Punctual(l) = e {
+                let w = punctual::weight(l, radius);
+                if w > 0.0 && w.is_finite() {
+                    entries.push(Entry::Punctual(punctual.len() as u32));
+                    weights.push(w);
+                    punctual.push(l.clone());
+                }
+            }
+        }
         if let Some(e) = &env {
             let w = (PI * radius * radius * luminance(e.integral())) as f64;
             if w > 0.0 {
@@ -422,7 +466,7 @@ impl Lights {
                     le,
                     area,
                 },
-                Entry::Env => TriLight::default(),
+                Entry::Punctual(_) | Entry::Env => TriLight::default(),
             })
             .collect();
         let dist = Distribution1D::new(&weights);
@@ -431,12 +475,23 @@ impl Lights {
         } else {
             dist.pmf(env_entry as usize) as f32
         };
+        let (p_other, other) = if punctual.is_empty() {
+            (p_env, Distribution1D::new(&[]))
+        } else {
+            let tail = &weights[first_other as usize..];
+            let share = tail.iter().sum::<f64>() / dist.total();
+            (share as f32, Distribution1D::new(tail))
+        };
         Lights {
             entries,
             dist,
             tree_static: tree.is_static(),
             tree,
             p_env,
+            p_other,
+            other,
+            first_other,
+            punctual,
             tri_lights,
             tri_entry,
             shape_emits,
@@ -464,7 +519,7 @@ impl Lights {
         match self.tri_entry.get(tri as usize) {
             Some(&e) if e != u32::MAX && ng.dot(w) > 0.0 => match self.entries[e as usize] {
                 Entry::Tri { le, .. } => le,
-                Entry::Env => Rgb::ZERO,
+                Entry::Punctual(_) | Entry::Env => Rgb::ZERO,
             },
             _ => Rgb::ZERO,
         }
@@ -517,7 +572,8 @@ impl Lights {
     }
 
     /// Chooses a light for `u_sel` as seen from `p` with normal `n`: the
-    /// emitting triangle (u32::MAX for the environment) and the probability
+    /// emitting triangle (u32::MAX for the environment or a punctual
+    /// light) and the probability
     /// of the choice; None when no light can be chosen. For tests and
     /// diagnostics; [`Lights::sample_li_from`] makes the same choice.
     pub fn select(
@@ -530,7 +586,7 @@ impl Lights {
         let (i, pmf) = self.select_entry(selection, p, n, u_sel)?;
         Some(match self.entries[i] {
             Entry::Tri { tri, .. } => (tri, pmf),
-            Entry::Env => (u32::MAX, pmf),
+            Entry::Punctual(_) | Entry::Env => (u32::MAX, pmf),
         })
     }
 
@@ -558,10 +614,10 @@ impl Lights {
     }
 
     /// True when every light [`Lights::sample_li_from`] can choose is an
-    /// emitting triangle (there is no environment to choose):
-    /// [`Lights::select_tri`] then makes its choices.
+    /// emitting triangle (there is no environment or punctual light to
+    /// choose): [`Lights::select_tri`] then makes its choices.
     pub(crate) fn triangles_only(&self) -> bool {
-        self.env_entry == u32::MAX
+        self.env_entry == u32::MAX && self.punctual.is_empty()
     }
 
     /// The emitting triangle [`Lights::sample_li_from`] chooses for `u_sel`
@@ -585,7 +641,7 @@ impl Lights {
     fn entry_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, e: usize) -> f32 {
         match self.effective(selection) {
             LightSelection::Power => self.dist.pmf(e) as f32,
-            LightSelection::Spatial => (1.0 - self.p_env) * self.tree.pmf(p, n, e as u32),
+            LightSelection::Spatial => (1.0 - self.p_other) * self.tree.pmf(p, n, e as u32),
         }
     }
 
@@ -607,17 +663,30 @@ impl Lights {
                 Some((i, pmf as f32))
             }
             LightSelection::Spatial => {
-                // The environment first, with its power share; the rest of
-                // [0, 1) goes down the tree
-                if u_sel < self.p_env {
-                    return Some((self.env_entry as usize, self.p_env));
+                // The environment and the punctual lights first, with their
+                // power share; the rest of [0, 1) goes down the tree
+                if u_sel < self.p_other {
+                    if self.punctual.is_empty() {
+                        return Some((self.env_entry as usize, self.p_env));
+                    }
+                    return Some(self.select_other(u_sel));
                 }
-                let u = ((u_sel - self.p_env) / (1.0 - self.p_env))
+                let u = ((u_sel - self.p_other) / (1.0 - self.p_other))
                     .clamp(0.0, 1.0 - f32::EPSILON / 2.0);
                 let (i, pmf) = self.tree.sample(p, n, u)?;
-                Some((i as usize, (1.0 - self.p_env) * pmf))
+                Some((i as usize, (1.0 - self.p_other) * pmf))
             }
         }
+    }
+
+    /// Chooses among the entries that are not triangles, for `u_sel` <
+    /// `p_other`: the entry and its probability (its power share).
+    #[inline(never)]
+    fn select_other(&self, u_sel: f32) -> (usize, f32) {
+        let u = (u_sel / self.p_other).clamp(0.0, 1.0 - f32::EPSILON / 2.0);
+        let (j, _, _) = self.other.sample(u as f64);
+        let i = self.first_other as usize + j;
+        (i, self.dist.pmf(i) as f32)
     }
 
     /// Samples a point on entry `i`, chosen with probability `pmf`, as seen from `p`.
@@ -651,7 +720,11 @@ impl Lights {
                     le,
                     pdf,
                     is_env: false,
+                    delta: false,
                 })
+            }
+            Entry::Punctual(k) => {
+                punctual::sample_li(&self.punctual[k as usize], pmf, p, self.center, self.radius)
             }
             Entry::Env => {
                 let env = self.env.as_ref()?;
@@ -666,6 +739,7 @@ impl Lights {
                     le,
                     pdf: pmf * pdf_dir,
                     is_env: true,
+                    delta: false,
                 })
             }
         }
@@ -747,8 +821,10 @@ impl Lights {
                     le,
                     is_env: false,
                     tri,
+                    punctual: u32::MAX,
                 })
             }
+            Entry::Punctual(k) => self.punctual_emission(k, pmf as f32, u_pos, u_dir),
             Entry::Env => self.env_emission(u_pos, u_dir, pmf as f32),
         }
     }
@@ -793,7 +869,56 @@ impl Lights {
             le,
             is_env: true,
             tri: u32::MAX,
+            punctual: u32::MAX,
         })
+    }
+
+    /// The scene's punctual lights (points, spots, directional lights) that
+    /// emit; [`EmissionSample::punctual`] indexes them.
+    pub fn punctual(&self) -> &[PunctualLight] {
+        &self.punctual
+    }
+
+    /// The falloff of punctual light `k` toward unit direction `w` (leaving
+    /// it): 1 for a point, the spot's smooth falloff, 0 for a directional
+    /// light or an unknown index.
+    #[inline]
+    pub fn punctual_profile(&self, k: u32, w: Vec3) -> f32 {
+        self.punctual.get(k as usize).map_or(0.0, |l| l.profile(w))
+    }
+
+    /// Power of punctual light `k` per channel (W); a directional light's
+    /// through the disk of the scene's bounding radius, which its particles
+    /// start from. Zero for an unknown index.
+    pub fn punctual_power(&self, k: u32) -> Rgb {
+        self.punctual
+            .get(k as usize)
+            .map_or(Rgb::ZERO, |l| punctual::power(l, self.radius))
+    }
+
+    /// Emits a particle from punctual light `k` alone (as if it were the
+    /// only light): `phi` averages to [`Lights::punctual_power`]. None for
+    /// an unknown index.
+    pub fn sample_punctual_emission(
+        &self,
+        k: u32,
+        u_pos: Vec2,
+        u_dir: Vec2,
+    ) -> Option<EmissionSample> {
+        self.punctual_emission(k, 1.0, u_pos, u_dir)
+    }
+
+    /// The punctual branch of emission, light `k` having been chosen with
+    /// probability `pmf`.
+    fn punctual_emission(
+        &self,
+        k: u32,
+        pmf: f32,
+        u_pos: Vec2,
+        u_dir: Vec2,
+    ) -> Option<EmissionSample> {
+        let l = self.punctual.get(k as usize)?;
+        punctual::emission(l, k, pmf, u_pos, u_dir, self.center, self.radius)
     }
 }
 

@@ -53,8 +53,8 @@ use crate::simd::dispatched;
 use crate::state::{Shard, ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 use crate::transport::{
-    connect_emission, connect_to_camera, follow_delta_chain, light_walk, scatter, splat_to_camera,
-    Landing, Spectrum,
+    connect_emission_sample, connect_to_camera, follow_delta_chain, light_walk, scatter,
+    splat_to_camera, Landing, Spectrum,
 };
 
 /// Which form of the method.
@@ -477,9 +477,7 @@ fn trace_walk(world: &World, s: &Settings, rng: &mut Pcg32, film: &mut Film) -> 
     };
     let mut rays = 0;
     // Emitter points connect to the camera directly
-    if !es.is_env {
-        rays += connect_emission(world, es.p, es.n, es.phi_pos, film);
-    }
+    rays += connect_emission_sample(world, &es, 1.0, film);
     let walk = light_walk(
         world,
         es.ray(),
@@ -524,9 +522,7 @@ fn iterate(
     // M(Le): the lights' own image, one emission sample per step
     let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
     if let Some(es) = lights.sample_emission(u_sel, u_pos, u_dir) {
-        if !es.is_env {
-            rays += connect_emission(world, es.p, es.n, es.phi_pos, target);
-        }
+        rays += connect_emission_sample(world, &es, 1.0, target);
     }
 
     // The power of L_{n−1}: Φ_e from the lights plus a·Φ reflected by the

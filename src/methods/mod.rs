@@ -220,6 +220,9 @@ impl MethodConfig {
     /// the work that needs the world runs in [`Method::prepare`].
     pub fn create(&self, world: &World, common: &Common) -> Result<Box<dyn Method>, MethodError> {
         self.check(common)?;
+        if let MethodConfig::Bundle(b) = self {
+            b.check_lights(world)?;
+        }
         Ok(dispatch!(self, s => s.create(world, common)))
     }
 

@@ -16,6 +16,7 @@ pub mod mitsuba;
 pub mod obj;
 pub mod pbrt;
 pub mod ply;
+pub mod punctual;
 pub mod records;
 pub mod shapes;
 pub mod summary;
@@ -28,6 +29,7 @@ use glam::{Mat4, Vec2, Vec3};
 use crate::geometry::Frame;
 pub use access::{AccessError, FileAccess, FileKind, ReadPolicy};
 pub use material::{Material, MicrofacetKind, TexImage, Texture};
+pub use punctual::{PunctualKind, PunctualLight};
 pub use records::{TriRecord, TriRecords};
 pub use shapes::MeshData;
 pub use summary::Summary;
@@ -242,7 +244,7 @@ impl ShapeSource {
 }
 
 /// A light source. Area lights point at their shape; the environment
-/// emitters surround the scene.
+/// emitters surround the scene; punctual lights are points or directions.
 #[derive(Clone, Debug)]
 pub enum EmitterDesc {
     /// Uniform radiance leaving the front side (the side the geometric normal
@@ -267,6 +269,9 @@ pub enum EmitterDesc {
         /// Map-to-world transform (Mitsuba `to_world`).
         to_world: Mat4,
     },
+    /// A point, spot or directional light (glTF `KHR_lights_punctual`):
+    /// a delta light, reached only by light sampling.
+    Punctual(PunctualLight),
 }
 
 /// The perspective sensor, as the scene file gives it (Mitsuba conventions:

@@ -54,6 +54,7 @@ impl fmt::Display for Summary<'_> {
                     "  envmap {}x{}, scale {scale}",
                     image.width, image.height
                 )?,
+                EmitterDesc::Punctual(l) => writeln!(f, "  {}", l.describe())?,
             }
         }
         writeln!(

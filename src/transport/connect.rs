@@ -8,6 +8,7 @@ use glam::{Vec2, Vec3};
 use super::camera_pass::camera_share;
 use super::Vertex;
 use crate::bsdf::{shading_normal_correction_over, Mode};
+use crate::emitter::EmissionSample;
 use crate::film::Film;
 use crate::geometry::offset_point;
 use crate::scene::Rgb;
@@ -97,4 +98,25 @@ pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mu
         film.splat(pix.x, pix.y, phi_pos * (cos * g));
     }
     1
+}
+
+/// Connects the emission vertex of `es` to the camera, into `film`, as
+/// [`connect_emission`] does, with `phi_pos` × `scale`: for area lights
+/// only. The environment and directional lights cannot be joined to a
+/// pinhole, and points and spots are not seen by the camera: no camera ray
+/// can hit a point, so `path` never shows one, nor do Blender or glTF
+/// viewers; joining their emission vertex would put a dot of light where
+/// `path` has none. Their light reaches the image through the surfaces it
+/// lights. Returns the rays traced (0 or 1).
+#[inline(always)]
+pub fn connect_emission_sample(
+    world: &World,
+    es: &EmissionSample,
+    scale: f32,
+    film: &mut Film,
+) -> u64 {
+    if es.is_env || es.punctual != u32::MAX {
+        return 0;
+    }
+    connect_emission(world, es.p, es.n, es.phi_pos * scale, film)
 }

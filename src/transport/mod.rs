@@ -5,7 +5,7 @@
 //!   two-sided materials ([`orient`]), and `wo`.
 //! - [`scatter`]: the next direction of a light path, in importance mode,
 //!   with the shading-normal correction.
-//! - [`connect_to_camera`], [`connect_emission`]: the camera connections of
+//! - [`connect_to_camera`], [`connect_emission`], [`connect_emission_sample`]: the camera connections of
 //!   light paths, with the pixel weight g(x) of §2 of the
 //!   light-path-building paper.
 //! - [`follow_delta_chain`]: power carried through mirrors and glass to the
@@ -43,7 +43,7 @@ mod radiance;
 mod vertex;
 mod walk;
 
-pub use connect::{connect_emission, connect_to_camera, splat_to_camera};
+pub use connect::{connect_emission, connect_emission_sample, connect_to_camera, splat_to_camera};
 pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};

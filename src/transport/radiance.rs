@@ -199,7 +199,12 @@ impl CameraPath {
                         accel.occluded(origin, offset_point(ls.p, ls.n, -ls.wi))
                     };
                     if !blocked {
-                        let w = power_heuristic(ls.pdf, bsdf.pdf(wo, wi));
+                        // A delta light cannot be found by BSDF sampling
+                        let w = if ls.delta {
+                            1.0
+                        } else {
+                            power_heuristic(ls.pdf, bsdf.pdf(wo, wi))
+                        };
                         self.l += self.beta * f * ls.le * (w / ls.pdf);
                     }
                 }

@@ -37,6 +37,7 @@ mod loader_limits;
 mod methods;
 mod pbrt;
 mod plb;
+mod punctual;
 mod reference;
 mod replay;
 mod transport;

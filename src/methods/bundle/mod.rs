@@ -264,6 +264,25 @@ impl Settings {
         }
         Ok(())
     }
+
+    /// Rejects a scene whose lights these settings cannot carry: in the
+    /// paper's form (`--direct bundles`) the bundles carry the luminaires'
+    /// emission as the radiance of patches, and a punctual light (a point
+    /// or a direction) has no patch; the first shot (`--direct nee`, the
+    /// default) reaches it by light sampling.
+    pub fn check_lights(&self, world: &World) -> Result<(), MethodError> {
+        match (self.direct, world.lights.punctual().first()) {
+            (Direct::Bundles, Some(l)) => Err(MethodError(format!(
+                "bundle --direct bundles cannot render punctual light '{}' ({} in all): \
+                 the bundles carry emission as the radiance of patches, and a point, spot or \
+                 directional light has no surface; use --direct nee (the default), which \
+                 reaches it by light sampling",
+                l.name,
+                world.lights.punctual().len()
+            ))),
+            _ => Ok(()),
+        }
+    }
 }
 
 impl Default for Settings {
@@ -550,6 +569,7 @@ impl Method for Bundle {
     }
 
     fn prepare(&mut self, world: &World) -> Result<StepStats, MethodError> {
+        self.settings.check_lights(world)?;
         Ok(StepStats {
             rays: self.build(world),
         })

@@ -75,10 +75,15 @@ pub enum LuminaireKind {
     /// sampling ([`crate::emitter::Lights::sample_env_emission`], shared
     /// with light tracing).
     Environment,
+    /// Punctual light k of [`crate::emitter::Lights::punctual`]: particles
+    /// from its point (uniform directions, or the spot's cone) or, for a
+    /// directional light, parallel rays from the disk the environment uses
+    /// ([`crate::emitter::Lights::sample_punctual_emission`]).
+    Punctual(u32),
 }
 
-/// The luminaires of a scene: its area lights, and the environment if it
-/// has one.
+/// The luminaires of a scene: its area lights, its punctual lights, and the
+/// environment if it has one.
 pub fn luminaires(world: &World) -> Vec<Luminaire> {
     let scene = &world.scene;
     let mut out = Vec::new();
@@ -100,6 +105,15 @@ pub fn luminaires(world: &World) -> Vec<Luminaire> {
                     phi,
                 });
             }
+        }
+    }
+    for k in 0..world.lights.punctual().len() as u32 {
+        let phi = world.lights.punctual_power(k);
+        if luminance(phi) > 0.0 {
+            out.push(Luminaire {
+                kind: LuminaireKind::Punctual(k),
+                phi,
+            });
         }
     }
     let phi = world.lights.env_power();
@@ -197,7 +211,7 @@ impl<'a> Tracer<'a> {
             })
             .collect();
         // Every particle starts with φ = Φ/n, coloured as its luminaire (for
-        // the environment, the factor that turns the power of one emission
+        // the environment and punctual lights, the factor that turns the power of one emission
         // sample, whose weight is Φ_env, into that of one of N_env particles)
         let power = lums
             .iter()
@@ -349,9 +363,15 @@ fn trace_one(
             let d = Frame::from_normal(sp.ng).to_world(cosine_hemisphere(rng.next_2d()));
             (Ray::new(offset_point(sp.p, sp.ng, d), d), power)
         }
-        LuminaireKind::Environment => {
+        LuminaireKind::Environment | LuminaireKind::Punctual(_) => {
             let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
-            let Some(es) = world.lights.sample_env_emission(u_pos, u_dir) else {
+            let es = match lum.kind {
+                LuminaireKind::Punctual(k) => {
+                    world.lights.sample_punctual_emission(k, u_pos, u_dir)
+                }
+                _ => world.lights.sample_env_emission(u_pos, u_dir),
+            };
+            let Some(es) = es else {
                 return 0;
             };
             let mut beta = es.phi * power;

@@ -16,7 +16,9 @@ use crate::geometry::{offset_point, Ray};
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb, SurfacePoint};
-use crate::transport::{connect_emission, connect_to_camera, follow_delta_chain, Landing, Vertex};
+use crate::transport::{
+    connect_emission_sample, connect_to_camera, follow_delta_chain, Landing, Vertex,
+};
 
 /// No parent: the hit was shot from a light.
 pub(super) const NO_PARENT: u32 = u32::MAX;
@@ -222,11 +224,12 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
         let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
         if let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) {
             let inv_p = (1.0 / p_light) as f32;
-            if !es.is_env {
-                rays += connect_emission(world, es.p, es.n, es.phi_pos * inv_p, &mut lane.le_film);
-            }
+            rays += connect_emission_sample(world, &es, inv_p, &mut lane.le_film);
+            // Guided emission replaces an area light's cosine lobe; punctual
+            // lights keep their own directions
+            let area = !es.is_env && es.punctual == u32::MAX;
             match (form.guided, lane.grid.as_ref(), lane.guide.as_deref()) {
-                (true, Some(grid), Some(guide)) if !es.is_env => {
+                (true, Some(grid), Some(guide)) if area => {
                     // A guided direction: Φ = Le cos θ / (p_pos p(ω))
                     let cell = grid.cell(es.p);
                     let (d, k) = emit_guided(es.n, es.d, guide, cell, rng);
@@ -246,7 +249,7 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
                             dir: lane
                                 .grid
                                 .as_ref()
-                                .filter(|_| !es.is_env)
+                                .filter(|_| area)
                                 .map(|g| (g.cell(es.p), es.d)),
                         });
                     }

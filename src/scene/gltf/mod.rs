@@ -17,17 +17,21 @@
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
 //!   read as W/(m²·sr), with a warning); negative emission is an error;
+//! - `KHR_lights_punctual` point, spot and directional lights on nodes,
+//!   placed by the node's world transform, their candela and lux divided
+//!   by 683 lm/W into W/sr and W/m² (Blender's exporter's convention;
+//!   `range` ignored): see `gltf/lights.rs`;
 //! - the first perspective camera (glTF cameras look along −z with +x to the
 //!   right; kalos's along +z with +x to the left, so the camera's world
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
 //!   synthesised, with a warning.
 //!
 //! Skipped with a warning: non-triangle primitives, emissive and
-//! metallic-roughness textures, texture transforms, and punctual lights.
+//! metallic-roughness textures, and texture transforms.
 //!
 //! Refused before anything is allocated: GLB lengths beyond the file, node
 //! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
-//! triangles. A file with no emissive material is lit by a constant white
+//! triangles. A file with no emissive material and no punctual light is lit by a constant white
 //! environment, with a note in [`Scene::notes`].
 //!
 //! The file, its buffers and its images are read through the scene's
@@ -54,6 +58,7 @@ use super::{
 /// parents is walked once per path to it, so a small file can describe an
 /// exponentially large tree.
 mod checks;
+mod lights;
 mod read;
 
 use checks::*;
@@ -83,6 +88,7 @@ pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> 
     check_instancing(&doc, &gscene, path)?;
     let mut walk = Walk {
         path,
+        root: doc.as_json(),
         buffers: &buffers,
         mats: &mats,
         default_mat: None,
@@ -287,7 +293,7 @@ fn emission(m: &gltf::Material, scene: &mut Scene, path: &Path) -> Result<Option
                     // Blender writes lamps as KHR_lights_punctual, and
                     // emission strengths above 1 as emissiveStrength
                     " (at most 1, as viewers show it: a dim light; the file has no \
-                     KHR_materials_emissive_strength, and punctual lights are not read)"
+                     KHR_materials_emissive_strength)"
                 } else {
                     ""
                 }
@@ -301,6 +307,9 @@ fn emission(m: &gltf::Material, scene: &mut Scene, path: &Path) -> Result<Option
 /// the scene it adds them to.
 struct Walk<'a> {
     path: &'a Path,
+    /// The file's JSON, for the extensions the `gltf` crate does not check
+    /// (`KHR_lights_punctual`).
+    root: &'a gltf::json::Root,
     buffers: &'a [gltf::buffer::Data],
     /// Each glTF material's index in the scene, and its emission.
     mats: &'a [(u32, Option<Rgb>)],
@@ -313,7 +322,8 @@ struct Walk<'a> {
 
 impl Walk<'_> {
     /// Walks the nodes of `gscene` depth first, each with its world
-    /// transform, adding their mesh primitives and the first camera.
+    /// transform, adding their mesh primitives, their punctual lights and
+    /// the first camera.
     fn nodes(&mut self, gscene: &gltf::Scene) -> Result<(), SceneError> {
         let mut stack: Vec<(gltf::Node, Mat4)> =
             gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
@@ -324,6 +334,7 @@ impl Walk<'_> {
                     self.primitive(&node, &mesh, k, &prim, world)?;
                 }
             }
+            lights::node_light(self.root, node.index(), world, &mut self.scene, self.path)?;
             if let (Some(cam), false) = (node.camera(), self.camera_seen) {
                 if let Some(c) = camera(&cam, world) {
                     self.scene.camera = c;
