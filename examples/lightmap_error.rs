@@ -83,6 +83,15 @@ fn main() -> Res<()> {
                     100.0 * raw,
                     100.0 * noise
                 );
+                if std::env::var_os("LIGHTMAP_ERROR_DETAIL").is_some() {
+                    let (c5, _, _, _) = rel_rms_above(&x, &r, &a, &b, &covered, 0.05);
+                    println!(
+                        "  over R > 5 % of the median: relative RMS {:.2} %",
+                        100.0 * c5
+                    );
+                    println!("  {}", leak(&x, &r, &covered));
+                    detail(name, &x, &r, &covered)?;
+                }
             }
             Ok(())
         }
@@ -102,6 +111,18 @@ fn main() -> Res<()> {
 
 /// (relative RMS less the reference's noise, raw, the noise, mean ratio).
 fn rel_rms(x: &Image, r: &Image, a: &Image, b: &Image, covered: &[bool]) -> (f64, f64, f64, f64) {
+    rel_rms_above(x, r, a, b, covered, 1e-3)
+}
+
+/// [`rel_rms`] over the channels with R > `floor` × the median of R.
+fn rel_rms_above(
+    x: &Image,
+    r: &Image,
+    a: &Image,
+    b: &Image,
+    covered: &[bool],
+    floor: f64,
+) -> (f64, f64, f64, f64) {
     let ch = |img: &Image, k: usize, c: usize| img.data[k][c] as f64;
     let mut vals: Vec<f64> = Vec::new();
     for (k, _) in covered.iter().enumerate().filter(|(_, &c)| c) {
@@ -116,7 +137,7 @@ fn rel_rms(x: &Image, r: &Image, a: &Image, b: &Image, covered: &[bool]) -> (f64
     for (k, _) in covered.iter().enumerate().filter(|(_, &c)| c) {
         for c in 0..3 {
             let rr = ch(r, k, c);
-            if rr.is_nan() || rr <= 1e-3 * median {
+            if rr.is_nan() || rr <= floor * median {
                 continue;
             }
             raw += ((ch(x, k, c) - rr) / rr).powi(2);
@@ -132,6 +153,92 @@ fn rel_rms(x: &Image, r: &Image, a: &Image, b: &Image, covered: &[bool]) -> (f64
         raw.sqrt(),
         noise.sqrt(),
         sx / sr,
+    )
+}
+
+/// Quantiles of the per-texel relative error (mean over channels), the
+/// share of the squared error in the worst 1 % of texels, and a map of it
+/// (NAME.relerr.png, white at 100 %).
+fn detail(name: &str, x: &Image, r: &Image, covered: &[bool]) -> Res<()> {
+    let mut map = vec![Rgb::ZERO; covered.len()];
+    let mut errs: Vec<(f64, usize)> = Vec::new();
+    let mut vals: Vec<f64> = covered
+        .iter()
+        .enumerate()
+        .filter(|(_, &c)| c)
+        .flat_map(|(k, _)| (0..3).map(move |c| r.data[k][c] as f64))
+        .collect();
+    vals.sort_by(f64::total_cmp);
+    let floor = 1e-3 * vals.get(vals.len() / 2).copied().unwrap_or(0.0);
+    for (k, _) in covered.iter().enumerate().filter(|(_, &c)| c) {
+        let mut e = 0.0;
+        let mut n = 0.0;
+        for c in 0..3 {
+            let rr = r.data[k][c] as f64;
+            if rr > floor {
+                e += ((x.data[k][c] as f64 - rr) / rr).powi(2);
+                n += 1.0;
+            }
+        }
+        if n > 0.0 {
+            let e = (e / n).sqrt();
+            errs.push((e, k));
+            map[k] = Rgb::splat(e.min(1.0) as f32);
+        }
+    }
+    errs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let q = |f: f64| errs[((errs.len() - 1) as f64 * f) as usize].0 * 100.0;
+    let total: f64 = errs.iter().map(|e| e.0 * e.0).sum();
+    let top: f64 = errs[errs.len() * 99 / 100..]
+        .iter()
+        .map(|e| e.0 * e.0)
+        .sum();
+    let w = x.width as usize;
+    println!(
+        "  |rel| quantiles 50 % {:.2} %, 90 % {:.2} %, 99 % {:.2} %, 99.9 % {:.2} %; worst 1 % hold {:.1} % of the squared error; worst at {:?}",
+        q(0.5),
+        q(0.9),
+        q(0.99),
+        q(0.999),
+        100.0 * top / total,
+        errs.iter().rev().take(5).map(|e| (e.1 % w, e.1 / w, (e.0 * 100.0) as i64)).collect::<Vec<_>>()
+    );
+    let img = Image {
+        width: x.width,
+        height: x.height,
+        data: map,
+    };
+    write_image(
+        Path::new(&format!("{name}.relerr.png")),
+        &img,
+        &PngOptions::default(),
+    )?;
+    Ok(())
+}
+
+/// Light where the reference has none: over the covered texels whose
+/// reference is 0 in every channel (a reference that is unbiased there,
+/// such as a path-traced one: occluded surface), the mean of X over the
+/// median of R elsewhere. The relative RMS cannot see these texels.
+fn leak(x: &Image, r: &Image, covered: &[bool]) -> String {
+    let (mut lit, mut dark) = (Vec::new(), Vec::new());
+    for (k, _) in covered.iter().enumerate().filter(|(_, &c)| c) {
+        let (xv, rv) = (x.data[k], r.data[k]);
+        if rv.max_element() <= 0.0 {
+            dark.push(xv.element_sum() as f64 / 3.0);
+        } else {
+            lit.push(rv.element_sum() as f64 / 3.0);
+        }
+    }
+    lit.sort_by(f64::total_cmp);
+    let median = lit.get(lit.len() / 2).copied().unwrap_or(0.0);
+    let mean = dark.iter().sum::<f64>() / dark.len().max(1) as f64;
+    let max = dark.iter().fold(0.0f64, |a, &b| a.max(b));
+    format!(
+        "{} texels dark in the reference: mean {:.2} %, max {:.0} % of the lit median",
+        dark.len(),
+        100.0 * mean / median,
+        100.0 * max / median
     )
 }
 

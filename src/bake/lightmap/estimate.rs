@@ -8,15 +8,19 @@
 //! put in a 3D kd-tree, and at a texel's point p with normal n:
 //!
 //! - **bandwidth**: h is the distance from p to its k-th nearest hit of the
-//!   same group (k = [`Options::neighbours`], found by a pilot of
-//!   [`PILOT`] neighbours), so that about k hits fall in
-//!   the kernel's support whatever the local density of hits. Eq. (2) with
-//!   n_i hits of equal power c in a disk of radius h gives a relative error
-//!   of √(E[K²]/E[K]²/k) = √(9/5 / k) for Silverman's K2 (∫K2² = 9/(5π)
-//!   over the unit disk, uniform hits): the error is even over the atlas
-//!   (the paper's fixed h = C1·√(A/n) instead keeps the blur even and lets
-//!   the error grow where few particles land). k = 256 gives 8.4 %
-//!   per texel and channel before the colour of the particles varies.
+//!   same group (found by a pilot of [`PILOT`] neighbours), so that about k
+//!   hits fall in the kernel's support whatever the local density of hits.
+//!   Eq. (2) with n_i hits of equal power c in a disk of radius h gives a
+//!   relative error of √(E[K²]/E[K]²/k) = √(9/5 / k) for Silverman's K2
+//!   (∫K2² = 9/(5π) over the unit disk, uniform hits). k grows with the
+//!   local density of hits, k = c·m^(2/3) with m the hits per texel area
+//!   the pilot sees ([`grown_k`], c = [`Options::growth`]), the rule that
+//!   balances the kernel's bias (∝ h²) against its variance (∝ 1/k): the
+//!   error falls as particles are added, and the blur shrinks. A fixed k
+//!   ([`Options::neighbours`], `--neighbours`) keeps the error near
+//!   √(1.8/k) whatever the particle count (the paper's fixed h = C1·√(A/n)
+//!   instead keeps the blur even and lets the error grow where few
+//!   particles land).
 //! - **estimate**: Ê(p) = φ/(h² m) Σ_j c_j K2(|p − x_j|²/h²), c_j the hit's
 //!   power in units of φ = Φ/n, m the kernel mass inside the region the
 //!   hits may come from (below), as the polygon renormalisation of
@@ -104,9 +108,10 @@ pub struct Options {
     pub min_mass: f32,
 }
 
-/// The default c of [`Options::growth`] (chosen by measurement against a
-/// converged reference on the Cornell box: docs/notebook/lightmap-estimator.md).
-pub const GROWTH: f32 = 40.0;
+/// The default c of [`Options::growth`]: of c = 10 to 160, the least
+/// per-texel relative RMS at equal CPU time against a Cycles bake of the
+/// Cornell box at 512² (docs/notebook/lightmap-estimator.md).
+pub const GROWTH: f32 = 80.0;
 
 /// The fewest hits a grown kernel holds (the pilot's).
 pub const K_MIN: usize = PILOT;
