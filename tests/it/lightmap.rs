@@ -368,6 +368,23 @@ fn the_lightmap_flags() {
         "--lightmap-size must be between",
     );
     refused(
+        &["bake", "--lightmap", "--growth", "0", "-o", &glb],
+        "growth must be a positive number",
+    );
+    refused(
+        &[
+            "bake",
+            "--lightmap",
+            "--neighbours",
+            "64",
+            "--growth",
+            "40",
+            "-o",
+            &glb,
+        ],
+        "cannot be used with",
+    );
+    refused(
         &["bake", "--lightmap", "--texel-density=-3", "-o", &glb],
         "--texel-density must be",
     );
