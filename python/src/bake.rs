@@ -311,7 +311,8 @@ impl LightmapResult {
 ///
 /// `lightmap=True` bakes a lightmap instead (as `kalos bake --lightmap`):
 /// `texel_density` (texels per metre) or `lightmap_size` (texels a side,
-/// default 512), `neighbours` (the estimator's k) and `sectors` (its
+/// default 512), `neighbours` (a fixed k for the estimator; without it k
+/// grows with the hits) and `sectors` (its
 /// visibility rays), `time` (seconds) and `rays` limits; `output`, if
 /// given, is where the atlas is saved (.exr). Returns a
 /// `kalos.LightmapResult` whose `atlas` and `error` are numpy arrays.
@@ -371,7 +372,7 @@ pub fn bake(
             atlas: output,
             error: None,
             estimator: Options {
-                neighbours: neighbours.unwrap_or(d.neighbours),
+                neighbours: neighbours.or(d.neighbours),
                 sectors: sectors.unwrap_or(d.sectors),
                 ..d
             },

@@ -80,10 +80,16 @@ impl LightmapSettings {
                 "give --texel-density or --lightmap-size, not both".into(),
             ));
         }
-        if self.estimator.neighbours == 0 {
+        if self.estimator.neighbours == Some(0) {
             return Err(LightmapError::Settings(
                 "the estimator's neighbour count must be positive".into(),
             ));
+        }
+        let c = self.estimator.growth;
+        if !(c.is_finite() && c > 0.0) {
+            return Err(LightmapError::Settings(format!(
+                "the estimator's growth must be a positive number, got {c}"
+            )));
         }
         Ok(())
     }
@@ -197,6 +203,23 @@ pub fn atlas_side(scene: &Scene, lm: &LightmapSettings) -> Result<u32, LightmapE
     Ok((side as u32).max(8))
 }
 
+/// The mean world area of one texel of `uv`'s atlas: the surface's area over
+/// the texels its charts cover (the unit of the estimator's adaptive k).
+/// None for an atlas without area.
+pub fn texel_area(scene: &Scene, uv: &LightmapUv) -> Option<f32> {
+    let (mut world, mut atlas) = (0.0f64, 0.0f64);
+    for s in &uv.shapes {
+        for t in &s.triangles {
+            let p = t.map(|i| scene.positions[s.xref[i as usize] as usize]);
+            let q = t.map(|i| s.uv[i as usize]);
+            world += 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length() as f64;
+            atlas += 0.5 * (q[1] - q[0]).perp_dot(q[2] - q[0]).abs() as f64;
+        }
+    }
+    let texels = atlas * uv.width as f64 * uv.height as f64;
+    (world > 0.0 && texels > 0.0).then(|| (world / texels) as f32)
+}
+
 /// Pads the charts: `passes` rings of uncovered texels next to covered ones
 /// take their neighbours' mean ([`raster::dilate`]), irradiance and error
 /// alike, so that bilinear filtering at a chart's border never reads an
@@ -282,7 +305,11 @@ pub fn bake_lightmap(
 
     // Every texel
     let t = Instant::now();
-    let est = Estimator::new(world, &surfaces, &index, traced.phi, lm.estimator);
+    let opts = Options {
+        texel_area: lm.estimator.texel_area.or(texel_area(scene, &uv)),
+        ..lm.estimator
+    };
+    let est = Estimator::new(world, &surfaces, &index, traced.phi, opts);
     let cancel = ctl.cancel_flag();
     let mut lightmap = {
         let mut progress = |done, total| ctl.tick(Phase::Estimate, done, total);

@@ -8,15 +8,19 @@
 //! put in a 3D kd-tree, and at a texel's point p with normal n:
 //!
 //! - **bandwidth**: h is the distance from p to its k-th nearest hit of the
-//!   same group (k = [`Options::neighbours`], found by a pilot of
-//!   [`PILOT`] neighbours), so that about k hits fall in
-//!   the kernel's support whatever the local density of hits. Eq. (2) with
-//!   n_i hits of equal power c in a disk of radius h gives a relative error
-//!   of √(E[K²]/E[K]²/k) = √(9/5 / k) for Silverman's K2 (∫K2² = 9/(5π)
-//!   over the unit disk, uniform hits): the error is even over the atlas
-//!   (the paper's fixed h = C1·√(A/n) instead keeps the blur even and lets
-//!   the error grow where few particles land). k = 256 gives 8.4 %
-//!   per texel and channel before the colour of the particles varies.
+//!   same group (found by a pilot of [`PILOT`] neighbours), so that about k
+//!   hits fall in the kernel's support whatever the local density of hits.
+//!   Eq. (2) with n_i hits of equal power c in a disk of radius h gives a
+//!   relative error of √(E[K²]/E[K]²/k) = √(9/5 / k) for Silverman's K2
+//!   (∫K2² = 9/(5π) over the unit disk, uniform hits). k grows with the
+//!   local density of hits, k = c·m^(2/3) with m the hits per texel area
+//!   the pilot sees ([`grown_k`], c = [`Options::growth`]), the rule that
+//!   balances the kernel's bias (∝ h²) against its variance (∝ 1/k): the
+//!   error falls as particles are added, and the blur shrinks. A fixed k
+//!   ([`Options::neighbours`], `--neighbours`) keeps the error near
+//!   √(1.8/k) whatever the particle count (the paper's fixed h = C1·√(A/n)
+//!   instead keeps the blur even and lets the error grow where few
+//!   particles land).
 //! - **estimate**: Ê(p) = φ/(h² m) Σ_j c_j K2(|p − x_j|²/h²), c_j the hit's
 //!   power in units of φ = Φ/n, m the kernel mass inside the region the
 //!   hits may come from (below), as the polygon renormalisation of
@@ -79,10 +83,24 @@ pub const HIT_MEMORY: u64 = 44;
 /// Settings of the estimator.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Options {
-    /// k: the bandwidth at a texel is the distance to its k-th nearest hit
-    /// of the same surface side. The relative error per texel is about
-    /// √(1.8/k); the blur grows with k.
-    pub neighbours: usize,
+    /// A fixed k (`--neighbours K`): the bandwidth at a texel is the
+    /// distance to its k-th nearest hit of the same surface side, and the
+    /// relative error per texel stays about √(1.8/k) whatever the particle
+    /// count (the blur grows with k). None: k grows with the local density
+    /// of hits ([`Options::growth`]), so that the error falls as particles
+    /// are added.
+    pub neighbours: Option<usize>,
+    /// c of the rule k = c·m^(2/3) (without a fixed k), m the hits per
+    /// texel area at the texel (the local density of hits, from the pilot,
+    /// times [`Options::texel_area`]); k is kept within [[`K_MIN`],
+    /// [`K_MAX`]]. See [`grown_k`].
+    pub growth: f32,
+    /// The world area of one texel (m²), the unit the rule counts hits
+    /// in; None: the scene's area over that of a 512² atlas 60 % used.
+    pub texel_area: Option<f32>,
+    /// A fixed bandwidth h (world units) for every texel instead of any k
+    /// (for references: many bakes with a small h, averaged).
+    pub bandwidth: Option<f32>,
     /// Visibility rays per texel, one per angular sector of the tangent
     /// plane (0: no visibility test; at most [`MAX_SECTORS`]).
     pub sectors: usize,
@@ -90,14 +108,48 @@ pub struct Options {
     pub min_mass: f32,
 }
 
+/// The default c of [`Options::growth`]: of c = 10 to 160, the least
+/// per-texel relative RMS at equal CPU time against a Cycles bake of the
+/// Cornell box at 512² (docs/notebook/lightmap-estimator.md).
+pub const GROWTH: f32 = 80.0;
+
+/// The fewest hits a grown kernel holds (the pilot's).
+pub const K_MIN: usize = PILOT;
+
+/// The most hits a grown kernel holds (a texel's cost is linear in k).
+pub const K_MAX: usize = 1 << 16;
+
 impl Default for Options {
     fn default() -> Self {
         Options {
-            neighbours: 256,
+            neighbours: None,
+            growth: GROWTH,
+            texel_area: None,
+            bandwidth: None,
             sectors: 12,
             min_mass: 0.1,
         }
     }
+}
+
+/// The k of the adaptive rule at a texel whose pilot found `k0` hits
+/// within a distance² `r2`: the local density of hits is ρ = k0/(π r2),
+/// m = ρ·`texel_area` hits per texel, and k = `growth`·m^(2/3), within
+/// [[`K_MIN`], [`K_MAX`]].
+///
+/// Why m^(2/3): for a second-order kernel in 2D the relative bias grows as
+/// h² (the curvature of E times h²) and the relative variance is 1.8/k
+/// with k = ρπh² hits in the kernel; the sum of the bias² and the variance
+/// is least for h ∝ ρ^(−1/6), i.e. k ∝ ρ^(2/3). The error then falls as
+/// ρ^(−1/3) once the bias matters, and as ρ^(−1/2) while it does not.
+pub fn grown_k(k0: usize, r2: f32, texel_area: f32, growth: f32) -> usize {
+    let rho = k0 as f32 / (PI * r2.max(1e-30));
+    let m = rho * texel_area;
+    let k = growth * m.max(0.0).powf(2.0 / 3.0);
+    if !k.is_finite() {
+        return K_MAX;
+    }
+    (k as usize).clamp(K_MIN, K_MAX)
 }
 
 /// Which hits a texel may use: a planar surface side, or one side of a
@@ -352,6 +404,8 @@ pub struct Estimator<'a> {
     polygons: Vec<Option<Polygon>>,
     /// The largest lift δ off the surface for the visibility rays.
     lift: f32,
+    /// The world area of a texel for the adaptive k ([`Options::texel_area`]).
+    texel_area: f32,
 }
 
 impl<'a> Estimator<'a> {
@@ -376,6 +430,15 @@ impl<'a> Estimator<'a> {
         let (lo, hi) = scene.bounds();
         let diag = (hi - lo).length();
         let lift = if diag.is_finite() { 1e-3 * diag } else { 1e-3 };
+        let texel_area = opts.texel_area.unwrap_or_else(|| {
+            let area: f32 = (0..scene.triangles.len() as u32)
+                .map(|t| {
+                    let [a, b, c] = scene.tri_vertices(t);
+                    0.5 * (b - a).cross(c - a).length()
+                })
+                .sum();
+            area / (0.6 * 512.0 * 512.0)
+        });
         Estimator {
             world,
             surfaces,
@@ -383,11 +446,12 @@ impl<'a> Estimator<'a> {
             phi: phi as f32,
             opts: Options {
                 sectors: opts.sectors.min(MAX_SECTORS),
-                neighbours: opts.neighbours.max(1),
+                neighbours: opts.neighbours.map(|k| k.max(1)),
                 ..opts
             },
             polygons,
             lift,
+            texel_area,
         }
     }
 
@@ -546,26 +610,14 @@ impl<'a> Estimator<'a> {
     /// nearest hit (k₀ = min(k, 32)) holds k₀ hits, so for a density even
     /// at the scale of h, the disk of radius r·√(k/k₀) holds about k
     /// (a full k-nearest query keeps a heap of k and costs several times
-    /// more). Groups of at most k hits use them all, h just past the
-    /// farthest.
+    /// more). k is fixed, or grown from the density the pilot saw
+    /// ([`grown_k`]). Groups of at most k hits use them all, h just past
+    /// the farthest. A fixed [`Options::bandwidth`] skips the pilot.
     fn gather(&self, g: &Group, p: Vec3) -> Option<(f32, Vec<(u32, f32)>)> {
-        let k = self.opts.neighbours;
         let q = p.to_array();
-        let h2 = if g.pos.len() <= k {
-            let far = g
-                .pos
-                .iter()
-                .map(|x| x.distance_squared(p))
-                .fold(0.0f32, f32::max);
-            far * 1.0001
-        } else {
-            let k0 = k.min(PILOT);
-            let near = g
-                .tree
-                .query(&q)
-                .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k0)?)
-                .execute();
-            near.last()?.distance * (k as f32 / k0 as f32)
+        let h2 = match self.opts.bandwidth {
+            Some(h) => h * h,
+            None => self.bandwidth2(g, &q, p)?,
         };
         if !(h2 > 0.0 && h2.is_finite()) {
             return None;
@@ -580,6 +632,36 @@ impl<'a> Estimator<'a> {
             .map(|r| (r.item, r.distance))
             .collect();
         Some((h2, found))
+    }
+
+    /// h² at `p` (see [`Estimator::gather`]).
+    fn bandwidth2(&self, g: &Group, q: &[f32; 3], p: Vec3) -> Option<f32> {
+        let all = || {
+            let far = g
+                .pos
+                .iter()
+                .map(|x| x.distance_squared(p))
+                .fold(0.0f32, f32::max);
+            far * 1.0001
+        };
+        let k0 = self.opts.neighbours.map_or(PILOT, |k| k.min(PILOT));
+        if g.pos.len() <= k0 {
+            return Some(all());
+        }
+        let near = g
+            .tree
+            .query(q)
+            .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k0)?)
+            .execute();
+        let r2 = near.last()?.distance;
+        let k = match self.opts.neighbours {
+            Some(k) => k,
+            None => grown_k(k0, r2, self.texel_area, self.opts.growth),
+        };
+        if g.pos.len() <= k {
+            return Some(all());
+        }
+        Some(r2 * (k as f32 / k0 as f32))
     }
 
     /// Whether hit `j` of `g`, at distance `d` from `p`, is reachable from
@@ -720,5 +802,22 @@ mod tests {
             let exact = 1.0 - (1.0 - t * t).powi(3);
             assert!((m - exact).abs() < 1e-4, "t {t}: {m} against {exact}");
         }
+    }
+
+    #[test]
+    fn the_grown_k_follows_the_density_to_the_two_thirds() {
+        // 32 hits within r² = 1/π: ρ = 32 per unit area
+        let r2 = 1.0 / PI;
+        let k = |area: f32| grown_k(32, r2, area, 40.0);
+        // m = 32·area hits per texel: k = 40·m^(2/3)
+        assert_eq!(k(1.0), (40.0 * 32f32.powf(2.0 / 3.0)) as usize);
+        // 8 times the density: 4 times the k
+        let (a, b) = (k(1.0) as f32, k(8.0) as f32);
+        assert!((b / a - 4.0).abs() < 0.01, "{a} {b}");
+        // clamped at both ends, and finite for any pilot
+        assert_eq!(k(1e-9), K_MIN);
+        assert_eq!(k(1e9), K_MAX);
+        assert_eq!(grown_k(32, 0.0, 1.0, 40.0), K_MAX);
+        assert_eq!(grown_k(32, f32::INFINITY, 1.0, 40.0), K_MIN);
     }
 }

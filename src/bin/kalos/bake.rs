@@ -93,10 +93,22 @@ struct LightmapArgs {
     /// Write each texel's standard error (linear RGB) to this .exr.
     #[arg(long, value_name = "FILE.exr", requires = "lightmap")]
     lightmap_error: Option<PathBuf>,
-    /// The estimator's k: each texel's kernel reaches its k-th nearest hit
-    /// (relative error about √(1.8/k), blur growing with k).
-    #[arg(long, value_name = "K", default_value_t = 256, requires = "lightmap")]
-    neighbours: usize,
+    /// A fixed k for the estimator: each texel's kernel reaches its k-th
+    /// nearest hit (relative error about √(1.8/k) whatever the particle
+    /// count, blur growing with k). Without it k grows with the hits, so
+    /// that the error falls with time.
+    #[arg(long, value_name = "K", requires = "lightmap")]
+    neighbours: Option<usize>,
+    /// c of the estimator's adaptive k = c·m^(2/3), m the hits per texel
+    /// at the texel: larger is smoother and more biased.
+    #[arg(
+        long,
+        value_name = "C",
+        default_value_t = estimate::GROWTH,
+        requires = "lightmap",
+        conflicts_with = "neighbours"
+    )]
+    growth: f32,
     /// Visibility rays per texel, cutting the kernel at walls (0: none).
     #[arg(long, value_name = "N", default_value_t = 12, requires = "lightmap")]
     sectors: usize,
@@ -225,6 +237,7 @@ fn job(a: &BakeArgs) -> Result<BakeJob> {
             error: l.lightmap_error.clone(),
             estimator: estimate::Options {
                 neighbours: l.neighbours,
+                growth: l.growth,
                 sectors: l.sectors,
                 ..Default::default()
             },
