@@ -401,15 +401,17 @@ fn sphere_scene(dir: &Path) -> PathBuf {
 /// independent and z = (E1 − E2)/√(se1² + se2²) has unit spread and zero
 /// mean when the two charts see the same lighting (the kernel reads the
 /// hits in 3D over the whole shape, whatever the chart; a seam would show
-/// as a spread above 1 or a mean off 0).
+/// as a spread above 1 or a mean off 0). Each pair gives two z, one per
+/// assignment of the seeds to the sides.
 ///
 /// Tolerance: pairs closer than 2h read overlapping kernels and their z
 /// are correlated, so the pairs are worth N_eff independent draws, N_eff
 /// the largest set of pairs more than 2h apart (counted greedily). The
 /// sample spread of N_eff unit normals has a standard error 1/√(2 N_eff)
-/// and their mean 1/√N_eff; the spread over all N pairs is at least as
-/// precise. We allow 3.5 of those standard errors (a false alarm about
-/// once in 2000 runs), computed in each run.
+/// and their mean 1/√N_eff; the spread and the mean over all the pairs
+/// (and both assignments) are at least as precise. We allow 3.5 of those
+/// standard errors (a false alarm about once in 2000 runs), computed in
+/// each run.
 #[test]
 fn texels_on_both_sides_of_a_seam_agree() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -459,15 +461,32 @@ fn texels_on_both_sides_of_a_seam_agree() {
         .map(|&(i, j)| (*curved[i], *curved[j]))
         .collect();
     let firsts: Vec<Texel> = pairs.iter().map(|p| p.0).collect();
-    let seconds: Vec<Texel> = pairs.iter().map(|p| p.1).collect();
-    let e1 = estimate_at(&w, 1_500_000, 11, &firsts);
-    let e2 = estimate_at(&w, 1_500_000, 12, &seconds);
+    let both: Vec<Texel> = firsts
+        .iter()
+        .copied()
+        .chain(pairs.iter().map(|p| p.1))
+        .collect();
+    let n = pairs.len();
+    let (ea, eb) = (
+        estimate_at(&w, 1_500_000, 11, &both),
+        estimate_at(&w, 1_500_000, 12, &both),
+    );
+    let e1 = &ea[..n];
+    let e2 = &eb[n..];
+    // z both ways (first side from seed 11 and second from 12, and the
+    // other way round): a seam is a difference between the sides, of the
+    // same sign both ways; a difference between the seeds (the whole
+    // sphere a little brighter in one bake) has opposite signs and leaves
+    // the mean
     let mut z = Vec::new();
     let mut kept = Vec::new();
-    for (k, (a, b)) in e1.iter().zip(&e2).enumerate() {
-        let s2 = a.se.y.powi(2) + b.se.y.powi(2);
-        if a.e.y > 0.0 && b.e.y > 0.0 && s2 > 0.0 {
-            z.push(((a.e.y - b.e.y) / s2.sqrt()) as f64);
+    for k in 0..n {
+        let ways = [(&ea[k], &eb[n + k]), (&eb[k], &ea[n + k])];
+        if ways.iter().all(|(a, b)| a.e.y > 0.0 && b.e.y > 0.0) {
+            for (a, b) in ways {
+                let s2 = a.se.y.powi(2) + b.se.y.powi(2);
+                z.push(((a.e.y - b.e.y) / s2.sqrt()) as f64);
+            }
             kept.push(k);
         }
     }
@@ -488,7 +507,7 @@ fn texels_on_both_sides_of_a_seam_agree() {
         .sum::<f64>()
         / kept.len().max(1) as f64;
     eprintln!(
-        "seams: {} charts on the sphere, {} pairs ({} lit), N_eff {n_eff}, h ≈ {h_texels:.1} texels; z mean {mean:.3}, spread {sd:.3}",
+        "seams: {} charts on the sphere, {} pairs ({} z), N_eff {n_eff}, h ≈ {h_texels:.1} texels; z mean {mean:.3}, spread {sd:.3}",
         charts.len(),
         pairs.len(),
         z.len(),
