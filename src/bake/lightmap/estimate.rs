@@ -422,34 +422,17 @@ impl<'a> Estimator<'a> {
         // What the sector rays met, in units of h (1: nothing within h)
         let frame = Frame::from_normal(n);
         let sectors = self.opts.sectors;
-        let mut free = [1.0f32; MAX_SECTORS];
-        let (mut backs, mut fronts) = (0, 0);
-        if sectors > 0 {
-            let own_shape = surf.shape;
-            let lift = (0.02 * h).min(self.lift);
-            let o = offset_point(p, n, n) + n * lift;
-            for (s, f) in free.iter_mut().enumerate().take(sectors) {
-                let a = -PI + (s as f32 + 0.5) * 2.0 * PI / sectors as f32;
-                let d = frame.s * a.cos() + frame.t * a.sin();
-                let (t, back) = self.reach(o, d, h, own_shape, surf.kind);
-                *f = t / h;
-                if t < h {
-                    backs += usize::from(back);
-                    fronts += usize::from(!back);
-                }
-            }
-            // No ray met the front of a face and most left through the
-            // back of one: p is inside a closed solid (a texel under a
-            // wall standing on the floor; the rays along the wall may
-            // meet nothing within h), and takes no light whatever hits lie
-            // near it
-            if fronts == 0 && 2 * backs >= sectors {
-                return TexelEstimate {
-                    h,
-                    hidden: true,
-                    ..Default::default()
-                };
-            }
+        let (free, backs, fronts) = self.sector_rays(p, n, h, surf, &frame);
+        // No ray met the front of a face and most left through the back of
+        // one: p is inside a closed solid (a texel under a wall standing on
+        // the floor; the rays along the wall may meet nothing within h),
+        // and takes no light whatever hits lie near it
+        if sectors > 0 && fronts == 0 && 2 * backs >= sectors {
+            return TexelEstimate {
+                h,
+                hidden: true,
+                ..Default::default()
+            };
         }
         let sector_of = |x: f32, y: f32| sector(x, y, sectors);
 
@@ -553,6 +536,39 @@ impl<'a> Estimator<'a> {
             // side: the rays away from that side meet nothing within h)
             hidden: used == 0 && backs > 0 && fronts == 0,
         }
+    }
+
+    /// The sector rays of a texel at `p` (normal `n`, bandwidth `h`), one
+    /// per sector of the tangent plane, lifted off the surface: how far
+    /// each went, in units of h (1: it met nothing within h), and how many
+    /// met the back and the front of a face.
+    fn sector_rays(
+        &self,
+        p: Vec3,
+        n: Vec3,
+        h: f32,
+        surf: &Surface,
+        frame: &Frame,
+    ) -> ([f32; MAX_SECTORS], usize, usize) {
+        let sectors = self.opts.sectors;
+        let mut free = [1.0f32; MAX_SECTORS];
+        let (mut backs, mut fronts) = (0, 0);
+        if sectors == 0 {
+            return (free, backs, fronts);
+        }
+        let lift = (0.02 * h).min(self.lift);
+        let o = offset_point(p, n, n) + n * lift;
+        for (s, f) in free.iter_mut().enumerate().take(sectors) {
+            let a = -PI + (s as f32 + 0.5) * 2.0 * PI / sectors as f32;
+            let d = frame.s * a.cos() + frame.t * a.sin();
+            let (t, back) = self.reach(o, d, h, surf.shape, surf.kind);
+            *f = t / h;
+            if t < h {
+                backs += usize::from(back);
+                fronts += usize::from(!back);
+            }
+        }
+        (free, backs, fronts)
     }
 
     /// The bandwidth² h² at `p` and the hits within h (index, squared
