@@ -30,6 +30,7 @@ mod glb;
 mod image_io;
 mod lightmap;
 mod lightmap_glb;
+mod lightmap_seams;
 mod lightmap_uv;
 mod lights;
 mod loader;

@@ -392,6 +392,14 @@ pub struct TexelEstimate {
     pub h: f32,
     /// Hits that counted (inside the kernel and reachable).
     pub used: u32,
+    /// The texel's point is inside a closed solid (under a wall or a box
+    /// standing on the floor, or lifted behind a wall that meets its
+    /// surface at an acute edge): its sector rays met no front of a face
+    /// and either half of them met the back of one, or some did and no
+    /// hit was reachable. It holds no estimate of its own, and the atlas
+    /// fills it from its neighbours as it pads a chart
+    /// ([`estimate_texels`]).
+    pub hidden: bool,
 }
 
 /// What every texel's estimate reads.
@@ -478,33 +486,17 @@ impl<'a> Estimator<'a> {
         // What the sector rays met, in units of h (1: nothing within h)
         let frame = Frame::from_normal(n);
         let sectors = self.opts.sectors;
-        let mut free = [1.0f32; MAX_SECTORS];
-        if sectors > 0 {
-            let own_shape = surf.shape;
-            let lift = (0.02 * h).min(self.lift);
-            let o = offset_point(p, n, n) + n * lift;
-            let (mut backs, mut fronts) = (0, 0);
-            for (s, f) in free.iter_mut().enumerate().take(sectors) {
-                let a = -PI + (s as f32 + 0.5) * 2.0 * PI / sectors as f32;
-                let d = frame.s * a.cos() + frame.t * a.sin();
-                let (t, back) = self.reach(o, d, h, own_shape, surf.kind);
-                *f = t / h;
-                if t < h {
-                    backs += usize::from(back);
-                    fronts += usize::from(!back);
-                }
-            }
-            // No ray met the front of a face and most left through the
-            // back of one: p is inside a closed solid (a texel under a
-            // wall standing on the floor; the rays along the wall may
-            // meet nothing within h), and takes no light whatever hits lie
-            // near it
-            if fronts == 0 && 2 * backs >= sectors {
-                return TexelEstimate {
-                    h,
-                    ..Default::default()
-                };
-            }
+        let (free, backs, fronts) = self.sector_rays(p, n, h, surf, &frame);
+        // No ray met the front of a face and most left through the back of
+        // one: p is inside a closed solid (a texel under a wall standing on
+        // the floor; the rays along the wall may meet nothing within h),
+        // and takes no light whatever hits lie near it
+        if sectors > 0 && fronts == 0 && 2 * backs >= sectors {
+            return TexelEstimate {
+                h,
+                hidden: true,
+                ..Default::default()
+            };
         }
         let sector_of = |x: f32, y: f32| sector(x, y, sectors);
 
@@ -602,7 +594,45 @@ impl<'a> Estimator<'a> {
             se: Vec3::new(sum2.x.sqrt(), sum2.y.sqrt(), sum2.z.sqrt()) * scale,
             h,
             used,
+            // No hit reachable, and the rays met the back of a face and no
+            // front: inside a solid too, nearer one of its walls than the
+            // test above can tell (a texel under a box, a texel from its
+            // side: the rays away from that side meet nothing within h)
+            hidden: used == 0 && backs > 0 && fronts == 0,
         }
+    }
+
+    /// The sector rays of a texel at `p` (normal `n`, bandwidth `h`), one
+    /// per sector of the tangent plane, lifted off the surface: how far
+    /// each went, in units of h (1: it met nothing within h), and how many
+    /// met the back and the front of a face.
+    fn sector_rays(
+        &self,
+        p: Vec3,
+        n: Vec3,
+        h: f32,
+        surf: &Surface,
+        frame: &Frame,
+    ) -> ([f32; MAX_SECTORS], usize, usize) {
+        let sectors = self.opts.sectors;
+        let mut free = [1.0f32; MAX_SECTORS];
+        let (mut backs, mut fronts) = (0, 0);
+        if sectors == 0 {
+            return (free, backs, fronts);
+        }
+        let lift = (0.02 * h).min(self.lift);
+        let o = offset_point(p, n, n) + n * lift;
+        for (s, f) in free.iter_mut().enumerate().take(sectors) {
+            let a = -PI + (s as f32 + 0.5) * 2.0 * PI / sectors as f32;
+            let d = frame.s * a.cos() + frame.t * a.sin();
+            let (t, back) = self.reach(o, d, h, surf.shape, surf.kind);
+            *f = t / h;
+            if t < h {
+                backs += usize::from(back);
+                fronts += usize::from(!back);
+            }
+        }
+        (free, backs, fronts)
     }
 
     /// The bandwidth² h² at `p` and the hits within h (index, squared
@@ -729,7 +759,9 @@ impl<'a> Estimator<'a> {
 }
 
 /// Estimates every texel of `texels` into a `width` × `height` atlas (in
-/// parallel; the same bytes whatever the thread count). Stops early, with
+/// parallel; the same bytes whatever the thread count). A texel found
+/// inside a closed solid ([`TexelEstimate::hidden`]) is left uncovered,
+/// at 0, for the padding to fill. Stops early, with
 /// the atlas as far as it got, once `cancel` is set; `progress` hears the
 /// texels done, from the calling thread.
 pub fn estimate_texels(
@@ -763,7 +795,13 @@ pub fn estimate_texels(
             let k = t.y as usize * width as usize + t.x as usize;
             lm.irradiance[k] = e.e;
             lm.std_error[k] = e.se;
-            lm.covered[k] = true;
+            // A hidden texel is no part of the visible surface, but the
+            // bilinear filter of a viewer reads it for the visible points
+            // within a texel of it (a floor texel under a box's foot, next
+            // to the lit floor): left covered at 0, it drew a dark line
+            // along every such edge. Uncovered, the padding fills it from
+            // its visible neighbours, as it fills a chart's gutter.
+            lm.covered[k] = !e.hidden;
         }
         progress((i * SLICE + slice.len()) as u64, total);
     }

@@ -112,7 +112,9 @@ pub struct Lightmap {
     /// The standard error of `irradiance`, per texel and channel, derived
     /// from the estimator's variance.
     pub std_error: Vec<Rgb>,
-    /// Whether a triangle covers the texel (false: padding or empty).
+    /// Whether the texel holds an estimate of its own: a triangle covers it
+    /// and its point is not inside geometry (false: padding, empty, or
+    /// hidden under geometry, which the padding fills).
     pub covered: Vec<bool>,
 }
 pub mod bake;
