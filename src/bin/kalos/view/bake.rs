@@ -192,7 +192,7 @@ mod tests {
         let lm = Lightmap {
             width: 2,
             height: 1,
-            irradiance: vec![Rgb::new(2.0, 4.0, f32::NAN), Rgb::new(8.0, 0.0, 1.0)],
+            irradiance: vec![Rgb::new(2.0, 4.0, 1.0), Rgb::new(8.0, 0.0, f32::NAN)],
             std_error: vec![Rgb::new(0.5, 0.5, 0.5), Rgb::ZERO],
             covered: vec![true, false],
         };
@@ -200,12 +200,13 @@ mod tests {
         assert_eq!(&b[..4], b"KLM1");
         assert_eq!(b.len(), 16 + 2 * 2 * 12);
         let f = |k: usize| f32::from_le_bytes(b[k..k + 4].try_into().unwrap());
-        // the scale: the covered texels' largest channel (one texel)
+        // the scale: the covered texels' largest channel (one texel); the
+        // other texel clipped at 1, its NaN sent as 0
         assert_eq!(f(12), 4.0);
         let values: Vec<f32> = (0..12).map(|i| f(16 + 4 * i)).collect();
         assert_eq!(
             values,
-            [0.5, 1.0, 0.0, 1.0, 0.0, 0.25, 0.125, 0.125, 0.125, 0.0, 0.0, 0.0]
+            [0.5, 1.0, 0.25, 1.0, 0.0, 0.0, 0.125, 0.125, 0.125, 0.0, 0.0, 0.0]
         );
     }
 }
