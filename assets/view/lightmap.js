@@ -1,4 +1,5 @@
-// kalos view: the lightmap of a .glb from `kalos bake --lightmap`.
+// kalos view: the lightmap of a .glb from `kalos bake --lightmap`, and
+// the lightmap of a bake as it runs (`kalos bake --lightmap --view`).
 //
 // A GLTFLoader plugin for the `MOZ_lightmap` material extension (Mozilla
 // Hubs'; see docs/lightmaps.md): the texture it names becomes three.js's
@@ -116,9 +117,15 @@ export class MozLightmap {
     params.lightMapIntensity = ext.intensity === undefined ? 1 : ext.intensity;
     const e = ext.extras && ext.extras.kalosStdError;
     const err = e ? await lightmapTexture(this.parser, e.index) : null;
-    this.found.set(materialIndex, { intensity: params.lightMapIntensity, lightMap: tex, err });
+    const entry = { intensity: params.lightMapIntensity, lightMap: tex, err };
+    this.found.set(materialIndex, entry);
+    entries.push(entry);
   }
 }
+
+// Every lightmap the plugin made, one per material: a live bake swaps
+// their pixels in place.
+const entries = [];
 
 // False colour of the relative standard error σ/E on uv 1: blue at 0,
 // through green and yellow, red at `top` (10 %) and above; black where
@@ -149,4 +156,132 @@ export function errorMaterial(lightMap, err) {
         gl_FragColor = vec4(c, 1.0);
       }`,
   });
+}
+
+// `kalos bake --lightmap --view`: the asset once the bake has made its uv
+// set (its atlas black), then each new atlas swapped into the lightmap
+// textures in place: no reload, the camera stays, the exposure and the
+// error map apply to it. The panel shows the bake's phase and particles.
+//
+// The server sends an atlas (`/image`) as "KLM1", width and height (u32),
+// the scale S (f32: the .glb's `intensity` for it), then E/S and σ/S as
+// RGB f32 per texel, top row first, clipped to [0, 1] as the .glb's PNGs
+// are; all little-endian.
+export async function showLive($) {
+  $("live-controls").hidden = false;
+  const k = window.kalos;
+  Object.assign(k, { atlasVersion: 0, atlasSums: [], atlasParticles: 0, done: false });
+  let st = await status($);
+  while (st && !st.asset) {
+    await sleep(300);
+    st = await status($);
+  }
+  if (!st) return;
+  await (await import("/view/mesh.js")).show($);
+  let version = 0;
+  for (;;) {
+    if (st.version !== version) {
+      const r = await fetch("/image");
+      if (r.ok) {
+        apply($, decodeAtlas(await r.arrayBuffer()));
+        version = st.version;
+        k.atlasVersion++;
+        k.atlasParticles = st.bake.atlas_particles;
+      }
+    }
+    k.done = st.done && version === st.version;
+    if (k.done) return;
+    await sleep(500);
+    st = await status($);
+    if (!st) return;
+  }
+}
+
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+const count = (n) => n >= 1e6 ? `${(n / 1e6).toFixed(2)} M` : n >= 1e3 ? `${(n / 1e3).toFixed(1)} k` : `${n}`;
+
+// The bake's progress, shown in the panel; null once kalos has exited.
+async function status($) {
+  let st;
+  try {
+    st = await (await fetch("/status")).json();
+  } catch (e) {
+    $("progress").textContent += "\n(kalos has exited)";
+    return null;
+  }
+  const b = st.bake || {};
+  const lines = [];
+  if (st.done) {
+    lines.push(`finished: ${count(b.particles)} particles`, "the .glb is written;",
+      "Ctrl-C in the terminal ends kalos");
+  } else {
+    let line = st.phase || "starting";
+    if (b.total > 0 && st.phase !== "estimating a preview") {
+      line += ` ${Math.floor(100 * b.done / b.total)} %`;
+    }
+    lines.push(line);
+    if (b.particles_total) {
+      lines.push(`particles ${count(b.particles)} of ${count(b.particles_total)}`);
+    }
+  }
+  lines.push(b.atlas_particles
+    ? `lightmap from ${count(b.atlas_particles)} particles`
+    : st.asset ? "lightmap: black until the first preview" : "waiting for the asset");
+  if (b.previews) lines.push(`previews ${b.previews}, ${b.preview_seconds.toFixed(1)} s in all`);
+  lines.push(`elapsed ${st.elapsed.toFixed(1)} s`);
+  $("progress").textContent = lines.join("\n");
+  window.kalos.phase = st.phase;
+  window.kalos.particles = b.particles;
+  return st;
+}
+
+function decodeAtlas(buf) {
+  const dv = new DataView(buf);
+  if (String.fromCharCode(...new Uint8Array(buf, 0, 4)) !== "KLM1") {
+    throw new Error("the server sent no atlas");
+  }
+  const w = dv.getUint32(4, true), h = dv.getUint32(8, true), scale = dv.getFloat32(12, true);
+  const n = w * h * 3;
+  return {
+    w, h, scale,
+    irradiance: new Float32Array(buf, 16, n),
+    error: new Float32Array(buf, 16 + 4 * n, n),
+  };
+}
+
+// An atlas's RGB floats as the RGBA half floats of the lightmap textures.
+function halfRGBA(rgb, w, h) {
+  const out = new Uint16Array(w * h * 4);
+  const one = THREE.DataUtils.toHalfFloat(1);
+  for (let i = 0, j = 0; i < w * h; i++, j += 3) {
+    out[4 * i] = THREE.DataUtils.toHalfFloat(rgb[j]);
+    out[4 * i + 1] = THREE.DataUtils.toHalfFloat(rgb[j + 1]);
+    out[4 * i + 2] = THREE.DataUtils.toHalfFloat(rgb[j + 2]);
+    out[4 * i + 3] = one;
+  }
+  return out;
+}
+
+// Swaps `atlas` into every lightmap texture (and error texture) of the
+// asset's atlas size, sets their intensity, and redraws at the exposure.
+function apply($, atlas) {
+  const { w, h, scale } = atlas;
+  const irradiance = halfRGBA(atlas.irradiance, w, h), error = halfRGBA(atlas.error, w, h);
+  let sum = 0;
+  for (const v of atlas.irradiance) sum += v;
+  for (const e of entries) {
+    const img = e.lightMap.image;
+    if (!img || img.width !== w || img.height !== h) continue;
+    img.data = irradiance;
+    e.lightMap.needsUpdate = true;
+    if (e.err && e.err.image.width === w && e.err.image.height === h) {
+      e.err.image.data = error;
+      e.err.needsUpdate = true;
+    }
+    e.intensity = scale;
+  }
+  window.kalos.atlasSums.push(sum * scale);
+  // the exposure multiplies each lightmap's intensity, and redraws
+  window.kalos.setExposure(Number($("exposure").value));
 }

@@ -11,7 +11,8 @@
 //! irradiance estimated at every texel of an atlas, written as EXR images
 //! (the atlas and its standard errors).
 
-use std::path::PathBuf;
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
@@ -20,17 +21,22 @@ use crate::bake::lightmap::bake::{
     self as lightmap, LightmapBake, LightmapError, LightmapSettings,
 };
 use crate::bake::lightmap::glb as lightmap_glb;
+use crate::bake::lightmap::live::{Cadence, Watch};
+use crate::bake::lightmap::{Lightmap, LightmapUv};
 use crate::bake::{gltf, ply, BakedMesh};
+use crate::color::Rgb;
 use crate::image_io::ImageIoError;
 use crate::job::{self, SceneInput, SetupEvent};
+use crate::memory::MemoryItem;
 use crate::methods::density::control::{Control, Limits, Phase, Tick};
 use crate::methods::density::dataflow::{self, DataflowError, Workers};
+use crate::methods::density::hits::Hit;
 use crate::methods::density::{self, DensityError, Storage};
 use crate::methods::{MethodConfig, MethodError};
 use crate::outputs::{self, OutputError};
 use crate::render::{self, MemoryError};
-use crate::scene::ReadPolicy;
 use crate::scene::SceneError;
+use crate::scene::{ReadPolicy, Scene};
 use crate::world::World;
 
 /// A bake from start to finish: what to bake, how, and what to write. Its
@@ -63,6 +69,11 @@ pub struct BakeJob {
     /// Rays the bake may trace (the particles', and for a lightmap the
     /// texels' visibility rays). None: every particle.
     pub rays: Option<u64>,
+    /// A lightmap bake watched live: the asset as [`BakeEvent::Asset`]
+    /// before any particle, then a preview of the atlas
+    /// ([`BakeEvent::Preview`]) at most every this many seconds of
+    /// tracing, on [`Cadence`]'s schedule. None: no previews.
+    pub watch_every: Option<f64>,
 }
 
 impl BakeJob {
@@ -80,6 +91,7 @@ impl BakeJob {
             lightmap: None,
             time: None,
             rays: None,
+            watch_every: None,
         }
     }
 
@@ -107,6 +119,18 @@ impl BakeJob {
         if self.rays == Some(0) {
             return Err(BakeError::Budget("--rays must be positive".into()));
         }
+        if let Some(e) = self.watch_every {
+            if !(e.is_finite() && e >= 0.0) {
+                return Err(BakeError::Budget(format!(
+                    "--view-every must be a number of seconds, 0 or more, got {e}"
+                )));
+            }
+            if self.lightmap.is_none() {
+                return Err(BakeError::Budget(
+                    "only a lightmap bake is shown live: add --lightmap".into(),
+                ));
+            }
+        }
         if let Some(lm) = &self.lightmap {
             lm.check()?;
             if self.ply.is_some() {
@@ -128,7 +152,7 @@ impl BakeJob {
                 } else {
                     0
                 };
-                let items = lm.memory(side, side, self.settings.particles);
+                let items = self.lightmap_memory(lm, side);
                 render::check_memory(&items, limit, &source)?;
             }
             return Ok(CheckedBake { job: self });
@@ -139,6 +163,25 @@ impl BakeJob {
             render::check_memory(&render::memory_estimate(&config, 0, 0), limit, &source)?;
         }
         Ok(CheckedBake { job: self })
+    }
+}
+
+impl BakeJob {
+    /// The memory of a lightmap bake with an atlas of side `side`: the
+    /// atlas and the hits, and for a watched bake the previews' copy of
+    /// the hits (the index the previews build is the final one's size).
+    fn lightmap_memory(&self, lm: &LightmapSettings, side: u32) -> Vec<MemoryItem> {
+        let particles = self.settings.particles;
+        let mut items = lm.memory(side, side, particles);
+        if self.watch_every.is_some() {
+            let hits = particles.saturating_mul(lightmap::HITS_PER_PARTICLE);
+            items.push(MemoryItem {
+                what: format!("the live view's copy of the hits (about {hits})"),
+                bytes: hits.saturating_mul(std::mem::size_of::<Hit>() as u64),
+                remedy: "lower --particles, or drop --view",
+            });
+        }
+        items
     }
 }
 
@@ -167,6 +210,24 @@ pub enum BakeEvent<'e> {
         done: u64,
         /// Texels in all.
         total: u64,
+    },
+    /// A lightmap bake watched live ([`BakeJob::watch_every`]): the .glb
+    /// the bake will write, with a black atlas, before any particle.
+    Asset(&'e [u8]),
+    /// A watched lightmap bake starts a preview of the atlas from
+    /// `particles` particles.
+    Previewing {
+        /// Particles so far.
+        particles: u64,
+    },
+    /// A watched lightmap bake's preview of the atlas (padded).
+    Preview {
+        /// The atlas.
+        lightmap: &'e Lightmap,
+        /// Particles it was estimated from.
+        particles: u64,
+        /// Seconds it took.
+        seconds: f64,
     },
 }
 
@@ -279,16 +340,33 @@ impl CheckedBake {
         let j = &self.job;
         let side = lightmap::atlas_side(&world.scene, lm)?;
         if let Some((limit, source)) = job::memory_limit(j.max_memory, j.max_memory_flag) {
-            let items = lm.memory(side, side, j.settings.particles);
+            let items = j.lightmap_memory(lm, side);
             render::check_memory(&items, limit, &source)?;
         }
         on_event(BakeEvent::Started);
-        let mut on_tick = |t: &Tick| match t.phase {
-            Phase::Estimate => on_event(BakeEvent::Texels {
-                done: t.done,
-                total: t.total,
-            }),
-            _ => on_event(BakeEvent::Tick(t)),
+        let (source, allow_read) = match &j.scene {
+            SceneInput::File {
+                path, allow_read, ..
+            } => (
+                path.as_deref().filter(|p| !job::is_builtin(Some(p))),
+                &allow_read[..],
+            ),
+            SceneInput::World(_) => (None, &[][..]),
+        };
+        let read = ReadPolicy {
+            allow_read: allow_read.to_vec(),
+            memory_limit: None,
+        };
+        let events = RefCell::new(on_event);
+        let mut on_tick = |t: &Tick| {
+            let mut on_event = events.borrow_mut();
+            match t.phase {
+                Phase::Estimate => on_event(BakeEvent::Texels {
+                    done: t.done,
+                    total: t.total,
+                }),
+                _ => on_event(BakeEvent::Tick(t)),
+            }
         };
         let steer = lightmap::Steering {
             start,
@@ -297,24 +375,20 @@ impl CheckedBake {
             cancel,
             on_tick: &mut on_tick,
         };
-        let baked = lightmap::bake_lightmap(world, &j.settings, lm, steer)?;
+        let mut watcher = j.watch_every.map(|every| LiveWatch {
+            cadence: Cadence::new(every),
+            scene: &world.scene,
+            source,
+            read: &read,
+            events: &events,
+        });
+        let watch = watcher.as_mut().map(|w| w as &mut dyn Watch);
+        let baked = lightmap::bake_lightmap_watched(world, &j.settings, lm, steer, watch)?;
+        let on_event = &mut *events.borrow_mut();
         on_event(BakeEvent::Writing);
         let t1 = Instant::now();
         lightmap::write_images(&baked, lm)?;
         if let Some(glb) = &j.glb {
-            let (source, allow_read) = match &j.scene {
-                SceneInput::File {
-                    path, allow_read, ..
-                } => (
-                    path.as_deref().filter(|p| !job::is_builtin(Some(p))),
-                    &allow_read[..],
-                ),
-                SceneInput::World(_) => (None, &[][..]),
-            };
-            let read = ReadPolicy {
-                allow_read: allow_read.to_vec(),
-                memory_limit: None,
-            };
             lightmap_glb::write_lightmapped_with(
                 glb,
                 &world.scene,
@@ -369,6 +443,58 @@ impl CheckedBake {
             bytes: d.bytes_sent,
         });
         Ok(d.bake)
+    }
+}
+
+/// The watcher of a lightmap bake with [`BakeJob::watch_every`]: the asset
+/// encoded as the bake will write it, and previews on [`Cadence`]'s
+/// schedule, each told as a [`BakeEvent`].
+struct LiveWatch<'a, 'e> {
+    cadence: Cadence,
+    scene: &'a Scene,
+    source: Option<&'a Path>,
+    read: &'a ReadPolicy,
+    events: &'a RefCell<&'e mut dyn FnMut(BakeEvent)>,
+}
+
+impl Watch for LiveWatch<'_, '_> {
+    fn started(&mut self, uv: &LightmapUv) {
+        let n = uv.width as usize * uv.height as usize;
+        let black = Lightmap {
+            width: uv.width,
+            height: uv.height,
+            irradiance: vec![Rgb::ZERO; n],
+            std_error: vec![Rgb::ZERO; n],
+            covered: vec![false; n],
+        };
+        let on_event = &mut *self.events.borrow_mut();
+        match lightmap_glb::encode_lightmapped_with(self.scene, self.source, self.read, uv, &black)
+        {
+            Ok((bytes, _)) => on_event(BakeEvent::Asset(&bytes)),
+            // the bake goes on; its own write will say what is wrong
+            Err(e) => on_event(BakeEvent::Setup(SetupEvent::Warning(format!(
+                "the live view cannot show the asset: {e}"
+            )))),
+        }
+    }
+
+    fn due(&mut self, tick: &Tick) -> bool {
+        let due = self.cadence.due(tick);
+        if due {
+            (self.events.borrow_mut())(BakeEvent::Previewing {
+                particles: tick.done,
+            });
+        }
+        due
+    }
+
+    fn atlas(&mut self, lm: &Lightmap, particles: u64, seconds: f64) {
+        self.cadence.done(seconds);
+        (self.events.borrow_mut())(BakeEvent::Preview {
+            lightmap: lm,
+            particles,
+            seconds,
+        });
     }
 }
 

@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
-"""The viewer in a real browser: `kalos view` and `kalos render --view`,
-driven by Playwright in Debian's Chromium with software WebGL (SwiftShader).
+"""The viewer in a real browser: `kalos view`, `kalos render --view` and
+`kalos bake --lightmap --view`, driven by Playwright in Debian's Chromium
+with software WebGL (SwiftShader).
 
 Run from the repository root, after `cargo build --release`:
 
     python3 tests/browser/test_view.py [--kalos target/release/kalos] [--keep DIR]
     python3 tests/browser/test_view.py --lightmap DIR [--kalos ...] [--keep DIR]
+    python3 tests/browser/test_view.py --live-lightmap [--kalos ...] [--keep DIR]
 
 It needs `pip install playwright` (never `playwright install`: the browser
 is /usr/bin/chromium, or $CHROMIUM). It prints one line per check and exits
@@ -16,6 +18,8 @@ removed.
 `--lightmap DIR` runs only the lightmap checks, on the textured cube and
 its lightmapped .glb that `KALOS_LIGHTMAP_GLB_DIR=DIR cargo test --release
 --test it lightmap_glb` leaves in DIR (`cube.gltf`, `cube.glb`).
+`--live-lightmap` runs only the check of a lightmap bake shown live (which
+the default run includes).
 """
 
 import argparse
@@ -75,6 +79,22 @@ MEAN_TOLERANCE = 1.0
 #   against supersampling, on a high-contrast checker); tolerance 4.5, below
 #   what a 0.1-stop exposure error gives (about 7).
 LIGHTMAP_FLAT_RATIO = 0.02
+
+# The live lightmap bake (`kalos bake --lightmap --view`): the built-in
+# Cornell box with particles enough for a few previews (about 6 s of
+# tracing on 2 cores), on a small atlas.
+LIVE_PARTICLES = "2000000"
+LIVE_SIZE = 64
+# Largest difference of a channel mean (0..255) between the live page's
+# final picture and `kalos view` of the .glb the bake wrote. The two show
+# the same atlas, over the same scale and clipped the same way, through
+# half floats from f32 (live) or from 16-bit PNG (the .glb): measured
+# 0.004. The error map's false colour jumps from green to yellow at 5 %,
+# so that texels at 5 % flip: measured 0.13. Tolerances 0.1 and 0.5, below
+# what showing a stale atlas gives (the first preview against the final:
+# 0.38 in the same run).
+LIVE_MEAN_TOLERANCE = 0.1
+LIVE_ERROR_MAP_TOLERANCE = 0.5
 LIGHTMAP_NOISE_FACTOR = 1.5
 LIGHTMAP_MEAN_TOLERANCE = 4.5
 
@@ -189,6 +209,8 @@ def main():
     ap.add_argument("--keep", help="folder to leave the screenshots and images in")
     ap.add_argument("--seed", default=SEED, help="seed of the bake and its render")
     ap.add_argument("--lightmap", help="folder with cube.gltf and cube.glb: lightmap checks only")
+    ap.add_argument("--live-lightmap", action="store_true",
+                    help="only the check of a lightmap bake shown live")
     a = ap.parse_args()
     kalos = os.path.abspath(a.kalos)
     chromium = os.environ.get("CHROMIUM", "/usr/bin/chromium")
@@ -201,10 +223,13 @@ def main():
             try:
                 if a.lightmap:
                     lightmap_checks(browser, kalos, out, a.lightmap)
+                elif a.live_lightmap:
+                    live_lightmap_checks(browser, kalos, out)
                 else:
                     mesh_checks(browser, kalos, out, a.seed)
                     image_checks(browser, kalos, out)
                     live_checks(browser, kalos, out)
+                    live_lightmap_checks(browser, kalos, out)
             finally:
                 browser.close()
     print(f"browser test passed in {time.time() - t_start:.1f} s")
@@ -440,6 +465,87 @@ def live_checks(browser, kalos, out):
               f"Ctrl-C saves the image and exits with 130 (exit {code})")
     finally:
         served.stop()
+
+
+def shot_means(page, path):
+    """Channel means of a screenshot of `page` (saved at `path`)."""
+    shot = page.screenshot()
+    with open(path, "wb") as f:
+        f.write(shot)
+    return means(png_pixels(shot)[2])
+
+
+def live_lightmap_checks(browser, kalos, out):
+    glb = os.path.join(out, "live-cbox.glb")
+    t0 = time.time()
+    # previews as often as their cost allows (--view-every 0): one after
+    # the first batch of particles at least, then the final atlas
+    served = Served([kalos, "bake", "scenes/cbox/cbox.xml", "--lightmap", "--view",
+                     "--view-every", "0", "--particles", LIVE_PARTICLES, "--lightmap-size",
+                     str(LIVE_SIZE), "--seed", "1", "-q", "-o", glb], "stderr")
+    try:
+        page = browser.new_page(viewport={"width": 256, "height": 256}, device_scale_factor=1)
+        page.goto(served.url)
+        page.wait_for_function("window.kalos && (window.kalos.atlasVersion > 0 "
+                               "|| window.kalos.error)", timeout=60000)
+        check(page.evaluate("window.kalos.error") is None, "the live bake's asset loads")
+        check(page.evaluate("window.kalos.lightmapped"), "the live asset has its MOZ_lightmap")
+        # a mark that a reload would lose
+        page.evaluate("window.kalosMark = 1")
+        page.evaluate("document.getElementById('panel').style.display = 'none'")
+        first = shot_means(page, os.path.join(out, "live-first.png"))
+        first_particles = page.evaluate("window.kalos.atlasParticles")
+        page.wait_for_function("window.kalos.done || window.kalos.error", timeout=120000)
+        k = page.evaluate("[window.kalos.atlasVersion, window.kalos.atlasSums, "
+                          "window.kalos.atlasParticles, window.kalosMark, window.kalos.phase]")
+        print(f"      atlases shown: {k[0]}, from {first_particles} then {k[2]} particles; "
+              f"sums {[round(v, 3) for v in k[1]]}; {time.time() - t0:.1f} s")
+        check(k[0] >= 2 and len(set(k[1])) >= 2, "at least two distinct atlases arrive")
+        check(k[3] == 1, "the atlases are swapped in place (the page was not reloaded)")
+        check(k[4] == "finished" and k[2] == int(LIVE_PARTICLES),
+              "the page shows the bake finished, its atlas from every particle")
+        final = shot_means(page, os.path.join(out, "live-final.png"))
+        page.evaluate("window.kalos.setExposure(-1)")
+        dark = shot_means(page, os.path.join(out, "live-dark.png"))
+        check(all(d < 0.8 * v for d, v in zip(dark, final)), "the exposure slider darkens")
+        page.evaluate("window.kalos.setExposure(0)")
+        page.evaluate("window.kalos.setErrorMap(true)")
+        err = shot_means(page, os.path.join(out, "live-error-map.png"))
+        check(max(abs(a - b) for a, b in zip(err, final)) > 5, "the error map toggles")
+        # the bake stays served once written; Ctrl-C ends it with 0
+        check(served.proc.poll() is None and os.path.exists(glb),
+              "the .glb is written and the page stays up")
+        served.proc.send_signal(signal.SIGINT)
+        code = served.proc.wait(timeout=30)
+        check(code == 0, f"Ctrl-C then ends kalos with 0, the bake written (exit {code})")
+        page.close()
+    finally:
+        served.stop()
+    # the written .glb, shown by `kalos view`: the same picture
+    view = Served([kalos, "view", glb], "stdout")
+    try:
+        page = browser.new_page(viewport={"width": 256, "height": 256}, device_scale_factor=1)
+        page.goto(view.url)
+        page.wait_for_function("window.kalos && (window.kalos.ready || window.kalos.error)",
+                               timeout=60000)
+        page.evaluate("document.getElementById('panel').style.display = 'none'")
+        written = shot_means(page, os.path.join(out, "live-written.png"))
+        page.evaluate("window.kalos.setErrorMap(true)")
+        written_err = shot_means(page, os.path.join(out, "live-written-error-map.png"))
+        page.close()
+    finally:
+        view.stop()
+    diff = max(abs(a - b) for a, b in zip(final, written))
+    diff_err = max(abs(a - b) for a, b in zip(err, written_err))
+    diff_first = max(abs(a - b) for a, b in zip(first, written))
+    print(f"      channel means: live final {[round(v, 2) for v in final]}, written .glb "
+          f"{[round(v, 2) for v in written]}; first atlas {[round(v, 2) for v in first]}")
+    print(f"      largest difference: final {diff:.3f}, error map {diff_err:.3f}, "
+          f"first atlas {diff_first:.3f}")
+    check(diff <= LIVE_MEAN_TOLERANCE,
+          f"the live page's final picture is the written .glb's within {LIVE_MEAN_TOLERANCE}")
+    check(diff_err <= LIVE_ERROR_MAP_TOLERANCE,
+          f"so is its error map, within {LIVE_ERROR_MAP_TOLERANCE}")
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ use std::time::Instant;
 
 use super::estimate::{self, Estimator, HitIndex, Options, HIT_MEMORY};
 use super::glb::GlbError;
+use super::live::{Previews, SharedHits, Watch};
 use super::uv::{self, UvError, UvOptions};
 use super::{raster, Lightmap, LightmapUv, Texel};
 use crate::color::Rgb;
@@ -26,7 +27,6 @@ use crate::film::Image;
 use crate::image_io::{self, ImageIoError, PngOptions};
 use crate::memory::MemoryItem;
 use crate::methods::density::control::{Control, Limits, Phase, Tick};
-use crate::methods::density::hits::MemoryWriter;
 use crate::methods::density::{self, pipeline, surfaces, DensityError};
 use crate::scene::Scene;
 use crate::world::World;
@@ -254,6 +254,19 @@ pub fn bake_lightmap(
     lm: &LightmapSettings,
     steer: Steering,
 ) -> Result<LightmapBake, LightmapError> {
+    bake_lightmap_watched(world, s, lm, steer, None)
+}
+
+/// [`bake_lightmap`], with `watch` (when given) told when the uv set is
+/// made and handed previews of the atlas between batches of particles
+/// ([`super::live`]); the same particles and atlas as without.
+pub fn bake_lightmap_watched(
+    world: &World,
+    s: &density::Settings,
+    lm: &LightmapSettings,
+    steer: Steering,
+    watch: Option<&mut dyn Watch>,
+) -> Result<LightmapBake, LightmapError> {
     lm.check()?;
     s.check().map_err(DensityError::from)?;
     let scene = &world.scene;
@@ -276,8 +289,20 @@ pub fn bake_lightmap(
         rays: steer.rays,
         view_rays: texels.len() as u64 * (sectors + KNN_RAYS),
     };
-    let on_tick = steer.on_tick;
-    let mut ctl = Control::new(steer.start, limits, steer.cancel).on_tick(on_tick);
+    let surfaces = surfaces::build(scene);
+    let mut sink = SharedHits::default();
+    let mut previews = watch.map(|w| {
+        let hits = sink.clone();
+        Previews::new(w, world, &surfaces, &uv, &texels, s, lm, hits, steer.cancel)
+    });
+    let user_tick = steer.on_tick;
+    let mut on_tick = |t: &Tick| {
+        user_tick(t);
+        if let Some(p) = &mut previews {
+            p.tick(t);
+        }
+    };
+    let mut ctl = Control::new(steer.start, limits, steer.cancel).on_tick(&mut on_tick);
     let mut stats = LightmapStats {
         texels: texels.len() as u64,
         ..Default::default()
@@ -285,8 +310,6 @@ pub fn bake_lightmap(
 
     // The particles, as the density bake traces them
     let t = Instant::now();
-    let surfaces = surfaces::build(scene);
-    let mut sink = MemoryWriter::new();
     let traced = pipeline::trace_within(world, &surfaces, s, &mut sink, &mut ctl)?;
     stats.particles = traced.particles;
     stats.hits = traced.hits;

@@ -20,6 +20,7 @@
 //! This file holds the types the stages hand each other.
 
 pub mod glb;
+pub mod live;
 pub mod raster;
 pub mod uv;
 

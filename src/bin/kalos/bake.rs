@@ -17,6 +17,7 @@ use kalos::methods::density::control::{Phase, Tick};
 use kalos::methods::density::dataflow::Workers;
 use kalos::methods::density::DensityError;
 
+use crate::view::LiveBake;
 use crate::{progress, say, signals};
 
 /// The flags of `kalos bake`.
@@ -112,6 +113,21 @@ struct LightmapArgs {
     /// Visibility rays per texel, cutting the kernel at walls (0: none).
     #[arg(long, value_name = "N", default_value_t = 12, requires = "lightmap")]
     sectors: usize,
+    /// Show the lightmap refining in the browser as the bake runs (`kalos
+    /// view`'s page; the address is printed): the asset first, then a
+    /// preview of the atlas from the particles so far every few seconds
+    /// (at most a fifth of the bake's time), then the final atlas. The .glb
+    /// is written as without --view, and the page stays up until Ctrl-C.
+    #[arg(long, requires = "lightmap")]
+    view: bool,
+    /// The viewer's port on 127.0.0.1 (default: a free one); needs --view.
+    #[arg(long, value_name = "N", requires = "view")]
+    port: Option<u16>,
+    /// Seconds of tracing between two previews, at least (slow previews
+    /// are spaced further, so that they take at most a fifth of the
+    /// bake); needs --view.
+    #[arg(long, value_name = "SECONDS", default_value_t = 2.0, requires = "view")]
+    view_every: f64,
 }
 
 /// The flags of a bake on timely dataflow (threads or processes).
@@ -165,12 +181,23 @@ pub fn run(a: BakeArgs) -> Result<()> {
     if layout.is_some() && a.lightmap.lightmap {
         bail!("--lightmap bakes in one process: drop --workers, --process and --processes");
     }
+    // The viewer's port is taken before the scene loads, so that a port in
+    // use fails at once
+    let live = match a.lightmap.view {
+        true => Some(LiveBake::start(
+            a.lightmap.port.unwrap_or(0),
+            &a.output.display().to_string(),
+        )?),
+        false => None,
+    };
+    let live = live.as_ref();
     let mut setup = progress::Setup::default();
     let mut bars = PhaseBars::new(a.quiet);
-    let outcome = checked.run(
-        layout.as_ref(),
-        Some(signals::cancel_flag()),
-        &mut |e| match e {
+    let outcome = checked.run(layout.as_ref(), Some(signals::cancel_flag()), &mut |e| {
+        if let Some(l) = live {
+            l.event(&e);
+        }
+        match e {
             BakeEvent::Setup(s) => setup.event(s),
             BakeEvent::Started => {
                 setup.finish();
@@ -182,6 +209,8 @@ pub fn run(a: BakeArgs) -> Result<()> {
             }
             BakeEvent::Tick(t) => bars.tick(t),
             BakeEvent::Texels { done, total } => bars.texels(done, total),
+            // the live view's alone
+            BakeEvent::Asset(_) | BakeEvent::Previewing { .. } | BakeEvent::Preview { .. } => {}
             BakeEvent::Exchanged { hits, bytes } => {
                 if a.stats && hits > 0 {
                     say!(
@@ -191,8 +220,8 @@ pub fn run(a: BakeArgs) -> Result<()> {
                 }
             }
             BakeEvent::Writing => bars.start("writing", 0, ""),
-        },
-    );
+        }
+    });
     setup.finish();
     let outcome = match outcome {
         Ok(o) => o,
@@ -213,7 +242,15 @@ pub fn run(a: BakeArgs) -> Result<()> {
     };
     bars.finish();
     if let Some(lm) = &outcome.lightmap {
-        print_lightmap(&a, lm, &outcome);
+        if let Some(l) = live {
+            l.finish(&lm.lightmap, lm.stats.particles);
+        }
+        print_lightmap(&a, lm, &outcome, live);
+        if let Some(l) = live {
+            l.serve_until_signal();
+            // the bake is written: closing its viewer is no interruption
+            std::process::exit(0);
+        }
         return Ok(());
     }
     match &outcome.baked {
@@ -265,11 +302,12 @@ fn job(a: &BakeArgs) -> Result<BakeJob> {
         lightmap,
         time: a.time,
         rays: a.rays,
+        watch_every: l.view.then_some(l.view_every),
     })
 }
 
 /// A lightmap bake's line, and with `--stats` its figures.
-fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome) {
+fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome, live: Option<&LiveBake>) {
     let st = &lm.stats;
     let m = &lm.lightmap;
     for w in &lm.uv.warnings {
@@ -289,6 +327,9 @@ fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome) {
         say!("trace            {:.2} s", st.t_trace);
         say!("group + index    {:.2} s", st.t_index);
         say!("estimate texels  {:.2} s", st.t_estimate);
+        if let Some((n, secs)) = live.map(|l| l.previews()) {
+            say!("live previews    {n}, {secs:.2} s (within trace)");
+        }
         say!("load + BVH       {:.2} s", o.load_seconds);
         say!("write            {:.2} s", o.write_seconds);
         match peak_memory() {

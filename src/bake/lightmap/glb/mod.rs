@@ -617,7 +617,7 @@ fn mime_of(uri: &str, bytes: &[u8]) -> Option<&'static str> {
 /// The irradiance of a texel of value 1: the 99.9th percentile of the
 /// covered texels' largest channel (so that a few hot texels do not
 /// squash the 8-bit PNG's range), and 1 for an all-black atlas.
-fn scale_of(lm: &Lightmap) -> f32 {
+pub fn scale_of(lm: &Lightmap) -> f32 {
     let mut v: Vec<f32> = lm
         .irradiance
         .iter()

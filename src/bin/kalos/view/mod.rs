@@ -1,8 +1,10 @@
-//! `kalos view FILE` and `kalos render --view`: a local web page, served
-//! on 127.0.0.1 only, that shows a baked display mesh (.glb) in 3D with
-//! three.js, a linear HDR image (EXR, PFM, HDR) with exposure, tone
-//! mapping, pixel values and false colour, or a render as it converges.
+//! `kalos view FILE`, `kalos render --view` and `kalos bake --lightmap
+//! --view`: a local web page, served on 127.0.0.1 only, that shows a baked
+//! display mesh (.glb) in 3D with three.js, a linear HDR image (EXR, PFM,
+//! HDR) with exposure, tone mapping, pixel values and false colour, a
+//! render as it converges, or a lightmap as it is baked.
 
+mod bake;
 mod server;
 
 use std::path::{Path, PathBuf};
@@ -14,6 +16,7 @@ use clap::Args;
 use kalos::film::Image;
 use kalos::methods::Progress;
 
+pub use bake::LiveBake;
 pub use server::Viewer;
 use server::{Content, LiveState};
 

@@ -1,14 +1,18 @@
 //! The viewer's HTTP server: `tiny_http` on 127.0.0.1 only, one thread
 //! answering the page, the vendored three.js files, the content (a .glb or
-//! an image) and, for a live render, its progress.
+//! an image) and, for a live render or lightmap bake, its progress.
 //!
 //! Routes:
 //! - `/`: the page; `/view/*`: its scripts; `/three/*`: three.js.
-//! - `/info`: what is shown (`{"kind":"mesh"|"image"|"live","name":…}`).
-//! - `/scene.glb`: the mesh's bytes, as read.
+//! - `/info`: what is shown
+//!   (`{"kind":"mesh"|"image"|"live"|"bake","name":…}`).
+//! - `/scene.glb`: the mesh's bytes, as read; for a live bake, the asset
+//!   once its uv set is made (404 before).
 //! - `/image`: the image as `KIMG`, width and height (u32 LE), then
-//!   RGB f32 LE per pixel, top row first; the page tone-maps it.
-//! - `/status`: a live render's progress and convergence curve (JSON).
+//!   RGB f32 LE per pixel, top row first; the page tone-maps it. For a
+//!   live bake, the latest atlas (`KLM1`, see [`super::bake`]).
+//! - `/status`: a live render's progress and convergence curve, or a live
+//!   bake's progress (JSON).
 
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -81,6 +85,9 @@ pub enum Content {
     Image(Image),
     /// A render in progress: its latest estimate and progress.
     Live,
+    /// A lightmap bake in progress: its asset, its latest atlas and
+    /// progress.
+    Bake,
 }
 
 /// A live render's state, as the page polls it.
@@ -104,6 +111,44 @@ pub struct LiveState {
     pub curve: Vec<(f64, f64)>,
     /// True once the render has ended.
     pub done: bool,
+    /// A live bake's asset (.glb), once its uv set is made.
+    pub glb: Option<Arc<Vec<u8>>>,
+    /// A live bake's progress.
+    pub bake: Option<BakeStatus>,
+}
+
+/// A live lightmap bake's progress, as `/status` gives it under `bake`.
+#[derive(Clone, Debug, Default)]
+pub struct BakeStatus {
+    /// Particles traced so far.
+    pub particles: u64,
+    /// Particles asked for.
+    pub particles_total: u64,
+    /// Work done and in all in the current phase.
+    pub done: u64,
+    /// Work of the current phase in all.
+    pub total: u64,
+    /// Particles the atlas shown was estimated from (0: none yet).
+    pub atlas_particles: u64,
+    /// Previews estimated so far, and their seconds in all.
+    pub previews: u64,
+    /// Seconds the previews took.
+    pub preview_seconds: f64,
+}
+
+impl BakeStatus {
+    fn json(&self) -> String {
+        format!(
+            "{{\"particles\":{},\"particles_total\":{},\"done\":{},\"total\":{},\"atlas_particles\":{},\"previews\":{},\"preview_seconds\":{}}}",
+            self.particles,
+            self.particles_total,
+            self.done,
+            self.total,
+            self.atlas_particles,
+            self.previews,
+            finite(self.preview_seconds)
+        )
+    }
 }
 
 impl LiveState {
@@ -130,8 +175,12 @@ impl LiveState {
             Some(p) => format!("\"{}\"", p.replace(['"', '\\'], "")),
             None => "null".into(),
         };
+        let bake = match &self.bake {
+            Some(b) => b.json(),
+            None => "null".into(),
+        };
         format!(
-            "{{\"version\":{},\"passes\":{},\"rays\":{},\"elapsed\":{},\"fraction\":{},\"rays_per_s\":{},\"time_left\":{left},\"phase\":{phase},\"done\":{},\"curve\":[{}]}}",
+            "{{\"version\":{},\"passes\":{},\"rays\":{},\"elapsed\":{},\"fraction\":{},\"rays_per_s\":{},\"time_left\":{left},\"phase\":{phase},\"done\":{},\"asset\":{},\"bake\":{bake},\"curve\":[{}]}}",
             self.version,
             self.passes,
             self.rays,
@@ -139,6 +188,7 @@ impl LiveState {
             finite(self.fraction),
             finite(rays_per_s),
             self.done,
+            self.glb.is_some(),
             curve.join(",")
         )
     }
@@ -205,6 +255,7 @@ pub fn start(content: Content, name: &str, port: u16) -> Result<Viewer> {
         Content::Mesh(_) => "mesh",
         Content::Image(_) => "image",
         Content::Live => "live",
+        Content::Bake => "bake",
     };
     let info = format!("{{\"kind\":\"{kind}\",\"name\":\"{}\"}}", json_escape(name));
     let still = match &content {
@@ -234,8 +285,14 @@ pub fn start(content: Content, name: &str, port: u16) -> Result<Viewer> {
             } else {
                 match path.as_str() {
                     "/info" => reply(info.clone().into_bytes(), JSON),
-                    "/scene.glb" if glb.is_some() => {
-                        reply(glb.as_deref().cloned().unwrap_or_default(), BINARY)
+                    "/scene.glb" => {
+                        let bytes = glb
+                            .clone()
+                            .or_else(|| state.lock().ok().and_then(|s| s.glb.clone()));
+                        match bytes {
+                            Some(b) => reply(b.to_vec(), BINARY),
+                            None => reply(b"no asset yet".to_vec(), TEXT).with_status_code(404),
+                        }
                     }
                     "/image" => {
                         let img = still
