@@ -282,6 +282,16 @@ pub fn bake_lightmap_watched(
     };
     let uv = uv::lightmap_uv(scene, asset_uv1, &opts)?;
     let texels = raster::texels(scene, &uv);
+    // the estimator's settings, the texel's world area filled in for the
+    // adaptive k: the same for the previews and the final estimate
+    let opts = Options {
+        texel_area: lm.estimator.texel_area.or(texel_area(scene, &uv)),
+        ..lm.estimator
+    };
+    let lm = &LightmapSettings {
+        estimator: opts,
+        ..lm.clone()
+    };
 
     let sectors = lm.estimator.sectors.min(estimate::MAX_SECTORS) as u64;
     let limits = Limits {
@@ -328,10 +338,6 @@ pub fn bake_lightmap_watched(
 
     // Every texel
     let t = Instant::now();
-    let opts = Options {
-        texel_area: lm.estimator.texel_area.or(texel_area(scene, &uv)),
-        ..lm.estimator
-    };
     let est = Estimator::new(world, &surfaces, &index, traced.phi, opts);
     let cancel = ctl.cancel_flag();
     let mut lightmap = {
