@@ -24,9 +24,12 @@ written here are multiplied by π so that they hold E, as kalos's atlas
 The error of a bake X against a reference R (the mean of two independent
 halves A and B) is the per-texel relative RMS over the texels the kalos atlas
 covers (every texel a uv triangle touches, as kalos rasterises them:
-conservatively) and every channel with R > 1e-3 × the median of R there:
-sqrt(mean(((X − R)/R)²) − mean(((A − B)/(2R))²)), the second term being the
-reference's own noise, subtracted in quadrature.
+conservatively) whose channels all exceed 1e-3 × their median there (the
+occluded ones, under the boxes and behind the luminaire, are 0), over the
+three channels: sqrt(mean(((X − R)/R)²) − mean(((A − B)/(2R))²)), the
+second term being the reference's own noise, subtracted in quadrature.
+Also printed: the same on luminance, and both normalised by the mean over
+texels instead of each texel's own value.
 
 Commands (PY is the venv's python):
 
@@ -39,6 +42,9 @@ Commands (PY is the venv's python):
             --samples 16,64,256,1024 [--keep OUTDIR]
         bakes at each sample count (seed 3), prints wall time, Cycles'
         fixed cost (a 1-sample bake) and the relative RMS against REF
+    PY benches/peers/cycles_lightmap.py bake cbox.glb 'OUT-{n}.exr' --samples 1,16,64 --seed 101
+        bakes only, each written ({n}: the sample count), with wall and CPU
+        time (to score later with compare)
     PY benches/peers/cycles_lightmap.py compare cbox.glb REF.exr REF-a.exr REF-b.exr X.exr...
         the relative RMS of any atlas (a kalos bake's .lightmap.exr)
 
@@ -195,6 +201,8 @@ def save_exr(arr, path):
     file has row 0 at the top, as kalos's atlas)."""
     h, w, _ = arr.shape
     img = bpy.data.images.new(os.path.basename(path), w, h, alpha=True, float_buffer=True)
+    # data, not colour: else Blender 5 writes the values sRGB-encoded
+    img.colorspace_settings.is_data = True
     rgba = np.ones((h, w, 4), dtype=np.float32)
     rgba[:, :, :3] = arr
     img.pixels.foreach_set(rgba.ravel())
@@ -256,15 +264,44 @@ def covered(obj, size):
     return mask
 
 
+# The luminance weights (Rec. 709) of the luminance metrics.
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def metrics(x, ref, a, b, mask):
+    """The error of atlas x against ref (the mean of halves a and b) over
+    the covered texels where every channel of ref is above 1e-3 of its
+    median: {name: (error with the reference's noise subtracted in
+    quadrature, raw error, the reference's own noise)}. The metrics:
+    per-texel relative per channel (the primary one), per-texel relative
+    on luminance, and the two normalised by the mean over texels instead
+    of each texel's value (dark texels weigh less)."""
+    r = ref[mask].astype(np.float64)
+    keep = (r > 1e-3 * np.median(r, axis=0)).all(axis=1)
+    r = r[keep]
+    e = x[mask][keep].astype(np.float64) - r
+    d = (a[mask][keep].astype(np.float64) - b[mask][keep]) / 2
+    rl = r @ LUMA
+    forms = {
+        "per-texel relative, per channel": (e / r, d / r),
+        "per-texel relative, luminance": ((e @ LUMA) / rl, (d @ LUMA) / rl),
+        "over the channel's mean, per channel": (e / r.mean(0), d / r.mean(0)),
+        "over the mean luminance, luminance": ((e @ LUMA) / rl.mean(), (d @ LUMA) / rl.mean()),
+    }
+    out = {}
+    for name, (ee, dd) in forms.items():
+        raw, noise = np.mean(ee**2), np.mean(dd**2)
+        out[name] = (math.sqrt(max(raw - noise, 0.0)), math.sqrt(raw), math.sqrt(noise))
+    return out
+
+
 def rel_rms(x, ref, a, b, mask):
-    """(relative RMS of x against ref minus the reference's noise, the raw
-    value, the reference's own relative noise) over covered channels."""
-    r = ref[mask]
-    keep = r > 1e-3 * np.median(r)
-    rr = r[keep]
-    raw = np.mean(((x[mask][keep] - rr) / rr) ** 2)
-    noise = np.mean(((a[mask][keep] - b[mask][keep]) / (2 * rr)) ** 2)
-    return math.sqrt(max(raw - noise, 0.0)), math.sqrt(raw), math.sqrt(noise)
+    """The primary metric of `metrics`: (error, raw, reference noise)."""
+    return metrics(x, ref, a, b, mask)["per-texel relative, per channel"]
+
+
+def show(m):
+    return "; ".join(f"{k}: {100 * c:.2f} % (raw {100 * raw:.2f}, ref. noise {100 * n:.2f})" for k, (c, raw, n) in m.items())
 
 
 def loadavg():
@@ -273,7 +310,7 @@ def loadavg():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("cmd", choices=["reference", "curve", "compare"])
+    ap.add_argument("cmd", choices=["reference", "curve", "compare", "bake"])
     ap.add_argument("glb")
     ap.add_argument("rest", nargs="*")
     ap.add_argument("--samples", default="4096")
@@ -332,13 +369,23 @@ def main():
                 print(line, flush=True)
         return
 
+    if args.cmd == "bake":
+        image = setup_cycles(obj, size, args.threads, args.bounces)
+        for n in (int(s) for s in args.samples.split(",")):
+            out = args.rest[0].replace("{n}", str(n))
+            c0 = time.process_time()
+            dt, x = bake(obj, image, n, args.seed, args.margin)
+            cpu = time.process_time() - c0
+            save_exr(x, out)
+            print(f"{out}: {n} samples, seed {args.seed}, {dt:.2f} s wall, {cpu:.2f} s cpu; load {loadavg()}", flush=True)
+        return
+
     ref, a, b = (load_exr(p) for p in args.rest[:3])
     if args.cmd == "compare":
         for p in args.rest[3:]:
             x = load_exr(p)
-            c, raw, noise = rel_rms(x, ref, a, b, mask)
-            ratio = x[mask].sum() / ref[mask].sum()
-            print(f"{p}: relative RMS {100 * c:.2f} % (raw {100 * raw:.2f} %, reference noise {100 * noise:.2f} %), mean ratio {ratio:.4f}")
+            ratio = x[mask].sum(0) / ref[mask].sum(0)
+            print(f"{p}: mean ratio to the reference (R, G, B) {np.round(ratio, 4)}; {show(metrics(x, ref, a, b, mask))}")
         return
 
     image = setup_cycles(obj, size, args.threads, args.bounces)
@@ -346,13 +393,12 @@ def main():
         c0 = time.process_time()
         dt1, _ = bake(obj, image, 1, seed, args.margin)
         print(f"fixed cost (a 1-sample bake): {dt1:.2f} s wall, {time.process_time() - c0:.2f} s cpu; load {loadavg()}")
-    print("samples  wall s  cpu s  rel.RMS  (raw, ref. noise)  load")
+    print("samples  wall s  cpu s  errors")
     for n in (int(s) for s in args.samples.split(",")):
         c0 = time.process_time()
         dt, x = bake(obj, image, n, args.seed, args.margin)
         cpu = time.process_time() - c0
-        c, raw, noise = rel_rms(x, ref, a, b, mask)
-        print(f"{n:7d}  {dt:6.1f}  {cpu:6.1f}  {100 * c:6.2f} %  ({100 * raw:.2f} %, {100 * noise:.2f} %)  {loadavg()}", flush=True)
+        print(f"{n:7d}  {dt:6.1f}  {cpu:6.1f}  {show(metrics(x, ref, a, b, mask))}  load {loadavg()}", flush=True)
         if args.keep:
             save_exr(x, os.path.join(args.keep, f"cycles-{n}.exr"))
 

@@ -22,12 +22,13 @@ pixel" (batch.haltspp) count the map's texels, covered or not.
 
     PY benches/peers/luxcore_lightmap.py cbox.glb OUT.exr --spp 64 [--threads 2] [--seed 1]
 
-prints the wall time of the render (scene set-up excluded) and the
-halt's sample count.
+prints the wall and CPU time of the render (scene set-up excluded) and
+the passes done.
 """
 
 import argparse
 import json
+import math
 import os
 import struct
 import sys
@@ -100,7 +101,7 @@ def node_matrices(j):
     return out
 
 
-def build(glb, spp, threads, seed, out, uvset, bounces, margin):
+def build(glb, spp, threads, seed, out, uvset, bounces, margin, scale, filt):
     j, accessor = read_glb(glb)
     props = pyluxcore.Properties()
     scene = pyluxcore.Scene()
@@ -157,7 +158,8 @@ def build(glb, spp, threads, seed, out, uvset, bounces, margin):
         ("film.width", 64),
         ("film.height", 64),
         ("film.imagepipelines.0.0.type", "TONEMAP_LINEAR"),
-        ("film.imagepipelines.0.0.scale", 1.0),
+        ("film.imagepipelines.0.0.scale", scale),
+        ("film.filter.type", filt),
         ("path.pathdepth.total", bounces),
         ("path.pathdepth.diffuse", bounces),
         ("path.pathdepth.glossy", bounces),
@@ -188,20 +190,24 @@ def main():
     ap.add_argument("--uvset", type=int, default=1, help="the glTF uv set baked into (TEXCOORD_N)")
     ap.add_argument("--bounces", type=int, default=64)
     ap.add_argument("--margin", type=int, default=4)
+    ap.add_argument("--scale", type=float, default=math.pi, help="factor on LIGHTMAP's value (π: it is E/π)")
+    ap.add_argument("--filter", default="NONE", help="the film's pixel filter (LuxCore's default: BLACKMANHARRIS)")
     args = ap.parse_args()
     pyluxcore.Init(lambda msg: None)
-    config = build(os.path.abspath(args.glb), args.spp, args.threads, args.seed, args.out, args.uvset, args.bounces, args.margin)
+    config = build(os.path.abspath(args.glb), args.spp, args.threads, args.seed, args.out, args.uvset, args.bounces, args.margin, args.scale, args.filter)
     session = pyluxcore.RenderSession(config)
-    t = time.perf_counter()
+    t, c0 = time.perf_counter(), time.process_time()
     session.Start()
     while not session.HasDone():
         time.sleep(0.05)
         session.UpdateStats()
     session.Stop()
-    dt = time.perf_counter() - t
+    dt, cpu = time.perf_counter() - t, time.process_time() - c0
     stats = session.GetStats()
-    print(f"{args.out}: {args.spp} spp, {dt:.2f} s wall, "
-          f"{stats.Get('stats.renderengine.pass').GetInt()} passes; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"{args.out}: {args.spp} spp, {dt:.2f} s wall, {cpu:.2f} s cpu, "
+          f"{stats.Get('stats.renderengine.pass').GetInt()} passes; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    # pyluxcore 2.11.2 segfaults at interpreter exit (after the map is written): leave at once
+    os._exit(0)
 
 
 if __name__ == "__main__":
