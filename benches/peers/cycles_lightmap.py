@@ -33,23 +33,29 @@ texels instead of each texel's own value.
 
 Commands (PY is the venv's python):
 
-    PY benches/peers/cycles_lightmap.py reference cbox.glb OUTDIR --samples 4096
-        two halves of samples/2 each (seeds 1 and 2), written as
-        OUTDIR/cbox-512-cycles-4096-a.exr and -b.exr, their mean as
-        OUTDIR/cbox-512-cycles-4096.exr, and OUTDIR/covered.png (kalos's
-        coverage, white where covered)
+    PY benches/peers/cycles_lightmap.py reference cbox.glb OUTDIR --samples 4096 [--chunk 256]
+        calls of `chunk` samples with seeds 1, 2, 3...: each written as
+        OUTDIR/chunk-256-seedKK.exr; the odd seeds make half a, the even
+        half b; after each pair the halves and their mean so far are written
+        as OUTDIR/cbox-512-cycles-N-a.exr, -b.exr and cbox-512-cycles-N.exr
+        (N the samples so far), so a partial reference is there before the
+        whole one; also OUTDIR/covered.exr (1 where kalos's atlas covers)
     PY benches/peers/cycles_lightmap.py curve cbox.glb REF.exr REF-a.exr REF-b.exr \
             --samples 16,64,256,1024 [--keep OUTDIR]
-        bakes at each sample count (seed 3), prints wall time, Cycles'
-        fixed cost (a 1-sample bake) and the relative RMS against REF
+        bakes at each sample count (seed 3), prints wall and CPU time,
+        Cycles' fixed cost (a 1-sample bake) and the errors against REF
     PY benches/peers/cycles_lightmap.py bake cbox.glb 'OUT-{n}.exr' --samples 1,16,64 --seed 101
         bakes only, each written ({n}: the sample count), with wall and CPU
         time (to score later with compare)
     PY benches/peers/cycles_lightmap.py compare cbox.glb REF.exr REF-a.exr REF-b.exr X.exr...
-        the relative RMS of any atlas (a kalos bake's .lightmap.exr)
+        the errors of any atlas (a kalos bake's .lightmap.exr) and its mean
+        ratio to REF
 
-Options: --threads (2), --margin (4), --bounces (64). Times are wall clock
-of `bpy.ops.object.bake` alone (import and set-up excluded).
+Options: --threads (2), --margin (4), --bounces (64), --seed (curve, bake).
+Times are of `bpy.ops.object.bake` alone (import and set-up excluded): wall
+clock, and the process's CPU time (all threads), which says more on a
+loaded machine. The atlas size is read from the kalos EXR beside the .glb
+(OUT.lightmap.exr), 512 without it.
 """
 
 import argparse

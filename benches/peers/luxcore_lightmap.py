@@ -11,11 +11,15 @@ What a bake is: each glTF primitive becomes a LuxCore mesh with TEXCOORD_1
 as its uv set, each material a `matte` of the base colour factor (emitters:
 with `emission` = emissive factor × KHR_materials_emissive_strength, gain 1,
 no power normalisation); a BAKECPU render of one LIGHTMAP map of all the
-meshes on that uv set, 64 bounces, no clamping, margin 4 px, written by a
-linear image pipeline (no tone map, no gamma) as a float EXR. LIGHTMAP is
-the light arriving at the surface (direct light plus a cosine-weighted
-hemisphere path, without albedo); its scale against E is measured, not
-assumed (cycles_lightmap.py `compare` prints the ratio of means).
+meshes on that uv set, 64 bounces, no clamping, margin 4 px, no pixel
+filter (`--filter NONE`: each sample lands in one texel, as Cycles'
+do; LuxCore's default Blackman-Harris spreads it over its neighbours),
+written through a linear image pipeline (no tone map, no gamma) scaled by
+π as a float EXR. LIGHTMAP is the light arriving at the surface (direct
+light plus one path along a uniformly sampled hemisphere direction
+weighted by its cosine, without albedo) and measures E/π: × π (`--scale`)
+its mean over the covered texels is the Cycles reference's × 1.001
+(cycles_lightmap.py `compare` prints that ratio).
 
 BAKECPU samples points on the meshes by area, not texels: its "samples per
 pixel" (batch.haltspp) count the map's texels, covered or not.
