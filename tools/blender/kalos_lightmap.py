@@ -182,7 +182,6 @@ def enable():
     `glTF2ImportUserExtension` in enabled add-ons' modules); for scripts
     that import it from sys.path instead of installing it."""
     name = __name__
-    sys.modules.setdefault(name, sys.modules[__name__])
     addons = bpy.context.preferences.addons
     if addons.get(name) is None:
         addons.new().module = name
