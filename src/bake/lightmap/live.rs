@@ -339,6 +339,10 @@ mod tests {
         }
     }
 
+    fn fin_count(covered: &[bool]) -> usize {
+        covered.iter().filter(|c| **c).count()
+    }
+
     #[test]
     fn a_watched_bake_gives_previews_and_the_same_atlas() {
         let world = World::new(crate::scene::builtin::cornell_box().expect("built in"));
@@ -376,18 +380,28 @@ mod tests {
         assert_eq!(plain.stats.particles, watched.stats.particles);
         let (first, particles) = keep.previews.first().expect("a preview");
         assert!(*particles > 0 && *particles < s.particles);
-        assert_eq!(first.covered, watched.lightmap.covered);
+        // the preview covers what the uv set covers; the final leaves out
+        // besides the texels its leak test finds hidden (inside a solid),
+        // which a preview tests at only a quarter of the texels
+        assert!(watched
+            .lightmap
+            .covered
+            .iter()
+            .zip(&first.covered)
+            .all(|(f, p)| !*f || *p));
+        let hidden =
+            first.covered.iter().filter(|c| **c).count() - fin_count(&watched.lightmap.covered);
+        assert!(hidden * 10 < fin_count(&watched.lightmap.covered));
         // every covered texel has a value, near the final one on average
         let fin = &watched.lightmap;
-        let covered = |lm: &'_ Lightmap| {
-            lm.covered
-                .iter()
-                .zip(&lm.irradiance)
-                .filter(|(c, _)| **c)
-                .map(|(_, e)| crate::color::luminance(*e))
+        // the texels both cover, in the same order
+        let both = |lm: &'_ Lightmap| {
+            (0..lm.covered.len())
+                .filter(|&k| first.covered[k] && fin.covered[k])
+                .map(|k| crate::color::luminance(lm.irradiance[k]))
                 .collect::<Vec<f32>>()
         };
-        let (p, f) = (covered(first), covered(fin));
+        let (p, f) = (both(first), both(fin));
         // black where the final is not (the final is black on the light,
         // which has no diffuse part, and under the boxes, from where a
         // preview's texel next to them takes its neighbour's black)

@@ -328,60 +328,9 @@ pub(super) fn rewrite_primitives(
         let mut pj = input.json["meshes"][source.mesh as usize]["primitives"]
             [source.primitive as usize]
             .clone();
-        // attributes
-        let mut attrs = Map::new();
-        for (sem, a) in prim.attributes() {
-            let name = semantic_name(&sem);
-            if name == "TEXCOORD_1" {
-                continue;
-            }
-            let idx = gather(
-                out,
-                &a,
-                &np.verts,
-                &input.buffers,
-                source.vertex_count,
-                name == "POSITION",
-            )
-            .map_err(&at)?;
-            attrs.insert(name, json!(idx));
-        }
-        let uv1: Vec<[f32; 2]> = np.uv1.iter().map(|v| v.to_array()).collect();
-        let uv1 = json!(out.floats(&uv1, false));
-        // glTF numbers a primitive's uv sets from 0 without gaps
-        // (MESH_PRIMITIVE_INDEXED_SEMANTIC_CONTINUITY): a primitive without
-        // uvs of its own (Blender writes none for a mesh without a uv map)
-        // gets the lightmap's as TEXCOORD_0 too, the same accessor; its
-        // material has no texture that could read them
-        if !attrs.contains_key("TEXCOORD_0") {
-            attrs.insert("TEXCOORD_0".into(), uv1.clone());
-        }
-        attrs.insert("TEXCOORD_1".into(), uv1);
+        let (attrs, targets) =
+            rewritten_attributes(out, input, &prim, &np, source.vertex_count).map_err(&at)?;
         pj["attributes"] = Value::Object(attrs);
-        // morph targets
-        let mut targets = Vec::new();
-        for t in prim.morph_targets() {
-            let mut tj = Map::new();
-            for (name, a) in [
-                ("POSITION", t.positions()),
-                ("NORMAL", t.normals()),
-                ("TANGENT", t.tangents()),
-            ] {
-                if let Some(a) = a {
-                    let idx = gather(
-                        out,
-                        &a,
-                        &np.verts,
-                        &input.buffers,
-                        source.vertex_count,
-                        name == "POSITION",
-                    )
-                    .map_err(&at)?;
-                    tj.insert(name.into(), json!(idx));
-                }
-            }
-            targets.push(Value::Object(tj));
-        }
         if !targets.is_empty() {
             pj["targets"] = Value::Array(targets);
         }
@@ -443,6 +392,68 @@ pub(super) fn semantic_name(s: &gltf::Semantic) -> String {
         S::Weights(i) => format!("WEIGHTS_{i}"),
         S::Extras(n) => format!("_{n}"),
     }
+}
+
+/// A rewritten primitive's attributes (each gathered through the new
+/// vertices, TEXCOORD_1 the lightmap's) and morph targets.
+fn rewritten_attributes(
+    out: &mut Out,
+    input: &Input,
+    prim: &gltf::Primitive,
+    np: &NewPrimitive,
+    vertex_count: u32,
+) -> Result<(Map<String, Value>, Vec<Value>), String> {
+    let mut attrs = Map::new();
+    for (sem, a) in prim.attributes() {
+        let name = semantic_name(&sem);
+        if name == "TEXCOORD_1" {
+            continue;
+        }
+        let idx = gather(
+            out,
+            &a,
+            &np.verts,
+            &input.buffers,
+            vertex_count,
+            name == "POSITION",
+        )?;
+        attrs.insert(name, json!(idx));
+    }
+    let uv1: Vec<[f32; 2]> = np.uv1.iter().map(|v| v.to_array()).collect();
+    let uv1 = json!(out.floats(&uv1, false));
+    // glTF numbers a primitive's uv sets from 0 without gaps
+    // (MESH_PRIMITIVE_INDEXED_SEMANTIC_CONTINUITY): a primitive without
+    // uvs of its own (Blender writes none for a mesh without a uv map)
+    // gets the lightmap's as TEXCOORD_0 too, the same accessor; its
+    // material has no texture that could read them
+    if !attrs.contains_key("TEXCOORD_0") {
+        attrs.insert("TEXCOORD_0".into(), uv1.clone());
+    }
+    attrs.insert("TEXCOORD_1".into(), uv1);
+    // morph targets
+    let mut targets = Vec::new();
+    for t in prim.morph_targets() {
+        let mut tj = Map::new();
+        for (name, a) in [
+            ("POSITION", t.positions()),
+            ("NORMAL", t.normals()),
+            ("TANGENT", t.tangents()),
+        ] {
+            if let Some(a) = a {
+                let idx = gather(
+                    out,
+                    &a,
+                    &np.verts,
+                    &input.buffers,
+                    vertex_count,
+                    name == "POSITION",
+                )?;
+                tj.insert(name.into(), json!(idx));
+            }
+        }
+        targets.push(Value::Object(tj));
+    }
+    Ok((attrs, targets))
 }
 
 /// A new accessor holding accessor `a`'s elements at `verts` (primitive
