@@ -113,6 +113,11 @@ pub struct Options {
 /// Cornell box at 512² (docs/notebook/lightmap-estimator.md).
 pub const GROWTH: f32 = 80.0;
 
+/// The k a texel whose grown kernel is cut by an edge takes instead, when
+/// narrower (see [`Estimator::texel`]): the fixed k of the first lightmap
+/// bake, whose inside corners match the path tracer's.
+pub const EDGE_K: usize = 256;
+
 /// The fewest hits a grown kernel holds (the pilot's).
 pub const K_MIN: usize = PILOT;
 
@@ -400,6 +405,9 @@ pub struct TexelEstimate {
     /// fills it from its neighbours as it pads a chart
     /// ([`estimate_texels`]).
     pub hidden: bool,
+    /// The kernel was cut: by a face some sector ray met within h, or by
+    /// the border of the surface (its mass inside the free region < 1).
+    pub cut: bool,
 }
 
 /// What every texel's estimate reads.
@@ -465,6 +473,25 @@ impl<'a> Estimator<'a> {
 
     /// The estimate at a texel's point.
     pub fn texel(&self, t: &Texel) -> TexelEstimate {
+        let e = self.texel_with(t, self.opts.neighbours);
+        // A grown kernel cut by an edge (a wall standing on the floor, the
+        // polygon's border) is one-sided: on the lighting's gradient there
+        // its bias grows with h faster than its variance falls, and inside
+        // corners came out 3–8 % dark (tests/it/lightmap_seams.rs). Such a
+        // texel takes the fixed k of [`EDGE_K`] when that kernel is the
+        // narrower.
+        if self.opts.neighbours.is_none() && self.opts.bandwidth.is_none() && e.cut {
+            let edge = self.texel_with(t, Some(EDGE_K));
+            if edge.h < e.h {
+                return edge;
+            }
+        }
+        e
+    }
+
+    /// [`Estimator::texel`] with k fixed at `fixed` (None: the rule of
+    /// [`Options::growth`]).
+    fn texel_with(&self, t: &Texel, fixed: Option<usize>) -> TexelEstimate {
         let Some(&sid) = self.surfaces.tri_surface.get(t.tri as usize) else {
             return TexelEstimate::default();
         };
@@ -478,7 +505,7 @@ impl<'a> Estimator<'a> {
         let g = &self.index.groups[gi];
         let n = if back { -t.n } else { t.n };
         let p = t.p;
-        let Some((h2, found)) = self.gather(g, p) else {
+        let Some((h2, found)) = self.gather(g, p, fixed) else {
             return TexelEstimate::default();
         };
         let h = h2.sqrt();
@@ -599,6 +626,7 @@ impl<'a> Estimator<'a> {
             // test above can tell (a texel under a box, a texel from its
             // side: the rays away from that side meet nothing within h)
             hidden: used == 0 && backs > 0 && fronts == 0,
+            cut: !open || mass < 1.0,
         }
     }
 
@@ -643,11 +671,11 @@ impl<'a> Estimator<'a> {
     /// more). k is fixed, or grown from the density the pilot saw
     /// ([`grown_k`]). Groups of at most k hits use them all, h just past
     /// the farthest. A fixed [`Options::bandwidth`] skips the pilot.
-    fn gather(&self, g: &Group, p: Vec3) -> Option<(f32, Vec<(u32, f32)>)> {
+    fn gather(&self, g: &Group, p: Vec3, fixed: Option<usize>) -> Option<(f32, Vec<(u32, f32)>)> {
         let q = p.to_array();
         let h2 = match self.opts.bandwidth {
             Some(h) => h * h,
-            None => self.bandwidth2(g, &q, p)?,
+            None => self.bandwidth2(g, &q, p, fixed)?,
         };
         if !(h2 > 0.0 && h2.is_finite()) {
             return None;
@@ -665,7 +693,7 @@ impl<'a> Estimator<'a> {
     }
 
     /// h² at `p` (see [`Estimator::gather`]).
-    fn bandwidth2(&self, g: &Group, q: &[f32; 3], p: Vec3) -> Option<f32> {
+    fn bandwidth2(&self, g: &Group, q: &[f32; 3], p: Vec3, fixed: Option<usize>) -> Option<f32> {
         let all = || {
             let far = g
                 .pos
@@ -674,7 +702,7 @@ impl<'a> Estimator<'a> {
                 .fold(0.0f32, f32::max);
             far * 1.0001
         };
-        let k0 = self.opts.neighbours.map_or(PILOT, |k| k.min(PILOT));
+        let k0 = fixed.map_or(PILOT, |k| k.min(PILOT));
         if g.pos.len() <= k0 {
             return Some(all());
         }
@@ -684,7 +712,7 @@ impl<'a> Estimator<'a> {
             .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k0)?)
             .execute();
         let r2 = near.last()?.distance;
-        let k = match self.opts.neighbours {
+        let k = match fixed {
             Some(k) => k,
             None => grown_k(k0, r2, self.texel_area, self.opts.growth),
         };
