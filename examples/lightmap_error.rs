@@ -262,14 +262,7 @@ fn reference(world: &World, size: u32, out: &Path, passes: u32, particles: u64, 
             seed: pass as u64 + 1,
             ..Default::default()
         };
-        let steer = Steering {
-            start: Instant::now(),
-            time: None,
-            rays: None,
-            cancel: None,
-            on_tick: &mut |_| {},
-        };
-        let bake = lmbake::bake_lightmap(world, &s, &lm, steer)?;
+        let bake = lmbake::bake_lightmap(world, &s, &lm, Steering::unlimited(&mut |_| {}))?;
         let half = (pass % 2) as usize;
         for (acc, e) in sums[half].iter_mut().zip(&bake.lightmap.irradiance) {
             *acc += *e;

@@ -38,20 +38,13 @@ fn bake(w: &World, particles: u64, seed: u64, size: u32, opts: Options) -> Light
         estimator: opts,
         ..Default::default()
     };
-    let steer = Steering {
-        start: Instant::now(),
-        time: None,
-        rays: None,
-        cancel: None,
-        on_tick: &mut |_| {},
-    };
     lmbake::bake_lightmap(
         w,
         &Settings {
             ..settings(particles, seed)
         },
         &lm,
-        steer,
+        Steering::unlimited(&mut |_| {}),
     )
     .expect("baked")
 }

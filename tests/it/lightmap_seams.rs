@@ -5,7 +5,6 @@
 //! beyond what a path-traced reference allows.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use glam::{Vec2, Vec3};
 use kalos::bake::lightmap::bake::{self as lmbake, LightmapBake, LightmapSettings, Steering};
@@ -44,14 +43,13 @@ fn bake(w: &World, particles: u64, seed: u64, size: u32) -> LightmapBake {
         size: Some(size),
         ..Default::default()
     };
-    let steer = Steering {
-        start: Instant::now(),
-        time: None,
-        rays: None,
-        cancel: None,
-        on_tick: &mut |_| {},
-    };
-    lmbake::bake_lightmap(w, &settings(particles, seed), &lm, steer).expect("baked")
+    lmbake::bake_lightmap(
+        w,
+        &settings(particles, seed),
+        &lm,
+        Steering::unlimited(&mut |_| {}),
+    )
+    .expect("baked")
 }
 
 /// The estimate at `texels` from the particles of one seed.

@@ -245,6 +245,20 @@ pub struct Steering<'a> {
     pub on_tick: &'a mut dyn FnMut(&Tick),
 }
 
+impl<'a> Steering<'a> {
+    /// No limit and no cancel flag, the clock started now: a bake of all
+    /// its particles (tests, examples, references).
+    pub fn unlimited(on_tick: &'a mut dyn FnMut(&Tick)) -> Self {
+        Steering {
+            start: Instant::now(),
+            time: None,
+            rays: None,
+            cancel: None,
+            on_tick,
+        }
+    }
+}
+
 /// Bakes a lightmap of `world`: the uv set, the texels, the particles of
 /// `s` (as many as `steer`'s limits allow), the estimate of each texel, the
 /// padding. Writes nothing.

@@ -357,13 +357,7 @@ mod tests {
             ..Default::default()
         };
         fn steer<'a>(on_tick: &'a mut dyn FnMut(&Tick)) -> Steering<'a> {
-            Steering {
-                start: Instant::now(),
-                time: None,
-                rays: None,
-                cancel: None,
-                on_tick,
-            }
+            Steering::unlimited(on_tick)
         }
         let (mut quiet, mut quiet2) = (|_: &Tick| {}, |_: &Tick| {});
         let plain = bake_lightmap(&world, &s, &lm, steer(&mut quiet)).expect("baked");

@@ -403,20 +403,24 @@ fn rewritten_attributes(
     np: &NewPrimitive,
     vertex_count: u32,
 ) -> Result<(Map<String, Value>, Vec<Value>), String> {
+    // an accessor gathered through the new vertices
+    let through = |out: &mut Out, a: &gltf::Accessor, name: &str| {
+        gather(
+            out,
+            a,
+            &np.verts,
+            &input.buffers,
+            vertex_count,
+            name == "POSITION",
+        )
+    };
     let mut attrs = Map::new();
     for (sem, a) in prim.attributes() {
         let name = semantic_name(&sem);
         if name == "TEXCOORD_1" {
             continue;
         }
-        let idx = gather(
-            out,
-            &a,
-            &np.verts,
-            &input.buffers,
-            vertex_count,
-            name == "POSITION",
-        )?;
+        let idx = through(out, &a, &name)?;
         attrs.insert(name, json!(idx));
     }
     let uv1: Vec<[f32; 2]> = np.uv1.iter().map(|v| v.to_array()).collect();
@@ -440,14 +444,7 @@ fn rewritten_attributes(
             ("TANGENT", t.tangents()),
         ] {
             if let Some(a) = a {
-                let idx = gather(
-                    out,
-                    &a,
-                    &np.verts,
-                    &input.buffers,
-                    vertex_count,
-                    name == "POSITION",
-                )?;
+                let idx = through(out, &a, name)?;
                 tj.insert(name.into(), json!(idx));
             }
         }
