@@ -13,6 +13,7 @@ use pyo3::types::PyDict;
 use kalos::bake::job::{BakeError, BakeEvent, BakeJob, Baked};
 use kalos::bake::lightmap::bake::{self as lmbake, LightmapBake, LightmapSettings};
 use kalos::bake::lightmap::estimate::Options;
+use kalos::bake::lightmap::gather::{self, GatherOptions};
 use kalos::bake::lightmap::Lightmap as Atlas;
 use kalos::bake::{self as kbake, BakedMesh as Mesh};
 use kalos::job::SceneInput;
@@ -313,13 +314,15 @@ impl LightmapResult {
 /// `texel_density` (texels per metre) or `lightmap_size` (texels a side,
 /// default 512), `neighbours` (a fixed k for the estimator; without it k
 /// grows with the hits) and `sectors` (its
-/// visibility rays), `time` (seconds) and `rays` limits; `output`, if
+/// visibility rays), `gather` and `gather_lights` (the final gather's rays
+/// and light samples per texel, default 64 and 64; both 0: the density
+/// estimate alone; with the gather the default particles are 250 k), `time` (seconds) and `rays` limits; `output`, if
 /// given, is where the atlas is saved (.exr). Returns a
 /// `kalos.LightmapResult` whose `atlas` and `error` are numpy arrays.
 #[pyfunction]
 #[pyo3(signature = (scene, *, seed=0, max_depth=None, progress=None, max_memory=None,
     lightmap=false, texel_density=None, lightmap_size=None, neighbours=None, sectors=None,
-    time=None, rays=None, output=None, **settings))]
+    gather=None, gather_lights=None, time=None, rays=None, output=None, **settings))]
 #[allow(clippy::too_many_arguments)]
 pub fn bake(
     py: Python<'_>,
@@ -333,6 +336,8 @@ pub fn bake(
     lightmap_size: Option<u32>,
     neighbours: Option<usize>,
     sectors: Option<usize>,
+    gather: Option<u32>,
+    gather_lights: Option<u32>,
     time: Option<f64>,
     rays: Option<&Bound<'_, PyAny>>,
     output: Option<PathBuf>,
@@ -342,12 +347,18 @@ pub fn bake(
         || lightmap_size.is_some()
         || neighbours.is_some()
         || sectors.is_some()
+        || gather.is_some()
+        || gather_lights.is_some()
         || output.is_some();
     if lm_only && !lightmap {
         return Err(PyValueError::new_err(
-            "texel_density, lightmap_size, neighbours, sectors and output need lightmap=True",
+            "texel_density, lightmap_size, neighbours, sectors, gather, gather_lights and output need lightmap=True",
         ));
     }
+    let particles_given = match settings {
+        Some(d) => d.contains("particles")?,
+        None => false,
+    };
     let MethodConfig::Density(s) = method_config("density", settings)? else {
         unreachable!("the density row builds density settings")
     };
@@ -376,7 +387,16 @@ pub fn bake(
                 sectors: sectors.unwrap_or(d.sectors),
                 ..d
             },
+            gather: GatherOptions {
+                rays: gather.unwrap_or(gather::DEFAULT_RAYS),
+                lights: gather_lights.unwrap_or(gather::DEFAULT_LIGHTS),
+                seed: 0,
+            },
         });
+        let gathers = job.lightmap.as_ref().is_some_and(|l| l.gather.is_on());
+        if gathers && !particles_given {
+            job.settings.particles = lmbake::LIGHTMAP_PARTICLES;
+        }
     }
     let checked = job.check().map_err(bake_error)?;
 

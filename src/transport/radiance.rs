@@ -119,6 +119,20 @@ impl CameraPath {
         }
     }
 
+    /// A path whose `depth`-th segment is `ray`, leaving a point whose
+    /// direct light the caller took by light sampling alone (a lightmap's
+    /// final gather): the emission `ray` meets, or the environment if it
+    /// escapes, takes no weight; the vertices after it weigh theirs as
+    /// usual.
+    #[inline(always)]
+    pub fn after_light_sampling(ray: Ray, depth: u32) -> Self {
+        CameraPath {
+            specular: false,
+            prev_pdf: 0.0,
+            ..Self::new(ray, depth)
+        }
+    }
+
     /// `ray` escaped the scene: adds the environment, weighted against light
     /// sampling. The path ends (returns false).
     #[inline(always)]

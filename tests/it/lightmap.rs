@@ -7,6 +7,7 @@ use std::time::Instant;
 use glam::Vec3;
 use kalos::bake::lightmap::bake::{self as lmbake, LightmapBake, LightmapSettings, Steering};
 use kalos::bake::lightmap::estimate::{Estimator, HitIndex, Options, TexelEstimate};
+use kalos::bake::lightmap::gather::GatherOptions;
 use kalos::bake::lightmap::Texel;
 use kalos::methods::density::hits::MemoryWriter;
 use kalos::methods::density::{pipeline, surfaces, Settings};
@@ -19,7 +20,7 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn world(rel: &str) -> World {
+pub(crate) fn world(rel: &str) -> World {
     World::new(scene::load(&root().join(rel)).expect("scene loads"))
 }
 
@@ -36,6 +37,7 @@ fn bake(w: &World, particles: u64, seed: u64, size: u32, opts: Options) -> Light
     let lm = LightmapSettings {
         size: Some(size),
         estimator: opts,
+        gather: GatherOptions::OFF,
         ..Default::default()
     };
     lmbake::bake_lightmap(
@@ -69,7 +71,7 @@ fn estimate_at(
 
 /// The z-scores (E1 − E2)/√(se1² + se2²) over the covered texels lit in
 /// both, every channel.
-fn z_scores(a: &LightmapBake, b: &LightmapBake) -> Vec<f64> {
+pub(crate) fn z_scores(a: &LightmapBake, b: &LightmapBake) -> Vec<f64> {
     let (la, lb) = (&a.lightmap, &b.lightmap);
     let mut z = Vec::new();
     for k in 0..la.irradiance.len() {
@@ -86,7 +88,7 @@ fn z_scores(a: &LightmapBake, b: &LightmapBake) -> Vec<f64> {
     z
 }
 
-fn spread(z: &[f64]) -> (f64, f64) {
+pub(crate) fn spread(z: &[f64]) -> (f64, f64) {
     let n = z.len() as f64;
     let mean = z.iter().sum::<f64>() / n;
     let var = z.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);

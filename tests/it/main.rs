@@ -29,6 +29,7 @@ mod geometry;
 mod glb;
 mod image_io;
 mod lightmap;
+mod lightmap_gather;
 mod lightmap_glb;
 mod lightmap_seams;
 mod lightmap_uv;

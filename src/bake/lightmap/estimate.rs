@@ -273,6 +273,15 @@ impl HitIndex {
         let back = self.count(key(true)) > self.count(key(false));
         self.keys.get(&key(back)).map(|&g| (g, back))
     }
+
+    /// The group of one given side of surface `sid` (None: no hits there).
+    fn group_on(&self, surf: &Surface, sid: u32, back: bool) -> Option<usize> {
+        let key = match surf.kind {
+            Kind::Planar => Key::Planar(sid, back),
+            Kind::Curved => Key::Curved(surf.shape, back),
+        };
+        self.keys.get(&key).copied()
+    }
 }
 
 /// The hits of a group in Morton order of their points, so that the hits
@@ -471,9 +480,29 @@ impl<'a> Estimator<'a> {
         }
     }
 
+    /// The side of its surface a texel on triangle `tri` holds: true for
+    /// the back (the side with more hits, see [`Estimator::texel`]); None
+    /// when the triangle has no diffuse surface or its surface took no hit.
+    pub fn side_of(&self, tri: u32) -> Option<bool> {
+        let &sid = self.surfaces.tri_surface.get(tri as usize)?;
+        let surf = &self.surfaces.list[sid as usize];
+        if !surf.diffuse {
+            return None;
+        }
+        self.index.group_of(surf, sid).map(|(_, back)| back)
+    }
+
     /// The estimate at a texel's point.
     pub fn texel(&self, t: &Texel) -> TexelEstimate {
-        let e = self.texel_with(t, self.opts.neighbours);
+        self.texel_on(t, None)
+    }
+
+    /// [`Estimator::texel`] on the given side of the texel's surface (true:
+    /// the back) instead of the side with more hits: a final gather's ray
+    /// that meets a surface on its other side reads this one
+    /// ([`super::gather`]).
+    pub fn texel_on(&self, t: &Texel, side: Option<bool>) -> TexelEstimate {
+        let e = self.texel_with(t, self.opts.neighbours, side);
         // A grown kernel cut by an edge (a wall standing on the floor, the
         // polygon's border) is one-sided: on the lighting's gradient there
         // its bias grows with h faster than its variance falls, and inside
@@ -481,7 +510,7 @@ impl<'a> Estimator<'a> {
         // texel takes the fixed k of [`EDGE_K`] when that kernel is the
         // narrower.
         if self.opts.neighbours.is_none() && self.opts.bandwidth.is_none() && e.cut {
-            let edge = self.texel_with(t, Some(EDGE_K));
+            let edge = self.texel_with(t, Some(EDGE_K), side);
             if edge.h < e.h {
                 return edge;
             }
@@ -490,8 +519,8 @@ impl<'a> Estimator<'a> {
     }
 
     /// [`Estimator::texel`] with k fixed at `fixed` (None: the rule of
-    /// [`Options::growth`]).
-    fn texel_with(&self, t: &Texel, fixed: Option<usize>) -> TexelEstimate {
+    /// [`Options::growth`]), on side `side` (None: the side with more hits).
+    fn texel_with(&self, t: &Texel, fixed: Option<usize>, side: Option<bool>) -> TexelEstimate {
         let Some(&sid) = self.surfaces.tri_surface.get(t.tri as usize) else {
             return TexelEstimate::default();
         };
@@ -499,7 +528,11 @@ impl<'a> Estimator<'a> {
         if !surf.diffuse {
             return TexelEstimate::default();
         }
-        let Some((gi, back)) = self.index.group_of(surf, sid) else {
+        let found = match side {
+            None => self.index.group_of(surf, sid),
+            Some(back) => self.index.group_on(surf, sid, back).map(|g| (g, back)),
+        };
+        let Some((gi, back)) = found else {
             return TexelEstimate::default();
         };
         let g = &self.index.groups[gi];

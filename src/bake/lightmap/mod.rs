@@ -15,7 +15,10 @@
 //!    surface ([`Texel`]), and the padding of charts (dilation);
 //! 3. `estimate`: per texel, the irradiance and its standard error
 //!    ([`Lightmap`]);
-//! 4. `glb`: the input asset written back with TEXCOORD_1 and the atlas.
+//! 4. `gather`: the final gather, each texel's irradiance again from its
+//!    point, its direct light by light sampling and its indirect light read
+//!    from the atlas of step 3 one bounce away (on by default);
+//! 5. `glb`: the input asset written back with TEXCOORD_1 and the atlas.
 //!
 //! This file holds the types the stages hand each other.
 
@@ -120,3 +123,4 @@ pub struct Lightmap {
 }
 pub mod bake;
 pub mod estimate;
+pub mod gather;

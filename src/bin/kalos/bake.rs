@@ -9,8 +9,10 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::bake::job::{BakeError, BakeEvent, BakeJob, BakeOutcome, Baked};
-use kalos::bake::lightmap::bake::{LightmapBake, LightmapError, LightmapSettings};
-use kalos::bake::lightmap::estimate;
+use kalos::bake::lightmap::bake::{
+    LightmapBake, LightmapError, LightmapSettings, LIGHTMAP_PARTICLES,
+};
+use kalos::bake::lightmap::{estimate, gather};
 use kalos::job::SceneInput;
 use kalos::methods::density;
 use kalos::methods::density::control::{Phase, Tick};
@@ -113,6 +115,14 @@ struct LightmapArgs {
     /// Visibility rays per texel, cutting the kernel at walls (0: none).
     #[arg(long, value_name = "N", default_value_t = 12, requires = "lightmap")]
     sectors: usize,
+    /// Indirect rays per texel of the final gather from the density atlas
+    /// (0 with --gather-lights 0: the atlas is the density estimate itself,
+    /// the paper's method).
+    #[arg(long, value_name = "N", default_value_t = gather::DEFAULT_RAYS, requires = "lightmap")]
+    gather: u32,
+    /// Light samples per texel of the final gather (its direct light).
+    #[arg(long, value_name = "N", default_value_t = gather::DEFAULT_LIGHTS, requires = "lightmap")]
+    gather_lights: u32,
     /// Show the lightmap refining in the browser as the bake runs (`kalos
     /// view`'s page; the address is printed): the asset first, then a
     /// preview of the atlas from the particles so far every few seconds
@@ -175,8 +185,8 @@ fn peak_memory() -> Option<u64> {
 
 /// Runs `kalos bake`: the library's [`BakeJob`] does the work; this shows
 /// its progress and prints its figures.
-pub fn run(a: BakeArgs) -> Result<()> {
-    let checked = job(&a)?.check()?;
+pub fn run(a: BakeArgs, particles_given: bool) -> Result<()> {
+    let checked = job(&a, particles_given)?.check()?;
     let layout = a.dataflow.layout()?;
     if layout.is_some() && a.lightmap.lightmap {
         bail!("--lightmap bakes in one process: drop --workers, --process and --processes");
@@ -263,8 +273,11 @@ pub fn run(a: BakeArgs) -> Result<()> {
     Ok(())
 }
 
-/// The bake the arguments ask for.
-fn job(a: &BakeArgs) -> Result<BakeJob> {
+/// The bake the arguments ask for. A lightmap bake with a final gather
+/// traces [`LIGHTMAP_PARTICLES`] unless `--particles` was given
+/// (`particles_given`): the gather reads the density atlas one bounce
+/// away, where more particles barely lower the error.
+fn job(a: &BakeArgs, particles_given: bool) -> Result<BakeJob> {
     let l = &a.lightmap;
     let lightmap = if l.lightmap {
         Some(LightmapSettings {
@@ -277,6 +290,11 @@ fn job(a: &BakeArgs) -> Result<BakeJob> {
                 growth: l.growth,
                 sectors: l.sectors,
                 ..Default::default()
+            },
+            gather: gather::GatherOptions {
+                rays: l.gather,
+                lights: l.gather_lights,
+                seed: 0,
             },
         })
     } else {
@@ -292,6 +310,10 @@ fn job(a: &BakeArgs) -> Result<BakeJob> {
         settings: density::Settings {
             seed: a.seed,
             max_depth: a.max_depth,
+            particles: match &lightmap {
+                Some(l) if l.gather.is_on() && !particles_given => LIGHTMAP_PARTICLES,
+                _ => a.density.particles,
+            },
             ..a.density.clone()
         },
         glb: Some(a.output.clone()),
@@ -327,6 +349,13 @@ fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome, live: Option
         say!("trace            {:.2} s", st.t_trace);
         say!("group + index    {:.2} s", st.t_index);
         say!("estimate texels  {:.2} s", st.t_estimate);
+        if st.gather_rays > 0 {
+            say!(
+                "gather           {} rays, {} texels hidden (back faces seen)",
+                st.gather_rays,
+                st.gather_hidden
+            );
+        }
         if let Some((n, secs)) = live.map(|l| l.previews()) {
             say!("live previews    {n}, {secs:.2} s (within trace)");
         }
@@ -406,6 +435,7 @@ impl PhaseBars {
                 Phase::Group => "",
                 Phase::Estimate => "hits",
                 Phase::Decimate => "surfaces",
+                Phase::Gather => "texels",
             };
             let len = if t.phase == Phase::Group { 0 } else { t.total };
             self.start(name, len, unit);

@@ -37,6 +37,9 @@ pub enum Phase {
     Estimate,
     /// Phase 3: decimation (`done`/`total` in surfaces).
     Decimate,
+    /// A lightmap's final gather (`done`/`total` in texels; the lightmap
+    /// bake's alone).
+    Gather,
 }
 
 impl Phase {
@@ -47,6 +50,7 @@ impl Phase {
             Phase::Group => "grouping hits",
             Phase::Estimate => "estimating",
             Phase::Decimate => "decimating",
+            Phase::Gather => "gathering",
         }
     }
 
@@ -57,7 +61,7 @@ impl Phase {
             Phase::Trace => (0.0, 0.37),
             Phase::Group => (0.37, 0.03),
             Phase::Estimate => (0.4, 0.4),
-            Phase::Decimate => (0.8, 0.2),
+            Phase::Decimate | Phase::Gather => (0.8, 0.2),
         }
     }
 }
