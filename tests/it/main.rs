@@ -21,6 +21,7 @@ mod bundle;
 mod camera_pass;
 mod cli;
 mod density;
+mod density_smooth;
 mod driver;
 mod farm;
 mod fuzz;
