@@ -23,6 +23,7 @@ mod cli;
 mod density;
 mod density_smooth;
 mod driver;
+mod env;
 mod farm;
 mod fuzz;
 mod fuzz_found;
