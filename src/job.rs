@@ -54,6 +54,9 @@ pub enum SceneInput {
         allow_read: Vec<PathBuf>,
         /// The film's resolution, overriding the scene's.
         res: Option<(u32, u32)>,
+        /// `--env`, `--env-constant`: an environment added to a scene
+        /// without one ([`Scene::add_environment`]).
+        env: Option<scene::Environment>,
     },
     /// A world already built (the Python package's `kalos.Scene`): what
     /// can be checked against it is checked with the arguments.
@@ -68,6 +71,7 @@ impl SceneInput {
             defines: Vec::new(),
             allow_read: Vec::new(),
             res: None,
+            env: None,
         }
     }
 }
@@ -173,16 +177,21 @@ pub enum SetupEvent<'e> {
     Note(String),
 }
 
-/// Loads the scene at `path` ([`load_scene`]) and sets its resolution,
-/// reporting each step, warning and note to `on_event`.
+/// Loads the scene at `path` ([`load_scene`]), adds `env` to it and sets
+/// its resolution, reporting each step, warning and note to `on_event`.
 pub(crate) fn load_step(
     path: Option<&Path>,
     opts: &LoadOptions,
     res: Option<(u32, u32)>,
+    env: Option<&scene::Environment>,
     on_event: &mut dyn FnMut(SetupEvent),
 ) -> Result<Scene, SceneError> {
     on_event(SetupEvent::Load(path.filter(|_| !is_builtin(path))));
-    let loaded = load_scene(path, opts)?;
+    let mut loaded = load_scene(path, opts)?;
+    if let Some(env) = env {
+        loaded.scene.add_environment(env)?;
+        loaded.notes = loaded.scene.notes.clone();
+    }
     for w in loaded.warnings {
         on_event(SetupEvent::Warning(w));
     }
@@ -489,16 +498,17 @@ impl CheckedRender {
                 defines,
                 allow_read,
                 res,
-            } => (path, defines, allow_read, res),
+                env,
+            } => (path, defines, allow_read, res, env),
         };
-        let (path, defines, allow_read, res) = input;
+        let (path, defines, allow_read, res, env) = input;
         let opts = load_options(
             defines,
             allow_read,
             self.job.max_memory,
             self.job.max_memory_flag,
         );
-        let scene = load_step(path.as_deref(), &opts, *res, on_event)?;
+        let scene = load_step(path.as_deref(), &opts, *res, env.as_ref(), on_event)?;
         if scene.emitters.is_empty() {
             return Err(JobError::NoEmitters {
                 scene: scene.source.clone(),
@@ -769,6 +779,7 @@ mod tests {
             defines: Vec::new(),
             allow_read: Vec::new(),
             res: Some((n, n)),
+            env: None,
         }
     }
 
@@ -784,6 +795,7 @@ mod tests {
                 defines: Vec::new(),
                 allow_read: Vec::new(),
                 res: None,
+                env: None,
             },
             path(),
         );

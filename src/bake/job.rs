@@ -282,10 +282,12 @@ impl CheckedBake {
                 defines,
                 allow_read,
                 res,
+                env,
             } => {
                 let on = &mut |e: SetupEvent| on_event(BakeEvent::Setup(e));
                 let opts = job::load_options(defines, allow_read, j.max_memory, j.max_memory_flag);
-                job::build_step(job::load_step(path.as_deref(), &opts, *res, on)?, on)
+                let scene = job::load_step(path.as_deref(), &opts, *res, env.as_ref(), on)?;
+                job::build_step(scene, on)
             }
         };
         let load_seconds = t0.elapsed().as_secs_f64();

@@ -10,6 +10,7 @@
 
 pub mod access;
 pub mod builtin;
+pub mod env;
 pub mod gltf;
 pub mod material;
 pub mod mitsuba;
@@ -28,6 +29,7 @@ use glam::{Mat4, Vec2, Vec3};
 
 use crate::geometry::Frame;
 pub use access::{AccessError, FileAccess, FileKind, ReadPolicy};
+pub use env::Environment;
 pub use material::{Material, MicrofacetKind, TexImage, Texture};
 pub use punctual::{PunctualKind, PunctualLight};
 pub use records::{TriRecord, TriRecords};
@@ -149,6 +151,11 @@ pub(crate) fn check_finite(path: &Path, what: &str, positions: &[Vec3]) -> Resul
 }
 
 pub use crate::color::{luminance, Rgb};
+
+/// The end of the note [`Scene::light_if_dark`] leaves (after the file's
+/// name), by which [`env`] knows the default environment it may replace.
+const DEFAULT_ENV_NOTE: &str =
+    "the file has no emitters; lit by a default white environment (constant radiance 1)";
 
 /// An error in a scene file: the file, the 1-based line (0 when unknown, and
 /// then not shown) and what was wrong or expected.
@@ -426,10 +433,8 @@ impl Scene {
         if self.emitters.is_empty() {
             self.emitters
                 .push(EmitterDesc::Constant { radiance: Rgb::ONE });
-            self.notes.push(format!(
-                "{}: the file has no emitters; lit by a default white environment (constant radiance 1)",
-                path.display()
-            ));
+            self.notes
+                .push(format!("{}: {DEFAULT_ENV_NOTE}", path.display()));
         }
     }
 

@@ -35,6 +35,8 @@ pub struct BakeArgs {
     ply: Option<PathBuf>,
     #[command(flatten)]
     defines: crate::Defines,
+    #[command(flatten)]
+    env: crate::EnvArgs,
     /// Random seed: the same seed gives the same hit file whatever --threads.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -306,6 +308,7 @@ fn job(a: &BakeArgs, particles_given: bool) -> Result<BakeJob> {
             defines: a.defines.define.clone(),
             allow_read: a.defines.allow_read.clone(),
             res: None,
+            env: a.env.environment(),
         },
         settings: density::Settings {
             seed: a.seed,

@@ -199,6 +199,44 @@ impl Defines {
     }
 }
 
+/// An environment for a scene that carries no sky, for `render` and `bake`.
+#[derive(Args, Clone, Default)]
+struct EnvArgs {
+    /// Light the scene with a latitude-longitude environment map (linear
+    /// .exr, .hdr or .pfm; Mitsuba's `envmap` orientation, +y up). For
+    /// scenes without an environment: one that has a sky is refused
+    #[arg(long, value_name = "FILE", conflicts_with = "env_constant")]
+    env: Option<PathBuf>,
+    /// Multiplier of the --env map's radiance
+    #[arg(long, value_name = "S", default_value_t = 1.0, requires = "env")]
+    env_scale: f32,
+    /// Light the scene with a uniform environment of radiance R,G,B
+    /// (W/(m²·sr); one value for grey), as Mitsuba's `constant` emitter. For
+    /// scenes without an environment: one that has a sky is refused
+    #[arg(
+        long,
+        value_name = "R,G,B",
+        allow_hyphen_values = true,
+        value_parser = kalos::scene::Environment::parse_constant
+    )]
+    env_constant: Option<kalos::scene::Rgb>,
+}
+
+impl EnvArgs {
+    /// The environment asked for, if any.
+    fn environment(&self) -> Option<kalos::scene::Environment> {
+        use kalos::scene::Environment;
+        match (&self.env, self.env_constant) {
+            (Some(path), _) => Some(Environment::Map {
+                path: path.clone(),
+                scale: self.env_scale,
+            }),
+            (None, Some(c)) => Some(Environment::Constant(c)),
+            (None, None) => None,
+        }
+    }
+}
+
 fn parse_define(s: &str) -> Result<(String, String), String> {
     match s.split_once('=') {
         Some((n, v)) if !n.trim().is_empty() => Ok((n.trim().to_string(), v.to_string())),

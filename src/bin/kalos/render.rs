@@ -40,6 +40,8 @@ pub struct RenderArgs {
     rays: Option<u64>,
     #[command(flatten)]
     defines: crate::Defines,
+    #[command(flatten)]
+    env: crate::EnvArgs,
     /// Random seed: the same seed gives the same image whatever --threads.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -199,6 +201,7 @@ fn job(a: &RenderArgs, method: methods::MethodConfig) -> RenderJob {
             defines: a.defines.define.clone(),
             allow_read: a.defines.allow_read.clone(),
             res: a.res,
+            env: a.env.environment(),
         },
         method,
         common: Common {

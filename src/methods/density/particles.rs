@@ -340,6 +340,20 @@ pub fn trace(
     Ok(stats)
 }
 
+/// The weight |wo·ns|/|wo·ng| of a hit arriving from `wo`, given its
+/// cosines with the shading normal (`cos_s`, positive) and with the
+/// geometric normal (`cos_g`); 0 for a particle grazing the geometry (as
+/// [`crate::bsdf::shading_normal_correction_over`] gives).
+#[inline]
+fn shading_weight(cos_s: f32, cos_g: f32) -> f32 {
+    let w = cos_s / cos_g.abs();
+    if w.is_finite() {
+        w
+    } else {
+        0.0
+    }
+}
+
 /// One particle's walk ([`light_walk`]); returns the rays traced.
 #[allow(clippy::too_many_arguments)]
 fn trace_one(
@@ -403,7 +417,13 @@ fn trace_one(
         let s = &surfaces.list[sid as usize];
         let wo = v.wo_local;
         if s.diffuse && wo.z > 0.0 {
-            let t = v.bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z));
+            // and times |wo·ns|/|wo·ng|: a hit's power falls on the geometric
+            // area, but the Lambertian lobe of a shading normal reflects
+            // ∫ L_i |wi·ns| dω, so this is the irradiance L = R·H/π needs.
+            // The light tracer's camera connection carries the same factor
+            // (Veach 1997, eq. 5.17); it is exactly 1 where ns = ng
+            let t = v.bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z))
+                * shading_weight(wo.z, v.wo.dot(v.ng));
             let back = v.wo.dot(v.sp.ng) < 0.0;
             let (u, v) = match s.kind {
                 Kind::Planar => {

@@ -2,6 +2,8 @@
 //! shape grouped into planar surfaces with a 2D chart (§3.2: "a locally
 //! planar surface with orthogonal length parameters (u, v)"), and curved or
 //! finely tessellated shapes whose triangles are estimated with a 3D kernel.
+//! Which is which follows the geometry, not the shading normals alone
+//! ([`build`]).
 //!
 //! Surfaces whose material has a diffuse part receive hits (the paper's
 //! Lambertian surfaces with L = R·H/π, and the diffuse part of `phong`,
@@ -12,7 +14,7 @@ use std::collections::HashMap;
 
 use glam::{Vec2, Vec3};
 
-use super::kernel::TriGrid;
+use super::kernel::{TriGrid, NORMAL_COS};
 use crate::scene::{Material, Scene, Texture};
 
 /// A receiving surface and the side of it a hit or a mesh is for: the one
@@ -242,10 +244,11 @@ fn find(parent: &mut [u32], mut x: u32) -> u32 {
     x
 }
 
-/// Groups the triangles of `scene`. A shape whose shading normals vary is curved
-/// (one surface per triangle); otherwise triangles of one shape that share an
-/// edge and lie in one plane (normals within 1e-4, offsets within 1e-5 of the
-/// scene size) join one planar surface.
+/// Groups the triangles of `scene`. A shape is curved (one surface per
+/// triangle) when its shading normals leave its face normals and its
+/// geometry folds gently somewhere ([`curved_shapes`]); otherwise triangles
+/// of one shape that share an edge and lie in one plane (normals within
+/// 1e-4, offsets within 1e-5 of the scene size) join one planar surface.
 pub fn build(scene: &Scene) -> Surfaces {
     let nt = scene.triangles.len();
     let (lo, hi) = scene.bounds();
@@ -259,22 +262,7 @@ pub fn build(scene: &Scene) -> Surfaces {
         (b - a).cross(c - a).normalize_or(Vec3::Z)
     };
 
-    // A shape is curved when its shading normals leave its face normals
-    // (vertex normals that equal the face normals, as OBJ files often carry,
-    // do not make a shape curved).
-    let curved: Vec<bool> = scene
-        .shapes
-        .iter()
-        .map(|sh| {
-            sh.smooth
-                && (sh.first_tri..sh.first_tri + sh.tri_count).any(|t| {
-                    let n = normal(t);
-                    scene.triangles[t as usize]
-                        .iter()
-                        .any(|&i| scene.normals[i as usize].dot(n).abs() < 0.9998)
-                })
-        })
-        .collect();
+    let curved = curved_shapes(scene, &q, &normal);
 
     // Union-find over shared edges of coplanar triangles of one flat shape
     let mut parent: Vec<u32> = (0..nt as u32).collect();
@@ -342,6 +330,74 @@ pub fn build(scene: &Scene) -> Surfaces {
     Surfaces { list, tri_surface }
 }
 
+/// Which shapes are curved: those whose shading normals leave their face
+/// normals (vertex normals that equal the face normals, as OBJ files often
+/// carry, do not make a shape curved) and whose geometry has a gentle fold:
+/// two triangles sharing an edge, not coplanar, with face normals within the
+/// 3D kernel's normal test (n₀·n₁ ≥ [`NORMAL_COS`]).
+///
+/// The irradiance is power per unit area of the geometry the particles hit
+/// (§3.2); shading normals do not move a hit. A shape whose triangles meet
+/// only flat or at sharp creases (a box exported with smoothed normals, as
+/// glTF exporters do) is a set of planes, each a "locally planar surface
+/// with orthogonal length parameters" on which the 2D kernel of eq. (2)
+/// conserves energy with the boundary treatment at its edges, and on which
+/// the over-mesh samples H densely. The 3D kernel would add nothing there:
+/// its normal test keeps the facets of such a crease apart, and it samples H
+/// only at the shape's vertices, which on a coarse box are its corners
+/// (where its one-sided kernel is cut by the shape's border), so the walls
+/// came out several times too dark. A gentle fold is what marks a
+/// tessellated curved surface, whose facets are too small for a chart each
+/// and which the 3D kernel spans.
+fn curved_shapes(
+    scene: &Scene,
+    q: &impl Fn(Vec3) -> (i64, i64, i64),
+    normal: &impl Fn(u32) -> Vec3,
+) -> Vec<bool> {
+    let smooth: Vec<bool> = scene
+        .shapes
+        .iter()
+        .map(|sh| {
+            sh.smooth
+                && (sh.first_tri..sh.first_tri + sh.tri_count).any(|t| {
+                    let n = normal(t);
+                    scene.triangles[t as usize]
+                        .iter()
+                        .any(|&i| scene.normals[i as usize].dot(n).abs() < 0.9998)
+                })
+        })
+        .collect();
+    let mut folds = vec![false; scene.shapes.len()];
+    type Key = (i64, i64, i64);
+    let mut edges: HashMap<(u32, Key, Key), u32> = HashMap::new();
+    for (s, sh) in scene.shapes.iter().enumerate() {
+        if !smooth[s] {
+            continue;
+        }
+        for t in sh.first_tri..sh.first_tri + sh.tri_count {
+            let keys = scene.triangles[t as usize].map(|i| q(scene.positions[i as usize]));
+            for e in 0..3 {
+                let (a, b) = (keys[e], keys[(e + 1) % 3]);
+                let key = if a < b {
+                    (s as u32, a, b)
+                } else {
+                    (s as u32, b, a)
+                };
+                match edges.get(&key) {
+                    Some(&o) => {
+                        let c = normal(o).dot(normal(t));
+                        folds[s] |= (NORMAL_COS..=1.0 - 1e-4).contains(&c);
+                    }
+                    None => {
+                        edges.insert(key, t);
+                    }
+                }
+            }
+        }
+    }
+    smooth.iter().zip(&folds).map(|(&s, &f)| s && f).collect()
+}
+
 fn make_surface(scene: &Scene, tris: Vec<u32>, curved: bool, records: &[(bool, bool)]) -> Surface {
     let shape = scene.tri_shape[tris[0] as usize];
     let sh = &scene.shapes[shape as usize];
@@ -393,5 +449,60 @@ fn make_surface(scene: &Scene, tris: Vec<u32>, curved: bool, records: &[(bool, b
         diffuse,
         reflectance: refl.unwrap_or(Vec3::ZERO),
         textured,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::shapes;
+
+    /// A cube whose corner normals are smoothed over its faces (as glTF
+    /// exporters write a box) is six planar surfaces; a tessellated sphere
+    /// with smooth normals stays curved; a cube with its own face normals
+    /// is planar as before.
+    #[test]
+    fn smoothed_box_is_planar_and_sphere_curved() {
+        let mut sc = Scene::empty("smoothed");
+        let m = sc.add_material(Material::Diffuse {
+            reflectance: Texture::Constant(Vec3::splat(0.5)),
+        });
+        let cube = shapes::cube();
+        let smoothed: Vec<Vec3> = cube.positions.iter().map(|p| p.normalize()).collect();
+        sc.add_mesh(
+            "box",
+            &cube.positions,
+            Some(&smoothed),
+            None,
+            &cube.indices,
+            m,
+            None,
+        );
+        let ball = shapes::sphere(Vec3::new(4.0, 0.0, 0.0), 1.0, 16);
+        sc.add_mesh(
+            "ball",
+            &ball.positions,
+            ball.normals.as_deref(),
+            None,
+            &ball.indices,
+            m,
+            None,
+        );
+        let s = build(&sc);
+        let of_shape = |shape: u32| {
+            s.list
+                .iter()
+                .filter(|x| x.shape == shape)
+                .collect::<Vec<_>>()
+        };
+        let boxes = of_shape(0);
+        assert_eq!(boxes.len(), 6, "six faces");
+        for f in &boxes {
+            assert_eq!(f.kind, Kind::Planar);
+            assert!(f.rectangle && (f.area - 4.0).abs() < 1e-5, "face {f:?}");
+        }
+        let balls = of_shape(1);
+        assert_eq!(balls.len(), ball.indices.len(), "one surface per triangle");
+        assert!(balls.iter().all(|x| x.kind == Kind::Curved));
     }
 }
