@@ -41,6 +41,7 @@ mod plb;
 mod punctual;
 mod reference;
 mod replay;
+mod sampler;
 mod transport;
 mod untrusted;
 mod untrusted_mp;
