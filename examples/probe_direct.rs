@@ -55,6 +55,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_depth: Some(2),
         rr_depth: 5,
         light_selection: Default::default(),
+        sampler: Default::default(),
     };
     let mut lp = 0f64;
     let cam = world.camera.position();

@@ -2,10 +2,68 @@
 //!
 //! The generator is PCG32 (O'Neill 2014), written here by hand: it is twelve
 //! lines, and streams keyed by (seed, pass, task) make every render
-//! reproducible whatever the thread count.
+//! reproducible whatever the thread count. A camera path draws through the
+//! [`Sampler`] trait, which PCG32 (`--sampler independent`) and the
+//! Owen-scrambled Sobol points of [`sobol`] (`--sampler sobol`) implement.
 
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
+
+pub mod sobol;
+
+pub use sobol::SobolSampler;
+
+/// Where a camera path's numbers come from: uniform numbers in [0, 1),
+/// one or two at a time. [`Pcg32`] gives independent ones; a
+/// low-discrepancy sampler gives each draw its own dimension of a point
+/// set and is told where each vertex's dimensions start.
+pub trait Sampler {
+    /// A uniform float in [0, 1).
+    fn next_f32(&mut self) -> f32;
+    /// A uniform point in [0, 1)².
+    fn next_2d(&mut self) -> Vec2;
+    /// The camera path reaches its vertex at `depth` (the end of its
+    /// `depth`-th segment): a sampler with a dimension layout moves to that
+    /// vertex's dimensions, so that each vertex draws from its own whatever
+    /// the earlier ones drew. Independent numbers ignore it.
+    #[inline(always)]
+    fn start_vertex(&mut self, depth: u32) {
+        let _ = depth;
+    }
+}
+
+impl Sampler for Pcg32 {
+    #[inline(always)]
+    fn next_f32(&mut self) -> f32 {
+        Pcg32::next_f32(self)
+    }
+
+    #[inline(always)]
+    fn next_2d(&mut self) -> Vec2 {
+        Pcg32::next_2d(self)
+    }
+}
+
+/// Which numbers `path` draws (`--sampler`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum SamplerKind {
+    /// Independent numbers from PCG32, one stream per (seed, pass, pixel).
+    #[default]
+    Independent,
+    /// Owen-scrambled Sobol points, one randomisation per (seed, pixel), the
+    /// pass as the sample index ([`sobol`]).
+    Sobol,
+}
+
+impl SamplerKind {
+    /// True for [`SamplerKind::Independent`] (serde leaves the default out
+    /// of a partial result's header, which then reads as before).
+    pub fn is_independent(&self) -> bool {
+        *self == SamplerKind::Independent
+    }
+}
 
 /// PCG32 (XSH RR): 64-bit state, 32-bit output, selectable stream.
 #[derive(Clone, Debug)]

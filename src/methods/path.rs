@@ -7,6 +7,12 @@
 //! ```text
 //! kalos render scenes/cbox/cbox.xml --method path --spp 256 -o out.exr
 //! ```
+//!
+//! `--sampler sobol` draws Owen-scrambled Sobol points instead of
+//! independent numbers ([`crate::sampling::sobol`]): the pass is the
+//! sample index, each pixel its own randomisation, each vertex its own
+//! dimensions. Its paths run one at a time after the camera rays' packets
+//! ([`radiance_row_packets`]): the AVX lanes draw from PCG32 streams only.
 
 use rayon::prelude::*;
 
@@ -18,11 +24,11 @@ use crate::emitter::LightSelection;
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
 use crate::memory::MemoryItem;
-use crate::sampling::Pcg32;
+use crate::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler};
 use crate::scene::Rgb;
 use crate::simd::dispatched;
 use crate::state::{Shard, ShardKind, State};
-use crate::transport::lanes::radiance_row;
+use crate::transport::lanes::{radiance_row, radiance_row_packets};
 use crate::transport::{radiance_from_hit, DepthLimits};
 use glam::DVec3;
 
@@ -47,6 +53,12 @@ pub struct Settings {
     /// (Mitsuba's choice).
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "spatial"))]
     pub light_selection: LightSelection,
+    /// The numbers the paths draw: independent (PCG32 streams, the
+    /// default) or Owen-scrambled Sobol points, which stratify each
+    /// pixel's samples in every 2D draw of every vertex.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "independent"))]
+    #[serde(default, skip_serializing_if = "SamplerKind::is_independent")]
+    pub sampler: SamplerKind,
 }
 
 impl Default for Settings {
@@ -56,6 +68,7 @@ impl Default for Settings {
             max_depth: None,
             rr_depth: 5,
             light_selection: LightSelection::Spatial,
+            sampler: SamplerKind::Independent,
         }
     }
 }
@@ -214,21 +227,41 @@ dispatched! {
         let w = row.len();
         let mut rays = 0u64;
         let limits = limits(settings);
-        // Each pixel with its own stream, keyed by (seed, pass, pixel)
-        let start = |x: usize| {
-            let mut rng = Pcg32::keyed(&[seed, pass, (y * w + x) as u64]);
-            let jitter = rng.next_2d();
-            let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
-            (rng, ray)
-        };
-        radiance_row(world, &limits, w, start, |x, l, n| {
+        let mut finish = |x: usize, l: Rgb, n: u64| {
             rays += n;
             if l.is_finite() {
                 row[x] += l.as_dvec3();
             }
-        });
+        };
+        // Each pixel with its own numbers, keyed by (seed, pass, pixel)
+        let pixel = |x: usize| (y * w + x) as u64;
+        match settings.sampler {
+            SamplerKind::Independent => {
+                let start = |x: usize| {
+                    let rng = Pcg32::keyed(&[seed, pass, pixel(x)]);
+                    camera_ray(world, x, y, rng)
+                };
+                radiance_row(world, &limits, w, start, &mut finish);
+            }
+            SamplerKind::Sobol => {
+                let start = |x: usize| {
+                    let sampler = SobolSampler::new(seed, pixel(x), pass);
+                    camera_ray(world, x, y, sampler)
+                };
+                radiance_row_packets(world, &limits, w, start, &mut finish);
+            }
+        }
         rays
     }
+}
+
+/// The camera ray through pixel (x, y), jittered by the sampler's first
+/// 2D draw, and the sampler after it.
+#[inline(always)]
+fn camera_ray<S: Sampler>(world: &World, x: usize, y: usize, mut rng: S) -> (S, Ray) {
+    let jitter = rng.next_2d();
+    let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
+    (rng, ray)
 }
 
 /// The image of a render split into shards, from the states of shards 0 to

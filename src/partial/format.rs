@@ -418,6 +418,7 @@ mod tests {
                 max_depth: Some(4),
                 rr_depth: 2,
                 light_selection: crate::emitter::LightSelection::Power,
+                sampler: crate::sampling::SamplerKind::Sobol,
             }),
             MethodConfig::Light(light::Settings {
                 variant: light::Variant::Iteration,

@@ -20,7 +20,7 @@
 //! row runs out.
 
 use crate::geometry::Ray;
-use crate::sampling::Pcg32;
+use crate::sampling::{Pcg32, Sampler};
 use crate::scene::Rgb;
 use crate::world::World;
 
@@ -41,8 +41,8 @@ pub fn radiance_row(
     world: &World,
     limits: &DepthLimits,
     w: usize,
-    mut start: impl FnMut(usize) -> (Pcg32, Ray),
-    mut finish: impl FnMut(usize, Rgb, u64),
+    start: impl FnMut(usize) -> (Pcg32, Ray),
+    finish: impl FnMut(usize, Rgb, u64),
 ) {
     #[cfg(target_arch = "x86_64")]
     if crate::simd::has_v3() && world.lights.triangles_only() {
@@ -50,16 +50,33 @@ pub fn radiance_row(
         unsafe { avx::radiance_row(world, limits, w, start, finish) };
         return;
     }
+    radiance_row_packets(world, limits, w, start, finish);
+}
+
+/// [`radiance_row`] without lanes, for any [`Sampler`]: the camera rays of
+/// eight neighbouring pixels are traced together, then each path runs
+/// alone through [`radiance_from_hit`]. The lanes draw from PCG32 streams
+/// only, so a low-discrepancy sampler takes this loop.
+#[inline(always)]
+pub fn radiance_row_packets<S: Sampler>(
+    world: &World,
+    limits: &DepthLimits,
+    w: usize,
+    mut start: impl FnMut(usize) -> (S, Ray),
+    mut finish: impl FnMut(usize, Rgb, u64),
+) {
     for x0 in (0..w).step_by(LANES) {
         let n = LANES.min(w - x0);
-        let mut rngs: [Pcg32; LANES] = std::array::from_fn(|_| Pcg32::new(0, 0));
+        let mut rngs: [Option<S>; LANES] = std::array::from_fn(|_| None);
         let mut cam = [Ray::new(glam::Vec3::ZERO, glam::Vec3::Z); LANES];
         for (i, (rng, r)) in rngs.iter_mut().zip(&mut cam).take(n).enumerate() {
-            (*rng, *r) = start(x0 + i);
+            let (s, ray) = start(x0 + i);
+            (*rng, *r) = (Some(s), ray);
         }
         let mut hits = [None; LANES];
         world.accel.intersect_packet(&cam[..n], &mut hits[..n]);
         for (i, (rng, h)) in rngs.iter_mut().zip(hits).take(n).enumerate() {
+            let Some(rng) = rng else { continue };
             let (l, rays) = radiance_from_hit(world, limits, cam[i], Some(h), rng, 1);
             finish(x0 + i, l, rays);
         }

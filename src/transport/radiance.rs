@@ -10,7 +10,7 @@ use crate::accel::Hit;
 use crate::bsdf::Mode;
 use crate::emitter::LightSelection;
 use crate::geometry::{offset_point, Ray};
-use crate::sampling::{power_heuristic, Pcg32};
+use crate::sampling::{power_heuristic, Sampler};
 use crate::scene::{Rgb, SurfacePoint};
 use crate::world::World;
 
@@ -31,11 +31,11 @@ pub struct DepthLimits {
 /// found by `ray` takes full weight; and the number of rays traced. Used for
 /// primary rays (`depth` 1) and by the camera pass after a delta chain.
 #[inline(always)]
-pub fn radiance_from(
+pub fn radiance_from<S: Sampler>(
     world: &World,
     limits: &DepthLimits,
     ray: Ray,
-    rng: &mut Pcg32,
+    rng: &mut S,
     depth: u32,
 ) -> (Rgb, u64) {
     radiance_from_hit(world, limits, ray, None, rng, depth)
@@ -46,12 +46,12 @@ pub fn radiance_from(
 /// pixels are traced together ([`crate::accel::Accel::intersect_packet`]),
 /// which answers as [`crate::accel::Accel::intersect`] would.
 #[inline(always)]
-pub fn radiance_from_hit(
+pub fn radiance_from_hit<S: Sampler>(
     world: &World,
     limits: &DepthLimits,
     ray: Ray,
     mut first: Option<Option<Hit>>,
-    rng: &mut Pcg32,
+    rng: &mut S,
     depth: u32,
 ) -> (Rgb, u64) {
     let mut path = CameraPath::new(ray, depth);
@@ -155,17 +155,18 @@ impl CameraPath {
     /// then samples the BSDF for the next segment. Returns whether the path
     /// continues (along the new `ray`; the caller traces it and counts it).
     #[inline(always)]
-    pub fn scatter(
+    pub fn scatter<S: Sampler>(
         &mut self,
         world: &World,
         limits: &DepthLimits,
         sp: &SurfacePoint,
-        rng: &mut Pcg32,
+        rng: &mut S,
     ) -> bool {
         let (accel, lights) = (&world.accel, &world.lights);
         let selection = limits.light_selection;
         let max_depth = limits.max_depth.unwrap_or(u32::MAX);
         let wo_world = -self.ray.d;
+        rng.start_vertex(self.depth);
 
         // Emission of a hit light, weighted against light sampling
         if lights.is_emitter_of(sp.tri, sp.shape) {

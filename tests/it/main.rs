@@ -44,6 +44,7 @@ mod plb;
 mod punctual;
 mod reference;
 mod replay;
+mod sampler;
 mod transport;
 mod untrusted;
 mod untrusted_mp;

@@ -41,12 +41,23 @@ struct Row {
 fn rows(name: &str) -> Vec<Row> {
     let none = |_| 0.0;
     match name {
-        "path" => vec![Row {
-            config: common::path(),
-            passes: 16,
-            furnace_bias: none,
-            sharp: 0.01,
-        }],
+        "path" => vec![
+            Row {
+                config: common::path(),
+                passes: 16,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
+            Row {
+                config: MethodConfig::Path(kalos::methods::path::Settings {
+                    sampler: kalos::sampling::SamplerKind::Sobol,
+                    ..Default::default()
+                }),
+                passes: 16,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
+        ],
         "light" => vec![
             Row {
                 config: common::light(light::Settings::default()),

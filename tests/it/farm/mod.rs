@@ -60,8 +60,9 @@ fn render_args<'a>(method: &[&'a str], spp: &'a str) -> Vec<&'a str> {
     v
 }
 
-const EXACT: [&[&str]; 3] = [
+const EXACT: [&[&str]; 4] = [
     &["--method", "path"],
+    &["--method", "path", "--sampler", "sobol"],
     &["--method", "light"],
     &["--method", "light", "--variant", "iteration"],
 ];
@@ -101,7 +102,7 @@ fn shards_merged_give_the_bytes_of_one_run() {
 #[test]
 fn a_render_resumed_from_its_checkpoint_gives_the_bytes_of_one_run() {
     let dir = tempfile::tempdir().expect("tempdir");
-    for (i, method) in EXACT[..2].iter().enumerate() {
+    for (i, method) in EXACT[..3].iter().enumerate() {
         let one = dir.path().join(format!("one-{i}.pfm"));
         let mut a = render_args(method, "7");
         a.extend(["-o", s(&one)]);

@@ -1,0 +1,348 @@
+//! The samplers of `path` (`--sampler`): the Owen-scrambled Sobol points
+//! checked directly (stratification of every 1D and 2D draw, error that
+//! falls faster than 1/√N on smooth integrands), and `path` with them
+//! (furnace, agreement with independent numbers on cbox, the same image
+//! whatever the thread count, the flag refused by the other methods).
+
+use crate::common;
+
+use glam::Vec2;
+use kalos::methods::{path, Budget, Common, MethodConfig};
+use kalos::sampling::sobol::{owen_scramble, sobol, vertex_dimension, SOBOL_DIMENSIONS};
+use kalos::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler};
+use kalos::scene::Scene;
+
+/// The smallest t for which the 2^m points are a (t, m, 2)-net in base 2:
+/// every elementary interval [a/2^i, (a+1)/2^i) × [b/2^j, (b+1)/2^j) with
+/// i + j = m − t holds exactly 2^t points.
+fn t_value(pts: &[Vec2], m: u32) -> u32 {
+    assert_eq!(pts.len(), 1 << m);
+    (0..=m)
+        .find(|&t| {
+            let k = m - t;
+            (0..=k).all(|i| {
+                let j = k - i;
+                let mut count = vec![0u32; 1 << k];
+                for p in pts {
+                    let a = (p.x * (1u32 << i) as f32) as usize;
+                    let b = (p.y * (1u32 << j) as f32) as usize;
+                    count[(a << j) | b] += 1;
+                }
+                count.iter().all(|&c| c == 1 << t)
+            })
+        })
+        .expect("t = m always holds")
+}
+
+/// The first 2^m samples of one pixel, each drawn at dimension `dim` as a
+/// 2D point (`dim` = 0 is the camera's first draw; past it the sampler is
+/// moved there as a vertex would be, then advanced by 1D draws).
+fn points_2d(seed: u64, pixel: u64, m: u32, dim: u32) -> Vec<Vec2> {
+    (0..1u64 << m)
+        .map(|i| {
+            let mut s = SobolSampler::new(seed, pixel, i);
+            if dim > 0 {
+                s.start_vertex(1);
+                while s.dimension() < dim {
+                    s.next_f32();
+                }
+                assert_eq!(s.dimension(), dim);
+            }
+            s.next_2d()
+        })
+        .collect()
+}
+
+/// The camera's 2D draw is a scrambled (0,2)-sequence: for every 2^m up to
+/// 4096 samples of a pixel, every elementary interval of area 2^−m holds
+/// exactly one point, for several pixels and seeds (each its own scramble
+/// and shuffle). The raw sequence's first 2^m points are too, and so is a
+/// scrambled copy of them: Owen scrambling keeps the property.
+#[test]
+fn camera_draws_are_a_scrambled_0_2_sequence() {
+    for m in 0..=12 {
+        for (seed, pixel) in [(0, 0), (1, 7), (42, 123_456)] {
+            let pts = points_2d(seed, pixel, m, 0);
+            assert_eq!(
+                t_value(&pts, m),
+                0,
+                "seed {seed} pixel {pixel}, 2^{m} points"
+            );
+        }
+        let unit = |x: u32| (x >> 8) as f32 / 16_777_216.0;
+        let raw: Vec<Vec2> = (0..1u32 << m)
+            .map(|i| Vec2::new(unit(sobol(i, 0)), unit(sobol(i, 1))))
+            .collect();
+        assert_eq!(t_value(&raw, m), 0);
+        let scrambled: Vec<Vec2> = (0..1u32 << m)
+            .map(|i| {
+                Vec2::new(
+                    unit(owen_scramble(sobol(i, 0), 0x1234_5678)),
+                    unit(owen_scramble(sobol(i, 1), 0x9abc_def0)),
+                )
+            })
+            .collect();
+        assert_eq!(t_value(&scrambled, m), 0);
+    }
+}
+
+/// Every dimension of the table is stratified alone: 2^m samples put one
+/// point in each interval [k/2^m, (k+1)/2^m).
+#[test]
+fn every_dimension_is_stratified_in_1d() {
+    let m = 10;
+    let mut samplers: Vec<SobolSampler> = (0..1u64 << m)
+        .map(|i| SobolSampler::new(5, 99, i))
+        .collect();
+    for d in 0..SOBOL_DIMENSIONS {
+        let mut hit = vec![false; 1 << m];
+        for s in &mut samplers {
+            let k = (s.next_f32() * (1u32 << m) as f32) as usize;
+            assert!(!hit[k], "dimension {d}: two points in interval {k}");
+            hit[k] = true;
+        }
+    }
+}
+
+/// The 2D draws of every vertex (the point on the light, the BSDF
+/// direction) are nets with small t: at most 6 for 2^6, 2^8 and 2^10
+/// points up to the eighth vertex, at most 3 for the first vertex
+/// (measured for the table: 1 to 3 at the first vertex, 6 at worst, at
+/// the eighth). Past the table the numbers are independent, and the same
+/// check finds their t near m: so it can fail.
+#[test]
+fn every_vertex_2d_draw_is_a_net_with_small_t() {
+    for m in [6, 8, 10] {
+        for vertex in 1..=8 {
+            let base = vertex_dimension(vertex);
+            for dim in [base + 1, base + 4] {
+                if dim + 1 >= SOBOL_DIMENSIONS as u32 {
+                    continue;
+                }
+                let t = t_value(&points_2d(3, 17, m, dim), m);
+                let bound = if vertex == 1 { 3 } else { 6 };
+                assert!(
+                    t <= bound,
+                    "vertex {vertex} dimensions {dim}, {dim}+1: t = {t} at 2^{m}"
+                );
+            }
+        }
+    }
+    let past = vertex_dimension(10) + 1;
+    assert!(past as usize > SOBOL_DIMENSIONS);
+    let t = t_value(&points_2d(3, 17, 10, past), 10);
+    assert!(t >= 7, "independent numbers should not be a net: t = {t}");
+}
+
+/// Root-mean-square error, over 64 pixels (independent randomisations), of
+/// the N-sample estimate of ∫∫ f over [0,1)², for N = 2^4 … 2^10, with the
+/// 2D draw that `draw` makes; returns the slope of log RMSE against log N.
+fn error_slope(draw: &dyn Fn(u64, u64) -> Vec2, f: &dyn Fn(Vec2) -> f64, exact: f64) -> f64 {
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for k in 4..=10u32 {
+        let n = 1u64 << k;
+        let mse = (0..64u64)
+            .map(|pixel| {
+                let est = (0..n).map(|i| f(draw(pixel, i))).sum::<f64>() / n as f64;
+                (est - exact).powi(2)
+            })
+            .sum::<f64>()
+            / 64.0;
+        xs.push(k as f64);
+        ys.push(0.5 * mse.log2());
+    }
+    let (mx, my) = (
+        xs.iter().sum::<f64>() / xs.len() as f64,
+        ys.iter().sum::<f64>() / ys.len() as f64,
+    );
+    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let sxx: f64 = xs.iter().map(|x| (x - mx).powi(2)).sum();
+    sxy / sxx
+}
+
+/// A smooth integrand's error falls faster than 1/√N. Owen-scrambled nets
+/// give an RMSE of O(N^−3/2 (log N)^(1/2)) for smooth integrands (Owen
+/// 1997), asymptotically; over 2^4 … 2^10 samples the measured slopes
+/// are −1.41 for the camera draw (a (0,2)-sequence) and −1.03 for the
+/// first vertex's light point (dimensions 3 and 4, whose nets have t = 1
+/// to 3 there); independent numbers give −1/2 (measured −0.55). The
+/// asserts: steeper than −1.2 and −0.8, and flatter than −0.75 for
+/// independent numbers (so that the measure tells them apart).
+#[test]
+fn smooth_integrand_error_falls_faster_than_one_over_sqrt_n() {
+    let f = |p: Vec2| f64::from(p.x).exp() * (std::f64::consts::PI * f64::from(p.y)).sin();
+    let exact = (std::f64::consts::E - 1.0) * 2.0 / std::f64::consts::PI;
+    let camera = |pixel: u64, i: u64| SobolSampler::new(9, pixel, i).next_2d();
+    let light = |pixel: u64, i: u64| {
+        let mut s = SobolSampler::new(9, pixel, i);
+        s.next_2d();
+        s.start_vertex(1);
+        s.next_f32();
+        s.next_2d()
+    };
+    let independent = |pixel: u64, i: u64| Pcg32::keyed(&[9, i, pixel]).next_2d();
+    let (sc, sl, si) = (
+        error_slope(&camera, &f, exact),
+        error_slope(&light, &f, exact),
+        error_slope(&independent, &f, exact),
+    );
+    eprintln!("slopes: camera {sc:.2}, light point {sl:.2}, independent {si:.2}");
+    assert!(sc < -1.2, "camera draw: slope {sc}");
+    assert!(sl < -0.8, "light point: slope {sl}");
+    assert!(si > -0.75, "independent: slope {si}");
+}
+
+fn path_with(sampler: SamplerKind) -> MethodConfig {
+    MethodConfig::Path(path::Settings {
+        sampler,
+        ..Default::default()
+    })
+}
+
+/// Mean over pixels and channels of one render.
+fn image_mean(scene: &Scene, cfg: &MethodConfig, seed: u64, passes: u64) -> f64 {
+    let (img, _) = common::render(scene, cfg, seed, passes);
+    assert!(img.data.iter().all(|p| p.is_finite()));
+    (0..3).map(|c| common::mean_and_se(&img, c).0).sum::<f64>() / 3.0
+}
+
+/// Mean and standard error of replicas.
+fn mean_se(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+    (m, (var / n).sqrt())
+}
+
+/// The white furnace (albedo 0.5, Le = 1: L = 2 everywhere) with Sobol
+/// points: 8 replicas (seeds) of 16 spp at 16 × 16; the bound is the
+/// 99.9 % Student-t quantile for 7 degrees of freedom (5.41) times their
+/// standard error, and must be under 1 % of the value.
+#[test]
+fn path_with_sobol_passes_the_furnace() {
+    let scene = common::furnace(0.5, 1.0, 16);
+    let v: Vec<f64> = (0..8)
+        .map(|s| image_mean(&scene, &path_with(SamplerKind::Sobol), 100 + s, 16))
+        .collect();
+    let (m, se) = mean_se(&v);
+    let tol = 5.41 * se;
+    eprintln!("furnace, sobol: {m:.5} ± {tol:.1e}");
+    assert!((m - 2.0).abs() <= tol, "mean {m} vs 2 ± {tol}");
+    assert!(tol < 0.02, "tolerance {tol} too wide to judge");
+}
+
+fn cbox(res: u32) -> Scene {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut s = kalos::scene::load(&root.join("scenes/cbox/cbox.xml")).expect("scene");
+    s.set_resolution(res, res);
+    s
+}
+
+/// On cbox, Sobol and independent numbers estimate the same image: the
+/// image means of 8 replicas (48 × 48, 128 spp) each agree within 5.41 standard errors of
+/// their difference (Welch; 5.41 is the 99.9 % t quantile for the 7
+/// degrees of freedom of one side, conservative for both), and 8 × 8
+/// blocks of two renders of 64 spp each agree within |z| < 4.5 (108
+/// block-channel z values: a false alarm about once in 1000 runs).
+#[test]
+fn path_with_sobol_agrees_with_independent_on_cbox() {
+    let scene = cbox(48);
+    let (sobol, indep) = (
+        path_with(SamplerKind::Sobol),
+        path_with(SamplerKind::Independent),
+    );
+    let vs: Vec<f64> = (0..8)
+        .map(|s| image_mean(&scene, &sobol, 10 + s, 128))
+        .collect();
+    let vi: Vec<f64> = (0..8)
+        .map(|s| image_mean(&scene, &indep, 10 + s, 128))
+        .collect();
+    let ((ms, ss), (mi, si)) = (mean_se(&vs), mean_se(&vi));
+    let tol = 5.41 * (ss * ss + si * si).sqrt();
+    eprintln!("cbox means: sobol {ms:.5}, independent {mi:.5}, tolerance {tol:.1e}");
+    assert!(
+        (ms - mi).abs() <= tol,
+        "sobol {ms} vs independent {mi} ± {tol}"
+    );
+    assert!(tol < 0.02 * mi, "tolerance {tol} too wide to judge");
+
+    let blocks = |cfg: &MethodConfig| {
+        let (a, _) = common::render(&scene, cfg, 1, 64);
+        let (b, _) = common::render(&scene, cfg, 2, 64);
+        common::block_stats(&a, &b, 8, &|_, _| true)
+    };
+    let (z, block) = common::max_block_z(&blocks(&sobol), &blocks(&indep), 1e-4);
+    assert!(z < 4.5, "block {block} differs by {z:.2} standard errors");
+}
+
+/// A seed gives the same image with Sobol points whatever the thread
+/// count; another seed gives another, and independent numbers another.
+#[test]
+fn sobol_images_do_not_depend_on_the_thread_count() {
+    let scene = cbox(24);
+    let sobol = path_with(SamplerKind::Sobol);
+    let run = |threads: usize, cfg: &MethodConfig, seed: u64| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| {
+                common::render_budget(
+                    &scene,
+                    cfg,
+                    &Common {
+                        seed,
+                        max_depth: None,
+                    },
+                    Budget {
+                        passes: Some(3),
+                        ..Default::default()
+                    },
+                )
+            })
+    };
+    let one = run(1, &sobol, 42);
+    let two = run(2, &sobol, 42);
+    let three = run(3, &sobol, 42);
+    assert_eq!(one.1, two.1, "ray counts differ");
+    assert!(
+        one.0 == two.0 && two.0 == three.0,
+        "images differ with the thread count"
+    );
+    assert!(run(2, &sobol, 43).0 != one.0, "the seed changes nothing");
+    let indep = run(2, &path_with(SamplerKind::Independent), 42);
+    assert!(indep.0 != one.0, "the sampler changes nothing");
+}
+
+/// `--sampler` is a setting of `path`: another method refuses it with the
+/// message that names `path`, and `path` refuses an unknown sampler.
+#[test]
+fn other_methods_refuse_the_sampler_flag() {
+    let o = common::kalos(&[
+        "render",
+        "--method",
+        "light",
+        "--res",
+        "8x8",
+        "--spp",
+        "1",
+        "--sampler",
+        "sobol",
+        "-o",
+        "/dev/null",
+    ]);
+    assert!(!o.status.success());
+    let e = common::stderr(&o);
+    assert!(e.contains("--sampler") && e.contains("'path'"), "{e}");
+    let o = common::kalos(&[
+        "render",
+        "--res",
+        "8x8",
+        "--spp",
+        "1",
+        "--sampler",
+        "halton",
+    ]);
+    assert!(!o.status.success());
+    assert!(common::stderr(&o).contains("halton"));
+}
