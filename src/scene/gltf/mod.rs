@@ -9,10 +9,42 @@
 //!   as the glTF specification says), normals and the first uv set; the
 //!   second uv set is kept in [`Scene::uv1`], and each shape records the
 //!   node, mesh and primitive it came from ([`super::ShapeSource`]);
-//! - `baseColorFactor` × `baseColorTexture` (sRGB) → `diffuse` for
-//!   non-metals (`metallicFactor` < 0.5); metals become a mirror-Fresnel
-//!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
-//!   tinted by the base colour (glTF's F0 of a metal);
+//! - `baseColorFactor` × `baseColorTexture` (sRGB) is the base colour.
+//!   glTF mixes a metal and a dielectric BRDF by `metallic`; kalos takes one
+//!   of the two, the metal where `metallicFactor` ≥ 0.5. Metals become a
+//!   mirror-Fresnel `conductor` (roughness 0) or a GGX `roughconductor`
+//!   with α = roughness² tinted by the base colour (glTF's F0 of a metal).
+//!   Dielectrics become Mitsuba's `roughplastic` (`plastic` at roughness 0):
+//!   a GGX coat with α = roughness² (at least 10⁻³, as the metals) and
+//!   η = 1.5 over a Lambertian base of the base colour, `nonlinear` off.
+//!   η = 1.5 is glTF's F0 = ((η − 1)/(η + 1))² = 0.04 exactly. How this
+//!   departs from the specification's `fresnel_mix(ior = 1.5, base =
+//!   diffuse_brdf, layer = specular_brdf(α))` (Appendix B), which is
+//!   (1 − F(v·h)) c/π + F(v·h) D V with Schlick's F:
+//!   - the coat's Fresnel is the exact dielectric one for η = 1.5, not
+//!     Schlick's: equal at normal incidence (0.04), they part most near
+//!     85° (0.57 against Schlick's 0.61 at cos θ = 0.1; 0.036 at most);
+//!   - D and G are the same (GGX, the separable Smith G);
+//!   - the base is Mitsuba's: ρ/(π η² (1 − R_int)) t(cos θo) t(cos θi),
+//!     with t the coat's tabulated transmittance and R_int its internal
+//!     diffuse reflectance (`bsdf::coat`), where glTF weights c/π by
+//!     1 − F(v·h). Mitsuba's rough coat is single-scattering: it drops the
+//!     light the rough interface sends back inside and shadows, so a white
+//!     base under a GGX coat of α = 0.25 reflects 0.74 at normal incidence
+//!     where glTF's reflects about 0.96. kalos therefore scales the base
+//!     colour c by η² (1 − R_int)/T̄ (T̄ the coat's diffuse transmittance
+//!     from outside; [`base_gain`]), so that ρ = c × that factor, which may
+//!     exceed 1, and the diffuse reflectance of the coated base (its
+//!     cosine-weighted mean over exit directions) is c, as glTF's c/π
+//!     nearly is, and a white base reflects about 1 near the normal.
+//!     Both lose what the rough coat shadows at grazing angles. The factor
+//!     is 1.00 for the smooth coat, 1.36 at α = 0.25; `nonlinear` is off,
+//!     so the hue is the base colour's, as glTF's c/π keeps it.
+//!
+//!   Mapping onto `roughplastic` keeps the Mitsuba model's sampling, its
+//!   chi-square and furnace tests, and its diffuse part
+//!   ([`crate::bsdf::Bsdf::diffuse_part`]), which the density method and
+//!   the lightmap bake store;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
@@ -147,6 +179,15 @@ fn material(
             ),
         ));
     }
+    let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
+    let metal = pbr.metallic_factor() >= 0.5;
+    // a dielectric's base is scaled so that its diffuse reflectance under
+    // the coat is the base colour (see the module doc)
+    let factor = if metal {
+        factor
+    } else {
+        factor * base_gain(roughness)
+    };
     let base = match pbr.base_color_texture() {
         Some(info) => base_color_texture(m, &info, factor, images, textures, scene, path),
         None => Texture::Constant(factor),
@@ -161,8 +202,7 @@ fn material(
             ),
         );
     }
-    let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
-    let material = if pbr.metallic_factor() >= 0.5 {
+    let material = if metal {
         // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
         let (eta, k) = (Rgb::ZERO, Rgb::ONE);
         if roughness <= 0.0 {
@@ -174,14 +214,14 @@ fn material(
         } else {
             Material::RoughConductor {
                 distribution: MicrofacetKind::Ggx,
-                alpha: (roughness * roughness).max(1e-3),
+                alpha: (roughness * roughness).max(MIN_ALPHA),
                 eta,
                 k,
                 specular_reflectance: base,
             }
         }
     } else {
-        Material::Diffuse { reflectance: base }
+        dielectric(base, roughness)
     };
     let material = if m.double_sided() {
         Material::TwoSided(Box::new(material))
@@ -190,6 +230,64 @@ fn material(
     };
     let emission = emission(m, scene, path)?;
     Ok((scene.add_material(material), emission))
+}
+
+/// Relative index of refraction of glTF's dielectric: F0 = ((η − 1)/(η + 1))²
+/// = 0.04, as the specification's `fresnel_mix(ior = 1.5, …)`.
+pub(crate) const DIELECTRIC_IOR: f32 = 1.5;
+
+/// Smallest GGX α of a rough glTF surface (α = roughness²): below it the
+/// lobe's peak outruns f32, and the surface is a mirror to the eye anyway.
+pub(crate) const MIN_ALPHA: f32 = 1e-3;
+
+/// glTF's dielectric (`metallic` = 0) with base colour `base` and
+/// perceptual roughness `roughness` ∈ [0, 1]: a GGX coat of index 1.5
+/// (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian base, as
+/// `roughplastic` (`plastic` when the roughness is 0). See the module doc
+/// for how this differs from the specification's `fresnel_mix`.
+pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
+    let specular = Texture::Constant(Rgb::ONE);
+    if roughness <= 0.0 {
+        Material::Plastic {
+            diffuse_reflectance: base,
+            specular_reflectance: specular,
+            eta: DIELECTRIC_IOR,
+            nonlinear: false,
+        }
+    } else {
+        Material::RoughPlastic {
+            diffuse_reflectance: base,
+            specular_reflectance: specular,
+            distribution: MicrofacetKind::Ggx,
+            alpha: (roughness * roughness).max(MIN_ALPHA),
+            eta: DIELECTRIC_IOR,
+            nonlinear: false,
+        }
+    }
+}
+
+/// The factor on a dielectric's base colour that makes the diffuse
+/// reflectance R_d = π k T̄ of its coated base ([`crate::bsdf::DiffusePart`])
+/// equal the base colour: η² (1 − R_int) / T̄, with R_int the coat's
+/// internal diffuse reflectance and T̄ its diffuse transmittance from
+/// outside (1 − F_dr(1/η) and 1 − F_dr(η) for the smooth coat, the
+/// tables of `bsdf::coat` for the rough one). About 1.0 for the smooth
+/// coat; above 1 for rough ones, whose single-scattering tables lose the
+/// light the rough interface sends back inside.
+pub(crate) fn base_gain(roughness: f32) -> f32 {
+    use crate::bsdf::{coat::CoatTable, fresnel::fresnel_diffuse_reflectance, microfacet};
+    let eta = DIELECTRIC_IOR;
+    let (r_int, t_ext) = if roughness <= 0.0 {
+        (
+            fresnel_diffuse_reflectance(1.0 / eta),
+            1.0 - fresnel_diffuse_reflectance(eta),
+        )
+    } else {
+        let alpha = (roughness * roughness).max(MIN_ALPHA);
+        let t = CoatTable::get(microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha), eta);
+        (t.internal_reflectance, t.external_diffuse_transmittance)
+    };
+    eta * eta * (1.0 - r_int) / t_ext
 }
 
 /// The base colour of a material with a `baseColorTexture`: the image
