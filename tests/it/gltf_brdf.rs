@@ -268,3 +268,130 @@ fn a_gltf_dielectric_reflects_more_at_grazing_angles_in_a_render() {
         "grazing {g}, normal {n0}"
     );
 }
+
+// ---------------------------------------------------------------------------
+// Textures
+
+/// A PNG of `w`×`h` RGB texels, as a `data:` URI.
+fn png_uri(w: u32, h: u32, texels: &[[u8; 3]]) -> String {
+    let img = image::RgbImage::from_raw(w, h, texels.concat()).unwrap();
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+    format!("data:image/png;base64,{}", base64(&out.into_inner()))
+}
+
+/// Base64, standard alphabet, padded.
+fn base64(bytes: &[u8]) -> String {
+    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// A `metallicRoughnessTexture` is read per texel, as linear values: blue
+/// is the metalness, green the roughness, each times its factor. Here the
+/// left texel is a metal of roughness 0.5 × 128/255, the right one a
+/// dielectric of roughness 0.5; the base colour texture (sRGB) gives each
+/// its colour, and the dielectric's diffuse part reflects that colour.
+#[test]
+fn metallic_roughness_textures_are_read_per_texel() {
+    let d = tmp();
+    let mr = png_uri(2, 1, &[[0, 128, 255], [0, 255, 0]]);
+    let base = png_uri(2, 1, &[[255, 188, 0], [0, 188, 255]]);
+    let mats = r#"[{"pbrMetallicRoughness":{"metallicFactor":1,"roughnessFactor":0.5,
+        "baseColorTexture":{"index":1},"metallicRoughnessTexture":{"index":0}}}]"#;
+    let rest = format!(
+        r#","textures":[{{"source":0}},{{"source":1}}],"images":[{{"uri":"{mr}"}},{{"uri":"{base}"}}]"#
+    );
+    let s = load(&square(d.path(), "mr", 1.0, mats, &rest));
+    assert!(
+        !s.warnings.iter().any(|w| w.contains("ignored")),
+        "{:?}",
+        s.warnings
+    );
+    let m = &s.materials[0];
+    let srgb = |b: f32| ((b / 255.0 + 0.055) / 1.055).powf(2.4);
+    // texel centres: bilinear lookups there give the texels themselves
+    let (left, right) = (Vec2::new(0.25, 0.5), Vec2::new(0.75, 0.5));
+    match m.bsdf(left) {
+        Bsdf::RoughConductor { dist, s: tint, .. } => {
+            let r = 0.5 * 128.0 / 255.0;
+            assert!((dist.alpha - r * r).abs() < 1e-5, "α {}", dist.alpha);
+            let want = Rgb::new(1.0, srgb(188.0), 0.0);
+            assert!((tint - want).abs().max_element() < 1e-5, "{tint}");
+        }
+        b => panic!("the left texel is a metal: {b:?}"),
+    }
+    match m.bsdf(right) {
+        b @ Bsdf::RoughPlastic { dist, eta, .. } => {
+            assert!((dist.alpha - 0.25).abs() < 1e-5, "α {}", dist.alpha);
+            assert_eq!(eta, 1.5);
+            let rd = b.diffuse_part().expect("a diffuse part").rd();
+            let want = Rgb::new(0.0, srgb(188.0), 1.0);
+            assert!((rd - want).abs().max_element() < 1e-3, "R_d {rd}");
+        }
+        b => panic!("the right texel is a dielectric: {b:?}"),
+    }
+    // the same file with the factors alone (no texture) is one metal
+    let plain = r#"[{"pbrMetallicRoughness":{"metallicFactor":1,"roughnessFactor":0.5}}]"#;
+    let s = load(&square(d.path(), "plain", 1.0, plain, ""));
+    assert!(matches!(
+        s.materials[0].bsdf(right),
+        Bsdf::RoughConductor { .. }
+    ));
+}
+
+/// An emissive texture (sRGB) multiplies `emissiveFactor` × strength; kalos's
+/// area lights being uniform, the product is averaged over the primitive,
+/// with a warning. One texel of sRGB 188 on a factor (2, 1, 0.5) and a
+/// strength of 3 gives 3 × (2, 1, 0.5) × 0.502.
+#[test]
+fn emissive_textures_multiply_the_emission() {
+    let d = tmp();
+    let tex = png_uri(1, 1, &[[188, 188, 188]]);
+    let mats = r#"[{"emissiveFactor":[1,0.5,0.25],"emissiveTexture":{"index":0},
+        "extensions":{"KHR_materials_emissive_strength":{"emissiveStrength":6}}}]"#;
+    let rest = format!(r#","textures":[{{"source":0}}],"images":[{{"uri":"{tex}"}}]"#);
+    let s = load(&square(d.path(), "glow", 1.0, mats, &rest));
+    let e = s
+        .emitters
+        .iter()
+        .find_map(|e| match e {
+            scene::EmitterDesc::Area { radiance, .. } => Some(*radiance),
+            _ => None,
+        })
+        .expect("an area light");
+    let t = ((188.0f32 / 255.0 + 0.055) / 1.055).powf(2.4);
+    let want = Rgb::new(6.0, 3.0, 1.5) * t;
+    assert!((e - want).abs().max_element() < 1e-4, "{e} against {want}");
+    assert!(
+        s.warnings.iter().any(|w| w.contains("averaged")),
+        "{:?}",
+        s.warnings
+    );
+    // half black, half white: the mean over the square lies between
+    let tex = png_uri(2, 1, &[[255, 255, 255], [0, 0, 0]]);
+    let mats = r#"[{"emissiveFactor":[1,1,1],"emissiveTexture":{"index":0}}]"#;
+    let rest = format!(r#","textures":[{{"source":0}}],"images":[{{"uri":"{tex}"}}]"#);
+    let s = load(&square(d.path(), "half", 1.0, mats, &rest));
+    let e = s
+        .emitters
+        .iter()
+        .find_map(|e| match e {
+            scene::EmitterDesc::Area { radiance, .. } => Some(*radiance),
+            _ => None,
+        })
+        .expect("an area light");
+    assert!((e.x - 0.5).abs() < 0.1 && e.x == e.y && e.y == e.z, "{e}");
+}

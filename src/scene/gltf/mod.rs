@@ -45,10 +45,21 @@
 //!   chi-square and furnace tests, and its diffuse part
 //!   ([`crate::bsdf::Bsdf::diffuse_part`]), which the density method and
 //!   the lightmap bake store;
+//! - a `metallicRoughnessTexture` (linear: blue the metalness, green the
+//!   roughness, times their factors) is read per texel, at each hit
+//!   ([`super::material::MetallicRoughness`]): a texel is the metal or the
+//!   dielectric above by the same 0.5 threshold, with α = roughness² (at
+//!   least 10⁻³, so a smooth texel is a very sharp GGX lobe rather than a
+//!   mirror); the dielectric's coat tables (and so its base's gain) are
+//!   taken at the roughness rounded to 1/32, its D and G at the exact α;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
-//!   read as W/(m²·sr), with a warning); negative emission is an error;
+//!   read as W/(m²·sr), with a warning); negative emission is an error.
+//!   An `emissiveTexture` (sRGB) multiplies it; kalos's area lights are
+//!   uniform over their shape, so the texture is averaged over each
+//!   primitive (area-weighted, four lookups per triangle), with a warning:
+//!   the primitive's power is right, its pattern is lost;
 //! - `KHR_lights_punctual` point, spot and directional lights on nodes,
 //!   placed by the node's world transform, their candela and lux divided
 //!   by 683 lm/W into W/sr and W/m² (Blender's exporter's convention;
@@ -58,8 +69,9 @@
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
 //!   synthesised, with a warning.
 //!
-//! Skipped with a warning: non-triangle primitives, emissive and
-//! metallic-roughness textures, and texture transforms.
+//! Skipped with a warning: non-triangle primitives, and texture coordinate
+//! sets other than the first. Ignored: texture transforms, samplers (every
+//! texture wraps and is filtered bilinearly), normal and occlusion textures.
 //!
 //! Refused before anything is allocated: GLB lengths beyond the file, node
 //! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
@@ -70,10 +82,10 @@
 //! [`FileAccess`], not by the `gltf` crate: a URI is a `data:` URI (decoded
 //! in memory), or a relative path (percent-decoded, against the file's
 //! folder) or a `file:` URI, read only if the access allows it. Every file the glTF names is checked before any is
-//! read; the memory of its instanced meshes, its buffers and its base
-//! colour images (their sizes from the image headers) is declared
+//! read; the memory of its instanced meshes, its buffers and the images its
+//! materials read (their sizes from the image headers) is declared
 //! ([`FileAccess::reserve`]) before it is allocated. Images that no
-//! material uses as its base colour are checked, not read.
+//! material reads are checked, not read.
 
 use crate::scene::access::{FileAccess, FileKind};
 use std::path::{Path, PathBuf};
@@ -81,6 +93,7 @@ use std::sync::Arc;
 
 use glam::{Mat3, Mat4, Vec2, Vec3};
 
+use super::material::MetallicRoughness;
 use super::shapes::MeshData;
 use super::{
     CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, ShapeSource, TexImage, Texture,
@@ -107,7 +120,7 @@ pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> 
 
     // Materials, each with its emission
     let mut mats = Vec::new();
-    let mut textures: Vec<Option<Arc<TexImage>>> = vec![None; images.len()];
+    let mut textures: Vec<[Option<Arc<TexImage>>; 2]> = vec![[None, None]; images.len()];
     for m in doc.materials() {
         mats.push(material(&m, &images, &mut textures, &mut scene, path)?);
     }
@@ -152,16 +165,17 @@ fn warn(scene: &mut Scene, path: &Path, msg: String) {
 }
 
 /// Adds one glTF material to the scene (see the module doc for the
-/// mapping) and returns its index with its emitted radiance, if any.
-/// `textures` caches the decoded images, by image index (`images` holds
-/// those used as a base colour).
+/// mapping) and returns its index with its emission: the emitted radiance,
+/// if any, and the emissive texture it is multiplied by, if any.
+/// `textures` caches the decoded images, by image index and encoding
+/// (`images` holds those a material reads).
 fn material(
     m: &gltf::Material,
     images: &[Option<gltf::image::Data>],
-    textures: &mut [Option<Arc<TexImage>>],
+    textures: &mut [[Option<Arc<TexImage>>; 2]],
     scene: &mut Scene,
     path: &Path,
-) -> Result<(u32, Option<Rgb>), SceneError> {
+) -> Result<MaterialEntry, SceneError> {
     let pbr = m.pbr_metallic_roughness();
     let f = pbr.base_color_factor();
     let factor = Rgb::new(f[0], f[1], f[2]);
@@ -179,57 +193,174 @@ fn material(
             ),
         ));
     }
+    let mut textures = Textures {
+        m,
+        images,
+        cache: textures,
+        scene,
+        path,
+    };
     let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
-    let metal = pbr.metallic_factor() >= 0.5;
-    // a dielectric's base is scaled so that its diffuse reflectance under
-    // the coat is the base colour (see the module doc)
-    let factor = if metal {
-        factor
+    let metallic = pbr.metallic_factor();
+    let metal = metallic >= 0.5;
+    let mr = pbr
+        .metallic_roughness_texture()
+        .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
+    let material = if let Some(mr) = mr {
+        // metalness and roughness per texel
+        let base_color = match pbr.base_color_texture() {
+            Some(info) => textures
+                .texture(&info, factor, true, "base colour")
+                .unwrap_or(Texture::Constant(factor)),
+            None => Texture::Constant(factor),
+        };
+        Material::MetallicRoughness(Box::new(MetallicRoughness {
+            base_color,
+            metallic: if metallic.is_finite() { metallic } else { 0.0 },
+            roughness,
+            metallic_roughness: mr,
+        }))
     } else {
-        factor * base_gain(roughness)
-    };
-    let base = match pbr.base_color_texture() {
-        Some(info) => base_color_texture(m, &info, factor, images, textures, scene, path),
-        None => Texture::Constant(factor),
-    };
-    if pbr.metallic_roughness_texture().is_some() || m.emissive_texture().is_some() {
-        warn(
-            scene,
-            path,
-            format!(
-                "material `{}`: metallic-roughness and emissive textures are ignored",
-                name_of(m)
-            ),
-        );
-    }
-    let material = if metal {
-        // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
-        let (eta, k) = (Rgb::ZERO, Rgb::ONE);
-        if roughness <= 0.0 {
-            Material::Conductor {
-                eta,
-                k,
-                specular_reflectance: base,
+        // a dielectric's base is scaled so that its diffuse reflectance
+        // under the coat is the base colour (see the module doc)
+        let factor = if metal {
+            factor
+        } else {
+            factor * base_gain(roughness)
+        };
+        let base = match pbr.base_color_texture() {
+            Some(info) => textures
+                .texture(&info, factor, true, "base colour")
+                .unwrap_or(Texture::Constant(factor)),
+            None => Texture::Constant(factor),
+        };
+        if metal {
+            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+            let (eta, k) = (Rgb::ZERO, Rgb::ONE);
+            if roughness <= 0.0 {
+                Material::Conductor {
+                    eta,
+                    k,
+                    specular_reflectance: base,
+                }
+            } else {
+                Material::RoughConductor {
+                    distribution: MicrofacetKind::Ggx,
+                    alpha: (roughness * roughness).max(MIN_ALPHA),
+                    eta,
+                    k,
+                    specular_reflectance: base,
+                }
             }
         } else {
-            Material::RoughConductor {
-                distribution: MicrofacetKind::Ggx,
-                alpha: (roughness * roughness).max(MIN_ALPHA),
-                eta,
-                k,
-                specular_reflectance: base,
-            }
+            dielectric(base, roughness)
         }
-    } else {
-        dielectric(base, roughness)
     };
+    let emissive = m
+        .emissive_texture()
+        .and_then(|info| textures.texture(&info, Rgb::ONE, true, "emissive"));
     let material = if m.double_sided() {
         Material::TwoSided(Box::new(material))
     } else {
         material
     };
     let emission = emission(m, scene, path)?;
-    Ok((scene.add_material(material), emission))
+    let emissive = match (emission, emissive) {
+        (Some(_), Some(t)) => {
+            warn(
+                scene,
+                path,
+                format!(
+                    "material `{}`: kalos's area lights are uniform, so the emissive \
+                     texture is averaged over each primitive it covers",
+                    name_of(m)
+                ),
+            );
+            Some(t)
+        }
+        _ => None,
+    };
+    Ok((scene.add_material(material), emission, emissive))
+}
+
+/// A glTF material's scene index, its emitted radiance (`emissiveFactor`
+/// × strength) and its emissive texture.
+type MaterialEntry = (u32, Option<Rgb>, Option<Texture>);
+
+/// What reading one material's textures needs: the material (for
+/// warnings), the decoded images and their cache, and the scene.
+struct Textures<'a, 'm> {
+    m: &'a gltf::Material<'m>,
+    images: &'a [Option<gltf::image::Data>],
+    /// Each image as a linear texture, by image index, then 0 for linear
+    /// data and 1 for sRGB.
+    cache: &'a mut [[Option<Arc<TexImage>>; 2]],
+    scene: &'a mut Scene,
+    path: &'a Path,
+}
+
+impl Textures<'_, '_> {
+    /// The texture `info` names (its `what`, for warnings): the image
+    /// (decoded once, as sRGB when `srgb`, else as linear values) times
+    /// `factor`; `None`, with a warning, when the image's format is not
+    /// supported.
+    fn texture(
+        &mut self,
+        info: &gltf::texture::Info,
+        factor: Rgb,
+        srgb: bool,
+        what: &str,
+    ) -> Option<Texture> {
+        let i = info.texture().source().index();
+        if info.tex_coord() != 0 {
+            warn(
+                self.scene,
+                self.path,
+                format!("material `{}`: only uv set 0 is read", name_of(self.m)),
+            );
+        }
+        let slot = self.cache.get_mut(i).map(|c| &mut c[srgb as usize]);
+        let img = match slot {
+            Some(Some(img)) => Some(img.clone()),
+            slot => {
+                let img = self
+                    .images
+                    .get(i)
+                    .and_then(Option::as_ref)
+                    .and_then(|d| to_tex_image(d, srgb))
+                    .map(Arc::new);
+                if let (Some(img), Some(slot)) = (&img, slot) {
+                    *slot = Some(img.clone());
+                }
+                img
+            }
+        };
+        let Some(img) = img else {
+            warn(
+                self.scene,
+                self.path,
+                format!(
+                    "material `{}`: unsupported {what} texture format (ignored)",
+                    name_of(self.m)
+                ),
+            );
+            return None;
+        };
+        let img = if factor == Rgb::ONE {
+            img
+        } else {
+            Arc::new(img.map(|c| c * factor))
+        };
+        // glTF's uv (0, 0) is the image's top-left corner, as Mitsuba's;
+        // TexImage puts v = 0 at the bottom
+        Some(Texture::Bitmap {
+            image: img,
+            to_uv: glam::Affine2::from_mat2_translation(
+                glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
+                Vec2::new(0.0, 1.0),
+            ),
+        })
+    }
 }
 
 /// Relative index of refraction of glTF's dielectric: F0 = ((η − 1)/(η + 1))²
@@ -277,78 +408,30 @@ pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
 pub(crate) fn base_gain(roughness: f32) -> f32 {
     use crate::bsdf::{coat::CoatTable, fresnel::fresnel_diffuse_reflectance, microfacet};
     let eta = DIELECTRIC_IOR;
-    let (r_int, t_ext) = if roughness <= 0.0 {
-        (
+    if roughness <= 0.0 {
+        let (r_int, t_ext) = (
             fresnel_diffuse_reflectance(1.0 / eta),
             1.0 - fresnel_diffuse_reflectance(eta),
-        )
+        );
+        eta * eta * (1.0 - r_int) / t_ext
     } else {
         let alpha = (roughness * roughness).max(MIN_ALPHA);
-        let t = CoatTable::get(microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha), eta);
-        (t.internal_reflectance, t.external_diffuse_transmittance)
-    };
-    eta * eta * (1.0 - r_int) / t_ext
+        rough_coat_gain(CoatTable::get(
+            microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha),
+            eta,
+        ))
+    }
 }
 
-/// The base colour of a material with a `baseColorTexture`: the image
-/// (decoded once, through `textures`) times `factor`, or `factor` alone,
-/// with a warning, when the image's format is not supported.
-fn base_color_texture(
-    m: &gltf::Material,
-    info: &gltf::texture::Info,
-    factor: Rgb,
-    images: &[Option<gltf::image::Data>],
-    textures: &mut [Option<Arc<TexImage>>],
-    scene: &mut Scene,
-    path: &Path,
-) -> Texture {
-    let i = info.texture().source().index();
-    if info.tex_coord() != 0 {
-        warn(
-            scene,
-            path,
-            format!("material `{}`: only uv set 0 is read", name_of(m)),
-        );
-    }
-    let img = match textures.get(i).cloned().flatten() {
-        Some(img) => Some(img),
-        None => {
-            let img = images
-                .get(i)
-                .and_then(Option::as_ref)
-                .and_then(to_tex_image)
-                .map(Arc::new);
-            if let (Some(img), Some(slot)) = (&img, textures.get_mut(i)) {
-                *slot = Some(img.clone());
-            }
-            img
-        }
-    };
-    match img {
-        Some(img) => {
-            let img = if factor == Rgb::ONE {
-                img
-            } else {
-                Arc::new(img.map(|c| c * factor))
-            };
-            // glTF's uv (0, 0) is the image's top-left corner, as
-            // Mitsuba's; TexImage puts v = 0 at the bottom
-            Texture::Bitmap {
-                image: img,
-                to_uv: glam::Affine2::from_mat2_translation(
-                    glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
-                    Vec2::new(0.0, 1.0),
-                ),
-            }
-        }
-        None => {
-            warn(
-                scene,
-                path,
-                format!("material `{}`: unsupported texture format", name_of(m)),
-            );
-            Texture::Constant(factor)
-        }
+/// [`base_gain`] of the rough coat whose tables are `t` (index
+/// [`DIELECTRIC_IOR`]): η² (1 − R_int) / T̄.
+pub(crate) fn rough_coat_gain(t: &crate::bsdf::coat::CoatTable) -> f32 {
+    let eta = DIELECTRIC_IOR;
+    let t_ext = t.external_diffuse_transmittance;
+    if t_ext > 0.0 {
+        eta * eta * (1.0 - t.internal_reflectance) / t_ext
+    } else {
+        1.0
     }
 }
 
@@ -410,7 +493,7 @@ struct Walk<'a> {
     root: &'a gltf::json::Root,
     buffers: &'a [gltf::buffer::Data],
     /// Each glTF material's index in the scene, and its emission.
-    mats: &'a [(u32, Option<Rgb>)],
+    mats: &'a [MaterialEntry],
     /// The white diffuse material of primitives without one, once added.
     default_mat: Option<u32>,
     scene: Scene,
@@ -522,7 +605,11 @@ impl Walk<'_> {
             m.reverse_winding();
         }
         let (material, emission) = match prim.material().index().and_then(|i| self.mats.get(i)) {
-            Some(&(mat, e)) => (mat, e),
+            Some((mat, Some(e), Some(tex))) => {
+                let mean = surface_mean(tex, &m.positions, m.uvs.as_deref(), &m.indices);
+                (*mat, Some(*e * mean).filter(|e| e.max_element() > 0.0))
+            }
+            Some(&(mat, e, _)) => (mat, e),
             None => {
                 let d = *self.default_mat.get_or_insert_with(|| {
                     scene.add_material(Material::Diffuse {
@@ -600,6 +687,46 @@ fn kept_triangles(kept: &[[u32; 3]], all: &[[u32; 3]], base: u32) -> Vec<u32> {
     out
 }
 
+/// The area-weighted mean of texture `tex` over a mesh (world-space
+/// `positions`, `uvs` or uv (0, 0) throughout, triangles `indices`): on
+/// each triangle the mean of its centroid and three points halfway from
+/// it to the corners, weighted by the triangle's area. The mean of the
+/// texels when the mesh has no area.
+fn surface_mean(
+    tex: &Texture,
+    positions: &[Vec3],
+    uvs: Option<&[Vec2]>,
+    indices: &[[u32; 3]],
+) -> Rgb {
+    let uv = |i: u32| {
+        uvs.and_then(|t| t.get(i as usize))
+            .copied()
+            .unwrap_or(Vec2::ZERO)
+    };
+    let (mut sum, mut area) = (Rgb::ZERO, 0.0f64);
+    for t in indices {
+        let p = t.map(|i| positions.get(i as usize).copied().unwrap_or(Vec3::ZERO));
+        let a = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+        if !(a > 0.0 && a.is_finite()) {
+            continue;
+        }
+        let [u0, u1, u2] = t.map(uv);
+        let c = (u0 + u1 + u2) / 3.0;
+        let m = (tex.eval(c)
+            + tex.eval((c + u0) * 0.5)
+            + tex.eval((c + u1) * 0.5)
+            + tex.eval((c + u2) * 0.5))
+            * 0.25;
+        sum += m * a;
+        area += a as f64;
+    }
+    if area > 0.0 {
+        sum / area as f32
+    } else {
+        tex.mean()
+    }
+}
+
 /// A perspective glTF camera placed by `world`, as kalos's camera (`None`
 /// for an orthographic camera, or one kalos cannot build).
 fn camera(cam: &gltf::Camera, world: Mat4) -> Option<CameraDesc> {
@@ -619,9 +746,11 @@ fn name_of(m: &gltf::Material) -> String {
     m.name().unwrap_or("(unnamed)").to_string()
 }
 
-/// A decoded glTF image as linear RGB: 8- and 16-bit data are sRGB-encoded
-/// (base colour textures are, by the specification), float data linear.
-fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
+/// A decoded glTF image as linear RGB: 8- and 16-bit data are decoded
+/// from sRGB when `srgb` (base colour and emissive textures are sRGB by
+/// the specification, metallic–roughness ones linear), float data are
+/// linear.
+fn to_tex_image(d: &gltf::image::Data, srgb: bool) -> Option<TexImage> {
     use gltf::image::Format as F;
     let (channels, bytes, float) = match d.format {
         F::R8 => (1, 1, false),
@@ -648,7 +777,7 @@ fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
         }
     };
     let decode = |c: f32| {
-        if float {
+        if float || !srgb {
             c
         } else if c <= 0.04045 {
             c / 12.92
