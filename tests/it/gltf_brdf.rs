@@ -395,3 +395,63 @@ fn emissive_textures_multiply_the_emission() {
         .expect("an area light");
     assert!((e.x - 0.5).abs() < 0.1 && e.x == e.y && e.y == e.z, "{e}");
 }
+
+/// `KHR_texture_transform` maps the uvs before the lookup: scale, rotation
+/// (counter-clockwise in glTF's uv space) and offset, as the extension's
+/// `translation * rotation * scale`. The extension's own example (offset
+/// (0, 1), a quarter turn, scale ½) shows the lower-left quadrant of the
+/// image, rotated: the square's uv (½, ½) lands on the centre of the
+/// bottom-left texel of a 2 × 2 image and (½, 3/2) on the bottom-right
+/// one; an offset of (½, 0) moves the top-left texel's centre to the
+/// top-right one's.
+#[test]
+fn texture_transforms_map_the_uvs() {
+    let d = tmp();
+    let (red, green, blue, white) = (
+        Rgb::new(1.0, 0.0, 0.0),
+        Rgb::new(0.0, 1.0, 0.0),
+        Rgb::new(0.0, 0.0, 1.0),
+        Rgb::ONE,
+    );
+    let tex = png_uri(
+        2,
+        2,
+        &[[255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 255]],
+    );
+    let with = |name: &str, transform: &str| {
+        let mats = format!(
+            r#"[{{"pbrMetallicRoughness":{{"metallicFactor":1,"roughnessFactor":0.5,
+                "baseColorTexture":{{"index":0{transform}}}}}}}]"#
+        );
+        let rest = format!(
+            r#","extensionsUsed":["KHR_texture_transform"],
+            "textures":[{{"source":0}}],"images":[{{"uri":"{tex}"}}]"#
+        );
+        let s = load(&square(d.path(), name, 1.0, &mats, &rest));
+        s.materials[0].base_texture().clone()
+    };
+    let at = |t: &Texture, u: f32, v: f32, want: Rgb| {
+        let c = t.eval(Vec2::new(u, v));
+        assert!(
+            (c - want).abs().max_element() < 1e-3,
+            "uv ({u}, {v}): {c}, expected {want}"
+        );
+    };
+    let plain = with("plain", "");
+    at(&plain, 0.25, 0.25, red);
+    at(&plain, 0.75, 0.25, green);
+    at(&plain, 0.25, 0.75, blue);
+    let example = with(
+        "example",
+        r#","extensions":{"KHR_texture_transform":
+            {"offset":[0,1],"rotation":1.57079632679,"scale":[0.5,0.5]}}"#,
+    );
+    at(&example, 0.5, 0.5, blue);
+    at(&example, 0.5, 1.5, white);
+    let offset = with(
+        "offset",
+        r#","extensions":{"KHR_texture_transform":{"offset":[0.5,0]}}"#,
+    );
+    at(&offset, 0.25, 0.25, green);
+    at(&offset, 0.25, 0.75, white);
+}

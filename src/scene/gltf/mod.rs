@@ -52,6 +52,10 @@
 //!   least 10⁻³, so a smooth texel is a very sharp GGX lobe rather than a
 //!   mirror); the dielectric's coat tables (and so its base's gain) are
 //!   taken at the roughness rounded to 1/32, its D and G at the exact α;
+//! - `KHR_texture_transform` on the textures read (base colour,
+//!   metallic–roughness, emissive): scale, rotation and offset, applied to
+//!   the uvs before the lookup, as the extension's matrix; its `texCoord`
+//!   overrides the texture's;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
@@ -70,8 +74,8 @@
 //!   synthesised, with a warning.
 //!
 //! Skipped with a warning: non-triangle primitives, and texture coordinate
-//! sets other than the first. Ignored: texture transforms, samplers (every
-//! texture wraps and is filtered bilinearly), normal and occlusion textures.
+//! sets other than the first. Ignored: samplers (every texture wraps and
+//! is filtered bilinearly), normal and occlusion textures.
 //!
 //! Refused before anything is allocated: GLB lengths beyond the file, node
 //! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
@@ -283,6 +287,21 @@ fn material(
     Ok((scene.add_material(material), emission, emissive))
 }
 
+/// `KHR_texture_transform`'s map of glTF uvs: scale, then rotate by
+/// `rotation` radians (u' = u cos r + v sin r, v' = −u sin r + v cos r:
+/// counter-clockwise in glTF's uv space, whose v points down), then
+/// offset, as the extension's `translation * rotation * scale`. Non-finite
+/// values leave the uvs as they are.
+fn texture_transform(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> glam::Affine2 {
+    let (o, s) = (Vec2::from(offset), Vec2::from(scale));
+    if !(o.is_finite() && s.is_finite() && rotation.is_finite()) {
+        return glam::Affine2::IDENTITY;
+    }
+    let (sin, cos) = rotation.sin_cos();
+    let r = glam::Mat2::from_cols(Vec2::new(cos, -sin), Vec2::new(sin, cos));
+    glam::Affine2::from_mat2_translation(r * glam::Mat2::from_diagonal(s), o)
+}
+
 /// A glTF material's scene index, its emitted radiance (`emissiveFactor`
 /// × strength) and its emissive texture.
 type MaterialEntry = (u32, Option<Rgb>, Option<Texture>);
@@ -312,7 +331,12 @@ impl Textures<'_, '_> {
         what: &str,
     ) -> Option<Texture> {
         let i = info.texture().source().index();
-        if info.tex_coord() != 0 {
+        let transform = info.texture_transform();
+        let tex_coord = transform
+            .as_ref()
+            .and_then(|t| t.tex_coord())
+            .unwrap_or(info.tex_coord());
+        if tex_coord != 0 {
             warn(
                 self.scene,
                 self.path,
@@ -353,13 +377,15 @@ impl Textures<'_, '_> {
         };
         // glTF's uv (0, 0) is the image's top-left corner, as Mitsuba's;
         // TexImage puts v = 0 at the bottom
-        Some(Texture::Bitmap {
-            image: img,
-            to_uv: glam::Affine2::from_mat2_translation(
-                glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
-                Vec2::new(0.0, 1.0),
-            ),
-        })
+        let flip = glam::Affine2::from_mat2_translation(
+            glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
+            Vec2::new(0.0, 1.0),
+        );
+        let to_uv = match transform {
+            Some(t) => flip * texture_transform(t.offset(), t.rotation(), t.scale()),
+            None => flip,
+        };
+        Some(Texture::Bitmap { image: img, to_uv })
     }
 }
 
