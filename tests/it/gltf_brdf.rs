@@ -343,6 +343,22 @@ fn metallic_roughness_textures_are_read_per_texel() {
         }
         b => panic!("the right texel is a dielectric: {b:?}"),
     }
+    // without a base colour texture, the base colour factor is a one-texel
+    // bitmap: the diffuse part varies over the surface all the same
+    let flat = r#"[{"pbrMetallicRoughness":{"baseColorFactor":[0.5,0.25,0.125,1],
+        "metallicRoughnessTexture":{"index":0}}}]"#;
+    let rest = format!(r#","textures":[{{"source":0}}],"images":[{{"uri":"{mr}"}}]"#);
+    let s = load(&square(d.path(), "flat", 1.0, flat, &rest));
+    match s.materials[0].diffuse_texture() {
+        Some(t @ Texture::Bitmap { .. }) => {
+            assert_eq!(t.eval(right), Rgb::new(0.5, 0.25, 0.125));
+        }
+        t => panic!("{t:?}"),
+    }
+    assert!(matches!(
+        s.materials[0].bsdf(left),
+        Bsdf::RoughConductor { .. }
+    ));
     // the same file with the factors alone (no texture) is one metal
     let plain = r#"[{"pbrMetallicRoughness":{"metallicFactor":1,"roughnessFactor":0.5}}]"#;
     let s = load(&square(d.path(), "plain", 1.0, plain, ""));

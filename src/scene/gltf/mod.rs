@@ -211,12 +211,19 @@ fn material(
         .metallic_roughness_texture()
         .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
     let material = if let Some(mr) = mr {
-        // metalness and roughness per texel
+        // metalness and roughness per texel. A constant base colour is a
+        // one-texel bitmap: the diffuse part varies over the surface with
+        // the texels' metalness and roughness, and a bitmap says so to
+        // those who ask whether it does (the density method's surfaces)
+        let constant = || Texture::Bitmap {
+            image: Arc::new(TexImage::new(1, 1, vec![factor])),
+            to_uv: glam::Affine2::IDENTITY,
+        };
         let base_color = match pbr.base_color_texture() {
             Some(info) => textures
                 .texture(&info, factor, true, "base colour")
-                .unwrap_or(Texture::Constant(factor)),
-            None => Texture::Constant(factor),
+                .unwrap_or_else(constant),
+            None => constant(),
         };
         Material::MetallicRoughness(Box::new(MetallicRoughness {
             base_color,
