@@ -8,7 +8,10 @@ use super::coat::CoatTable;
 use super::fresnel::fresnel_diffuse_reflectance;
 use super::microfacet::Microfacet;
 use super::Bsdf;
+use crate::scene::gltf::{rough_coat_gain, DIELECTRIC_IOR, MIN_ALPHA};
+use crate::scene::material::MetallicRoughness;
 use crate::scene::{Material, Texture};
+use crate::scene::{MicrofacetKind, Rgb};
 
 /// A cheap mean of a texture for lobe-selection weights: the texture's mean
 /// where that costs nothing (constants, checkerboards, as Mitsuba's
@@ -30,6 +33,55 @@ fn coat_sampling_weight(diffuse: &Texture, specular: &Texture, uv: Vec2) -> f32 
         s / (d + s)
     } else {
         0.5
+    }
+}
+
+/// Steps of the roughness at which [`MetallicRoughness`] takes its coat
+/// tables: at most 33 tables (tens of milliseconds each, computed once).
+const ROUGHNESS_STEPS: f32 = 32.0;
+
+impl MetallicRoughness {
+    /// The texel at `uv`: metalness m = `metallic` × blue and roughness r =
+    /// `roughness` × green of the texture; a GGX conductor tinted by the
+    /// base colour where m ≥ 0.5, else the glTF dielectric of
+    /// [`crate::scene::gltf`] (a GGX coat of index 1.5 over the base colour
+    /// times its gain), both with α = r² (at least `MIN_ALPHA`). The
+    /// dielectric's coat tables are taken at r rounded to 1/32 (its D and G
+    /// use the exact α): t(μ) and R_int vary slowly with α.
+    #[inline]
+    pub fn bsdf(&self, uv: Vec2) -> Bsdf {
+        let mr = self.metallic_roughness.eval(uv);
+        let metal = self.metallic * mr.z;
+        let r = (self.roughness * mr.y).clamp(0.0, 1.0);
+        let r = if r.is_nan() { 1.0 } else { r };
+        let base = self.base_color.eval(uv);
+        let dist = Microfacet::new(MicrofacetKind::Ggx, (r * r).max(MIN_ALPHA));
+        if metal >= 0.5 {
+            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+            return Bsdf::RoughConductor {
+                dist,
+                eta: Rgb::ZERO,
+                k: Rgb::ONE,
+                s: base,
+            };
+        }
+        let rq = (r * ROUGHNESS_STEPS).round() / ROUGHNESS_STEPS;
+        let table = CoatTable::get(
+            Microfacet::new(MicrofacetKind::Ggx, (rq * rq).max(MIN_ALPHA)),
+            DIELECTRIC_IOR,
+        );
+        let rho = base * rough_coat_gain(table);
+        let d = ((rho.x + rho.y + rho.z) / 3.0).max(0.0);
+        Bsdf::RoughPlastic {
+            rho,
+            s: Rgb::ONE,
+            dist,
+            eta: DIELECTRIC_IOR,
+            nonlinear: false,
+            // as coat_sampling_weight, with a white coat
+            spec_weight: 1.0 / (d + 1.0),
+            table,
+        }
     }
 }
 
@@ -148,6 +200,7 @@ impl Material {
                 t: specular_transmittance.eval(uv),
             },
             Material::TwoSided(inner) => inner.bsdf(uv),
+            Material::MetallicRoughness(p) => p.bsdf(uv),
         }
     }
 
@@ -183,6 +236,8 @@ impl Material {
                 diffuse_reflectance,
                 ..
             } => Some(diffuse_reflectance),
+            // the dielectric texels' base (the metal ones have none)
+            Material::MetallicRoughness(p) => Some(&p.base_color),
             _ => None,
         }
     }
@@ -221,6 +276,7 @@ impl Material {
                 diffuse_reflectance,
                 ..
             } => diffuse_reflectance,
+            Material::MetallicRoughness(p) => &p.base_color,
             // not reached: base() has taken the wrappers off
             Material::TwoSided(inner) => inner.base_texture(),
         }

@@ -429,6 +429,29 @@ pub enum Material {
     },
     /// `twosided`: the inner material seen from both sides.
     TwoSided(Box<Material>),
+    /// glTF's metallic–roughness material with a `metallicRoughnessTexture`,
+    /// resolved per texel into the metal or the dielectric of
+    /// [`crate::scene::gltf`]'s mapping (no scene-file form: the glTF
+    /// reader makes it).
+    MetallicRoughness(Box<MetallicRoughness>),
+}
+
+/// The parameters of [`Material::MetallicRoughness`], as glTF names them.
+/// At a texel, metalness = `metallic` × the texture's blue channel and
+/// roughness = `roughness` × its green one (linear values, as the glTF
+/// specification stores them); the texel is a metal where the metalness
+/// is at least 0.5, a dielectric elsewhere.
+#[derive(Clone, Debug)]
+pub struct MetallicRoughness {
+    /// `baseColorFactor` × `baseColorTexture` (linear).
+    pub base_color: Texture,
+    /// `metallicFactor`.
+    pub metallic: f32,
+    /// `roughnessFactor`.
+    pub roughness: f32,
+    /// `metallicRoughnessTexture`, linear (blue: metalness, green:
+    /// roughness).
+    pub metallic_roughness: Texture,
 }
 
 #[cfg(test)]

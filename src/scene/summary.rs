@@ -21,6 +21,7 @@ fn material_name(m: &Material) -> String {
         M::Dielectric { .. } => "dielectric".into(),
         M::ThinDielectric { .. } => "thindielectric".into(),
         M::TwoSided(inner) => format!("twosided({})", material_name(inner)),
+        M::MetallicRoughness(_) => "gltf metallic-roughness (per texel)".into(),
     }
 }
 

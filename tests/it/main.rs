@@ -29,6 +29,7 @@ mod fuzz;
 mod fuzz_found;
 mod geometry;
 mod glb;
+mod gltf_brdf;
 mod image_io;
 mod lightmap;
 mod lightmap_gather;

@@ -138,11 +138,9 @@ fn base64(bytes: &[u8]) -> String {
 
 /// The texels of the scene's first material's base colour texture.
 fn texels(s: &Scene) -> Vec<glam::Vec3> {
-    match &s.materials[0] {
-        Material::Diffuse {
-            reflectance: Texture::Bitmap { image, .. },
-        } => image.pixels().collect(),
-        m => panic!("not a textured diffuse material: {m:?}"),
+    match s.materials[0].diffuse_texture() {
+        Some(Texture::Bitmap { image, .. }) => image.pixels().collect(),
+        _ => panic!("not a textured material: {:?}", s.materials[0]),
     }
 }
 

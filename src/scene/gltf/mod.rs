@@ -9,14 +9,61 @@
 //!   as the glTF specification says), normals and the first uv set; the
 //!   second uv set is kept in [`Scene::uv1`], and each shape records the
 //!   node, mesh and primitive it came from ([`super::ShapeSource`]);
-//! - `baseColorFactor` × `baseColorTexture` (sRGB) → `diffuse` for
-//!   non-metals (`metallicFactor` < 0.5); metals become a mirror-Fresnel
-//!   `conductor` (roughness 0) or a GGX `roughconductor` with α = roughness²
-//!   tinted by the base colour (glTF's F0 of a metal);
+//! - `baseColorFactor` × `baseColorTexture` (sRGB) is the base colour.
+//!   glTF mixes a metal and a dielectric BRDF by `metallic`; kalos takes one
+//!   of the two, the metal where `metallicFactor` ≥ 0.5. Metals become a
+//!   mirror-Fresnel `conductor` (roughness 0) or a GGX `roughconductor`
+//!   with α = roughness² tinted by the base colour (glTF's F0 of a metal).
+//!   Dielectrics become Mitsuba's `roughplastic` (`plastic` at roughness 0):
+//!   a GGX coat with α = roughness² (at least 10⁻³, as the metals) and
+//!   η = 1.5 over a Lambertian base of the base colour, `nonlinear` off.
+//!   η = 1.5 is glTF's F0 = ((η − 1)/(η + 1))² = 0.04 exactly. How this
+//!   departs from the specification's `fresnel_mix(ior = 1.5, base =
+//!   diffuse_brdf, layer = specular_brdf(α))` (Appendix B), which is
+//!   (1 − F(v·h)) c/π + F(v·h) D V with Schlick's F:
+//!   - the coat's Fresnel is the exact dielectric one for η = 1.5, not
+//!     Schlick's: equal at normal incidence (0.04), they part most near
+//!     85° (0.57 against Schlick's 0.61 at cos θ = 0.1; 0.036 at most);
+//!   - D and G are the same (GGX, the separable Smith G);
+//!   - the base is Mitsuba's: ρ/(π η² (1 − R_int)) t(cos θo) t(cos θi),
+//!     with t the coat's tabulated transmittance and R_int its internal
+//!     diffuse reflectance (`bsdf::coat`), where glTF weights c/π by
+//!     1 − F(v·h). Mitsuba's rough coat is single-scattering: it drops the
+//!     light the rough interface sends back inside and shadows, so a white
+//!     base under a GGX coat of α = 0.25 reflects 0.74 at normal incidence
+//!     where glTF's reflects about 0.96. kalos therefore scales the base
+//!     colour c by η² (1 − R_int)/T̄ (T̄ the coat's diffuse transmittance
+//!     from outside; [`base_gain`]), so that ρ = c × that factor, which may
+//!     exceed 1, and the diffuse reflectance of the coated base (its
+//!     cosine-weighted mean over exit directions) is c, as glTF's c/π
+//!     nearly is, and a white base reflects about 1 near the normal.
+//!     Both lose what the rough coat shadows at grazing angles. The factor
+//!     is 1.00 for the smooth coat, 1.36 at α = 0.25; `nonlinear` is off,
+//!     so the hue is the base colour's, as glTF's c/π keeps it.
+//!
+//!   Mapping onto `roughplastic` keeps the Mitsuba model's sampling, its
+//!   chi-square and furnace tests, and its diffuse part
+//!   ([`crate::bsdf::Bsdf::diffuse_part`]), which the density method and
+//!   the lightmap bake store;
+//! - a `metallicRoughnessTexture` (linear: blue the metalness, green the
+//!   roughness, times their factors) is read per texel, at each hit
+//!   ([`super::material::MetallicRoughness`]): a texel is the metal or the
+//!   dielectric above by the same 0.5 threshold, with α = roughness² (at
+//!   least 10⁻³, so a smooth texel is a very sharp GGX lobe rather than a
+//!   mirror); the dielectric's coat tables (and so its base's gain) are
+//!   taken at the roughness rounded to 1/32, its D and G at the exact α;
+//! - `KHR_texture_transform` on the textures read (base colour,
+//!   metallic–roughness, emissive): scale, rotation and offset, applied to
+//!   the uvs before the lookup, as the extension's matrix; its `texCoord`
+//!   overrides the texture's;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
-//!   read as W/(m²·sr), with a warning); negative emission is an error;
+//!   read as W/(m²·sr), with a warning); negative emission is an error.
+//!   An `emissiveTexture` (sRGB) multiplies it; kalos's area lights are
+//!   uniform over their shape, so the texture is averaged over each
+//!   primitive (area-weighted, four lookups per triangle), with a warning:
+//!   the primitive's power is right, its pattern is lost;
 //! - `KHR_lights_punctual` point, spot and directional lights on nodes,
 //!   placed by the node's world transform, their candela and lux divided
 //!   by 683 lm/W into W/sr and W/m² (Blender's exporter's convention;
@@ -26,8 +73,9 @@
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
 //!   synthesised, with a warning.
 //!
-//! Skipped with a warning: non-triangle primitives, emissive and
-//! metallic-roughness textures, and texture transforms.
+//! Skipped with a warning: non-triangle primitives, and texture coordinate
+//! sets other than the first. Ignored: samplers (every texture wraps and
+//! is filtered bilinearly), normal and occlusion textures.
 //!
 //! Refused before anything is allocated: GLB lengths beyond the file, node
 //! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
@@ -38,10 +86,10 @@
 //! [`FileAccess`], not by the `gltf` crate: a URI is a `data:` URI (decoded
 //! in memory), or a relative path (percent-decoded, against the file's
 //! folder) or a `file:` URI, read only if the access allows it. Every file the glTF names is checked before any is
-//! read; the memory of its instanced meshes, its buffers and its base
-//! colour images (their sizes from the image headers) is declared
+//! read; the memory of its instanced meshes, its buffers and the images its
+//! materials read (their sizes from the image headers) is declared
 //! ([`FileAccess::reserve`]) before it is allocated. Images that no
-//! material uses as its base colour are checked, not read.
+//! material reads are checked, not read.
 
 use crate::scene::access::{FileAccess, FileKind};
 use std::path::{Path, PathBuf};
@@ -49,6 +97,7 @@ use std::sync::Arc;
 
 use glam::{Mat3, Mat4, Vec2, Vec3};
 
+use super::material::MetallicRoughness;
 use super::shapes::MeshData;
 use super::{
     CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, ShapeSource, TexImage, Texture,
@@ -75,7 +124,7 @@ pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> 
 
     // Materials, each with its emission
     let mut mats = Vec::new();
-    let mut textures: Vec<Option<Arc<TexImage>>> = vec![None; images.len()];
+    let mut textures: Vec<[Option<Arc<TexImage>>; 2]> = vec![[None, None]; images.len()];
     for m in doc.materials() {
         mats.push(material(&m, &images, &mut textures, &mut scene, path)?);
     }
@@ -120,16 +169,17 @@ fn warn(scene: &mut Scene, path: &Path, msg: String) {
 }
 
 /// Adds one glTF material to the scene (see the module doc for the
-/// mapping) and returns its index with its emitted radiance, if any.
-/// `textures` caches the decoded images, by image index (`images` holds
-/// those used as a base colour).
+/// mapping) and returns its index with its emission: the emitted radiance,
+/// if any, and the emissive texture it is multiplied by, if any.
+/// `textures` caches the decoded images, by image index and encoding
+/// (`images` holds those a material reads).
 fn material(
     m: &gltf::Material,
     images: &[Option<gltf::image::Data>],
-    textures: &mut [Option<Arc<TexImage>>],
+    textures: &mut [[Option<Arc<TexImage>>; 2]],
     scene: &mut Scene,
     path: &Path,
-) -> Result<(u32, Option<Rgb>), SceneError> {
+) -> Result<MaterialEntry, SceneError> {
     let pbr = m.pbr_metallic_roughness();
     let f = pbr.base_color_factor();
     let factor = Rgb::new(f[0], f[1], f[2]);
@@ -147,110 +197,274 @@ fn material(
             ),
         ));
     }
-    let base = match pbr.base_color_texture() {
-        Some(info) => base_color_texture(m, &info, factor, images, textures, scene, path),
-        None => Texture::Constant(factor),
+    let mut textures = Textures {
+        m,
+        images,
+        cache: textures,
+        scene,
+        path,
     };
-    if pbr.metallic_roughness_texture().is_some() || m.emissive_texture().is_some() {
-        warn(
-            scene,
-            path,
-            format!(
-                "material `{}`: metallic-roughness and emissive textures are ignored",
-                name_of(m)
-            ),
-        );
-    }
     let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
-    let material = if pbr.metallic_factor() >= 0.5 {
-        // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
-        let (eta, k) = (Rgb::ZERO, Rgb::ONE);
-        if roughness <= 0.0 {
-            Material::Conductor {
-                eta,
-                k,
-                specular_reflectance: base,
+    let metallic = pbr.metallic_factor();
+    let metal = metallic >= 0.5;
+    let mr = pbr
+        .metallic_roughness_texture()
+        .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
+    let material = if let Some(mr) = mr {
+        // metalness and roughness per texel. A constant base colour is a
+        // one-texel bitmap: the diffuse part varies over the surface with
+        // the texels' metalness and roughness, and a bitmap says so to
+        // those who ask whether it does (the density method's surfaces)
+        let constant = || Texture::Bitmap {
+            image: Arc::new(TexImage::new(1, 1, vec![factor])),
+            to_uv: glam::Affine2::IDENTITY,
+        };
+        let base_color = match pbr.base_color_texture() {
+            Some(info) => textures
+                .texture(&info, factor, true, "base colour")
+                .unwrap_or_else(constant),
+            None => constant(),
+        };
+        Material::MetallicRoughness(Box::new(MetallicRoughness {
+            base_color,
+            metallic: if metallic.is_finite() { metallic } else { 0.0 },
+            roughness,
+            metallic_roughness: mr,
+        }))
+    } else {
+        // a dielectric's base is scaled so that its diffuse reflectance
+        // under the coat is the base colour (see the module doc)
+        let factor = if metal {
+            factor
+        } else {
+            factor * base_gain(roughness)
+        };
+        let base = match pbr.base_color_texture() {
+            Some(info) => textures
+                .texture(&info, factor, true, "base colour")
+                .unwrap_or(Texture::Constant(factor)),
+            None => Texture::Constant(factor),
+        };
+        if metal {
+            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+            let (eta, k) = (Rgb::ZERO, Rgb::ONE);
+            if roughness <= 0.0 {
+                Material::Conductor {
+                    eta,
+                    k,
+                    specular_reflectance: base,
+                }
+            } else {
+                Material::RoughConductor {
+                    distribution: MicrofacetKind::Ggx,
+                    alpha: (roughness * roughness).max(MIN_ALPHA),
+                    eta,
+                    k,
+                    specular_reflectance: base,
+                }
             }
         } else {
-            Material::RoughConductor {
-                distribution: MicrofacetKind::Ggx,
-                alpha: (roughness * roughness).max(1e-3),
-                eta,
-                k,
-                specular_reflectance: base,
-            }
+            dielectric(base, roughness)
         }
-    } else {
-        Material::Diffuse { reflectance: base }
     };
+    let emissive = m
+        .emissive_texture()
+        .and_then(|info| textures.texture(&info, Rgb::ONE, true, "emissive"));
     let material = if m.double_sided() {
         Material::TwoSided(Box::new(material))
     } else {
         material
     };
     let emission = emission(m, scene, path)?;
-    Ok((scene.add_material(material), emission))
-}
-
-/// The base colour of a material with a `baseColorTexture`: the image
-/// (decoded once, through `textures`) times `factor`, or `factor` alone,
-/// with a warning, when the image's format is not supported.
-fn base_color_texture(
-    m: &gltf::Material,
-    info: &gltf::texture::Info,
-    factor: Rgb,
-    images: &[Option<gltf::image::Data>],
-    textures: &mut [Option<Arc<TexImage>>],
-    scene: &mut Scene,
-    path: &Path,
-) -> Texture {
-    let i = info.texture().source().index();
-    if info.tex_coord() != 0 {
-        warn(
-            scene,
-            path,
-            format!("material `{}`: only uv set 0 is read", name_of(m)),
-        );
-    }
-    let img = match textures.get(i).cloned().flatten() {
-        Some(img) => Some(img),
-        None => {
-            let img = images
-                .get(i)
-                .and_then(Option::as_ref)
-                .and_then(to_tex_image)
-                .map(Arc::new);
-            if let (Some(img), Some(slot)) = (&img, textures.get_mut(i)) {
-                *slot = Some(img.clone());
-            }
-            img
-        }
-    };
-    match img {
-        Some(img) => {
-            let img = if factor == Rgb::ONE {
-                img
-            } else {
-                Arc::new(img.map(|c| c * factor))
-            };
-            // glTF's uv (0, 0) is the image's top-left corner, as
-            // Mitsuba's; TexImage puts v = 0 at the bottom
-            Texture::Bitmap {
-                image: img,
-                to_uv: glam::Affine2::from_mat2_translation(
-                    glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
-                    Vec2::new(0.0, 1.0),
-                ),
-            }
-        }
-        None => {
+    let emissive = match (emission, emissive) {
+        (Some(_), Some(t)) => {
             warn(
                 scene,
                 path,
-                format!("material `{}`: unsupported texture format", name_of(m)),
+                format!(
+                    "material `{}`: kalos's area lights are uniform, so the emissive \
+                     texture is averaged over each primitive it covers",
+                    name_of(m)
+                ),
             );
-            Texture::Constant(factor)
+            Some(t)
         }
+        _ => None,
+    };
+    Ok((scene.add_material(material), emission, emissive))
+}
+
+/// `KHR_texture_transform`'s map of glTF uvs: scale, then rotate by
+/// `rotation` radians (u' = u cos r + v sin r, v' = −u sin r + v cos r:
+/// counter-clockwise in glTF's uv space, whose v points down), then
+/// offset, as the extension's `translation * rotation * scale`. Non-finite
+/// values leave the uvs as they are.
+fn texture_transform(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> glam::Affine2 {
+    let (o, s) = (Vec2::from(offset), Vec2::from(scale));
+    if !(o.is_finite() && s.is_finite() && rotation.is_finite()) {
+        return glam::Affine2::IDENTITY;
+    }
+    let (sin, cos) = rotation.sin_cos();
+    let r = glam::Mat2::from_cols(Vec2::new(cos, -sin), Vec2::new(sin, cos));
+    glam::Affine2::from_mat2_translation(r * glam::Mat2::from_diagonal(s), o)
+}
+
+/// A glTF material's scene index, its emitted radiance (`emissiveFactor`
+/// × strength) and its emissive texture.
+type MaterialEntry = (u32, Option<Rgb>, Option<Texture>);
+
+/// What reading one material's textures needs: the material (for
+/// warnings), the decoded images and their cache, and the scene.
+struct Textures<'a, 'm> {
+    m: &'a gltf::Material<'m>,
+    images: &'a [Option<gltf::image::Data>],
+    /// Each image as a linear texture, by image index, then 0 for linear
+    /// data and 1 for sRGB.
+    cache: &'a mut [[Option<Arc<TexImage>>; 2]],
+    scene: &'a mut Scene,
+    path: &'a Path,
+}
+
+impl Textures<'_, '_> {
+    /// The texture `info` names (its `what`, for warnings): the image
+    /// (decoded once, as sRGB when `srgb`, else as linear values) times
+    /// `factor`; `None`, with a warning, when the image's format is not
+    /// supported.
+    fn texture(
+        &mut self,
+        info: &gltf::texture::Info,
+        factor: Rgb,
+        srgb: bool,
+        what: &str,
+    ) -> Option<Texture> {
+        let i = info.texture().source().index();
+        let transform = info.texture_transform();
+        let tex_coord = transform
+            .as_ref()
+            .and_then(|t| t.tex_coord())
+            .unwrap_or(info.tex_coord());
+        if tex_coord != 0 {
+            warn(
+                self.scene,
+                self.path,
+                format!("material `{}`: only uv set 0 is read", name_of(self.m)),
+            );
+        }
+        let slot = self.cache.get_mut(i).map(|c| &mut c[srgb as usize]);
+        let img = match slot {
+            Some(Some(img)) => Some(img.clone()),
+            slot => {
+                let img = self
+                    .images
+                    .get(i)
+                    .and_then(Option::as_ref)
+                    .and_then(|d| to_tex_image(d, srgb))
+                    .map(Arc::new);
+                if let (Some(img), Some(slot)) = (&img, slot) {
+                    *slot = Some(img.clone());
+                }
+                img
+            }
+        };
+        let Some(img) = img else {
+            warn(
+                self.scene,
+                self.path,
+                format!(
+                    "material `{}`: unsupported {what} texture format (ignored)",
+                    name_of(self.m)
+                ),
+            );
+            return None;
+        };
+        let img = if factor == Rgb::ONE {
+            img
+        } else {
+            Arc::new(img.map(|c| c * factor))
+        };
+        // glTF's uv (0, 0) is the image's top-left corner, as Mitsuba's;
+        // TexImage puts v = 0 at the bottom
+        let flip = glam::Affine2::from_mat2_translation(
+            glam::Mat2::from_diagonal(Vec2::new(1.0, -1.0)),
+            Vec2::new(0.0, 1.0),
+        );
+        let to_uv = match transform {
+            Some(t) => flip * texture_transform(t.offset(), t.rotation(), t.scale()),
+            None => flip,
+        };
+        Some(Texture::Bitmap { image: img, to_uv })
+    }
+}
+
+/// Relative index of refraction of glTF's dielectric: F0 = ((η − 1)/(η + 1))²
+/// = 0.04, as the specification's `fresnel_mix(ior = 1.5, …)`.
+pub(crate) const DIELECTRIC_IOR: f32 = 1.5;
+
+/// Smallest GGX α of a rough glTF surface (α = roughness²): below it the
+/// lobe's peak outruns f32, and the surface is a mirror to the eye anyway.
+pub(crate) const MIN_ALPHA: f32 = 1e-3;
+
+/// glTF's dielectric (`metallic` = 0) with base colour `base` and
+/// perceptual roughness `roughness` ∈ [0, 1]: a GGX coat of index 1.5
+/// (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian base, as
+/// `roughplastic` (`plastic` when the roughness is 0). See the module doc
+/// for how this differs from the specification's `fresnel_mix`.
+pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
+    let specular = Texture::Constant(Rgb::ONE);
+    if roughness <= 0.0 {
+        Material::Plastic {
+            diffuse_reflectance: base,
+            specular_reflectance: specular,
+            eta: DIELECTRIC_IOR,
+            nonlinear: false,
+        }
+    } else {
+        Material::RoughPlastic {
+            diffuse_reflectance: base,
+            specular_reflectance: specular,
+            distribution: MicrofacetKind::Ggx,
+            alpha: (roughness * roughness).max(MIN_ALPHA),
+            eta: DIELECTRIC_IOR,
+            nonlinear: false,
+        }
+    }
+}
+
+/// The factor on a dielectric's base colour that makes the diffuse
+/// reflectance R_d = π k T̄ of its coated base ([`crate::bsdf::DiffusePart`])
+/// equal the base colour: η² (1 − R_int) / T̄, with R_int the coat's
+/// internal diffuse reflectance and T̄ its diffuse transmittance from
+/// outside (1 − F_dr(1/η) and 1 − F_dr(η) for the smooth coat, the
+/// tables of `bsdf::coat` for the rough one). About 1.0 for the smooth
+/// coat; above 1 for rough ones, whose single-scattering tables lose the
+/// light the rough interface sends back inside.
+pub(crate) fn base_gain(roughness: f32) -> f32 {
+    use crate::bsdf::{coat::CoatTable, fresnel::fresnel_diffuse_reflectance, microfacet};
+    let eta = DIELECTRIC_IOR;
+    if roughness <= 0.0 {
+        let (r_int, t_ext) = (
+            fresnel_diffuse_reflectance(1.0 / eta),
+            1.0 - fresnel_diffuse_reflectance(eta),
+        );
+        eta * eta * (1.0 - r_int) / t_ext
+    } else {
+        let alpha = (roughness * roughness).max(MIN_ALPHA);
+        rough_coat_gain(CoatTable::get(
+            microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha),
+            eta,
+        ))
+    }
+}
+
+/// [`base_gain`] of the rough coat whose tables are `t` (index
+/// [`DIELECTRIC_IOR`]): η² (1 − R_int) / T̄.
+pub(crate) fn rough_coat_gain(t: &crate::bsdf::coat::CoatTable) -> f32 {
+    let eta = DIELECTRIC_IOR;
+    let t_ext = t.external_diffuse_transmittance;
+    if t_ext > 0.0 {
+        eta * eta * (1.0 - t.internal_reflectance) / t_ext
+    } else {
+        1.0
     }
 }
 
@@ -312,7 +526,7 @@ struct Walk<'a> {
     root: &'a gltf::json::Root,
     buffers: &'a [gltf::buffer::Data],
     /// Each glTF material's index in the scene, and its emission.
-    mats: &'a [(u32, Option<Rgb>)],
+    mats: &'a [MaterialEntry],
     /// The white diffuse material of primitives without one, once added.
     default_mat: Option<u32>,
     scene: Scene,
@@ -424,7 +638,11 @@ impl Walk<'_> {
             m.reverse_winding();
         }
         let (material, emission) = match prim.material().index().and_then(|i| self.mats.get(i)) {
-            Some(&(mat, e)) => (mat, e),
+            Some((mat, Some(e), Some(tex))) => {
+                let mean = surface_mean(tex, &m.positions, m.uvs.as_deref(), &m.indices);
+                (*mat, Some(*e * mean).filter(|e| e.max_element() > 0.0))
+            }
+            Some(&(mat, e, _)) => (mat, e),
             None => {
                 let d = *self.default_mat.get_or_insert_with(|| {
                     scene.add_material(Material::Diffuse {
@@ -502,6 +720,46 @@ fn kept_triangles(kept: &[[u32; 3]], all: &[[u32; 3]], base: u32) -> Vec<u32> {
     out
 }
 
+/// The area-weighted mean of texture `tex` over a mesh (world-space
+/// `positions`, `uvs` or uv (0, 0) throughout, triangles `indices`): on
+/// each triangle the mean of its centroid and three points halfway from
+/// it to the corners, weighted by the triangle's area. The mean of the
+/// texels when the mesh has no area.
+fn surface_mean(
+    tex: &Texture,
+    positions: &[Vec3],
+    uvs: Option<&[Vec2]>,
+    indices: &[[u32; 3]],
+) -> Rgb {
+    let uv = |i: u32| {
+        uvs.and_then(|t| t.get(i as usize))
+            .copied()
+            .unwrap_or(Vec2::ZERO)
+    };
+    let (mut sum, mut area) = (Rgb::ZERO, 0.0f64);
+    for t in indices {
+        let p = t.map(|i| positions.get(i as usize).copied().unwrap_or(Vec3::ZERO));
+        let a = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+        if !(a > 0.0 && a.is_finite()) {
+            continue;
+        }
+        let [u0, u1, u2] = t.map(uv);
+        let c = (u0 + u1 + u2) / 3.0;
+        let m = (tex.eval(c)
+            + tex.eval((c + u0) * 0.5)
+            + tex.eval((c + u1) * 0.5)
+            + tex.eval((c + u2) * 0.5))
+            * 0.25;
+        sum += m * a;
+        area += a as f64;
+    }
+    if area > 0.0 {
+        sum / area as f32
+    } else {
+        tex.mean()
+    }
+}
+
 /// A perspective glTF camera placed by `world`, as kalos's camera (`None`
 /// for an orthographic camera, or one kalos cannot build).
 fn camera(cam: &gltf::Camera, world: Mat4) -> Option<CameraDesc> {
@@ -521,9 +779,11 @@ fn name_of(m: &gltf::Material) -> String {
     m.name().unwrap_or("(unnamed)").to_string()
 }
 
-/// A decoded glTF image as linear RGB: 8- and 16-bit data are sRGB-encoded
-/// (base colour textures are, by the specification), float data linear.
-fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
+/// A decoded glTF image as linear RGB: 8- and 16-bit data are decoded
+/// from sRGB when `srgb` (base colour and emissive textures are sRGB by
+/// the specification, metallic–roughness ones linear), float data are
+/// linear.
+fn to_tex_image(d: &gltf::image::Data, srgb: bool) -> Option<TexImage> {
     use gltf::image::Format as F;
     let (channels, bytes, float) = match d.format {
         F::R8 => (1, 1, false),
@@ -550,7 +810,7 @@ fn to_tex_image(d: &gltf::image::Data) -> Option<TexImage> {
         }
     };
     let decode = |c: f32| {
-        if float {
+        if float || !srgb {
             c
         } else if c <= 0.04045 {
             c / 12.92

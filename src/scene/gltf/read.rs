@@ -1,6 +1,6 @@
 //! Reading a glTF file and what it names, through the scene's
-//! [`FileAccess`]: the JSON or GLB, its buffers and its base colour
-//! images, with URIs resolved here ([`locate`]) instead of by the `gltf`
+//! [`FileAccess`]: the JSON or GLB, its buffers and the images its
+//! materials read, with URIs resolved here ([`locate`]) instead of by the `gltf`
 //! crate, and the memory of meshes and images declared before it is
 //! allocated.
 
@@ -9,7 +9,7 @@ use super::*;
 /// The buffers and images of a glTF file, as [`import`] gives them: the
 /// document, each buffer's bytes (padded to a multiple of four, as the
 /// `gltf` crate's readers expect), and each image decoded when a material
-/// uses it as its base colour (`None` otherwise).
+/// reads it (`None` otherwise).
 pub(super) type Imported = (
     gltf::Document,
     Vec<gltf::buffer::Data>,
@@ -22,8 +22,8 @@ pub(super) type Imported = (
 /// ([`check_attribute_indices`]). Then validates it, checks its node graph
 /// ([`check_instancing`]) and every file its buffers and images name,
 /// declares the memory of its meshes and buffers, and reads its buffers
-/// and its base colour images (each declared from its header before it
-/// is decoded).
+/// and the images its materials read (each declared from its header
+/// before it is decoded).
 pub(super) fn import(path: &Path, access: &FileAccess) -> Result<Imported, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
     let bytes = access
@@ -136,7 +136,8 @@ pub(super) fn import(path: &Path, access: &FileAccess) -> Result<Imported, Scene
     Ok((document, buffers, images))
 }
 
-/// The images of `document` used as a base colour (None for the others),
+/// The images of `document` a material reads (as its base colour, its
+/// metallic–roughness or its emission; None for the others),
 /// each read from where `image_src` says ([`locate`]d by [`import`]) or
 /// from its buffer view, and declared to `access` from its header before
 /// it is decoded. `text` is the glTF's JSON text, to name a URI's line.
@@ -157,12 +158,18 @@ pub(super) fn read_images(
         )
     };
     let json = document.as_json();
-    // the images used as a base colour, each declared from its header
+    // the images the materials read, each declared from its header
     // before it is decoded
     let mut used = vec![false; json.images.len()];
     for m in document.materials() {
-        if let Some(info) = m.pbr_metallic_roughness().base_color_texture() {
-            if let Some(u) = used.get_mut(info.texture().source().index()) {
+        let pbr = m.pbr_metallic_roughness();
+        let sources = [
+            pbr.base_color_texture().map(|i| i.texture()),
+            pbr.metallic_roughness_texture().map(|i| i.texture()),
+            m.emissive_texture().map(|i| i.texture()),
+        ];
+        for t in sources.into_iter().flatten() {
+            if let Some(u) = used.get_mut(t.source().index()) {
                 *u = true;
             }
         }
@@ -282,7 +289,7 @@ pub(super) fn view_bytes<'b>(
     data.0.get(view.offset()..end)
 }
 
-/// Decodes a base colour image (PNG or JPEG, by its media type, its file
+/// Decodes an image (PNG or JPEG, by its media type, its file
 /// extension, else its first bytes), after declaring its pixels' memory to
 /// `access` from its header (named `name`). `None` when it decodes to a
 /// pixel format the loader does not convert (then a warning says so).

@@ -273,7 +273,8 @@ pub fn has_diffuse(m: &Material) -> bool {
         Material::Diffuse { .. }
         | Material::Phong { .. }
         | Material::Plastic { .. }
-        | Material::RoughPlastic { .. } => true,
+        | Material::RoughPlastic { .. }
+        | Material::MetallicRoughness(_) => true,
         Material::Conductor { .. }
         | Material::RoughConductor { .. }
         | Material::Dielectric { .. }
