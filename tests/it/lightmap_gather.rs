@@ -12,11 +12,11 @@ use kalos::sampling::Pcg32;
 
 use crate::lightmap::{spread, world, z_scores};
 
-/// A lightmap bake of `w` at side `size`, with the default gather.
+/// A lightmap bake of `w` at side `size`, with the recommended gather.
 fn bake(w: &World, particles: u64, seed: u64, size: u32) -> LightmapBake {
     let lm = LightmapSettings {
         size: Some(size),
-        gather: GatherOptions::default(),
+        gather: GatherOptions::RECOMMENDED,
         ..Default::default()
     };
     let s = Settings {
