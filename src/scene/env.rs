@@ -187,7 +187,11 @@ mod tests {
         let mut bare = Scene::empty("bare");
         bare.light_if_dark(Path::new("bare.obj"));
         assert_eq!(bare.emitters.len(), 1);
-        bare.add_environment(&env).expect("replaces the default");
+        let replaced = bare.add_environment(&env);
+        assert!(
+            replaced.is_ok(),
+            "the default sky is replaced: {replaced:?}"
+        );
         assert!(matches!(
             bare.emitters[..],
             [EmitterDesc::Constant { radiance }] if radiance == Rgb::splat(2.0)
