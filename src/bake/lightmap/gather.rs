@@ -42,6 +42,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::estimate::Estimator;
+use super::raster::{self, Corners};
 use super::{Lightmap, LightmapUv, Texel};
 use crate::accel::Hit;
 use crate::color::Rgb;
@@ -107,26 +108,18 @@ impl GatherOptions {
 /// it.
 pub struct Atlas<'a> {
     lm: &'a Lightmap,
-    /// Per scene triangle, its corners' lightmap coordinates (in texels,
-    /// continuous: texel (x, y)'s centre is at (x + ½, y + ½)).
-    corners: Vec<[Vec2; 3]>,
+    /// Per scene triangle, its corners on the atlas in texels (texel
+    /// (x, y)'s centre is at (x + ½, y + ½)); None without area.
+    corners: Vec<Corners>,
 }
 
 impl<'a> Atlas<'a> {
-    /// The atlas `lm`, laid out on `uv`, for a scene of `triangles`
-    /// triangles.
+    /// The atlas `lm`, laid out on `uv`, of `scene`'s triangles.
     pub fn new(lm: &'a Lightmap, uv: &LightmapUv, scene: &crate::scene::Scene) -> Self {
-        let mut corners = vec![[Vec2::ZERO; 3]; scene.triangles.len()];
-        let size = Vec2::new(uv.width as f32, uv.height as f32);
-        for (shape, s) in scene.shapes.iter().zip(&uv.shapes) {
-            for (i, t) in s.triangles.iter().enumerate() {
-                let tri = shape.first_tri as usize + i;
-                if let Some(c) = corners.get_mut(tri) {
-                    *c = t.map(|j| s.uv.get(j as usize).copied().unwrap_or_default() * size);
-                }
-            }
+        Atlas {
+            lm,
+            corners: raster::uv_corners(scene, uv),
         }
-        Atlas { lm, corners }
     }
 
     /// Irradiance and standard error at barycentrics (b1, b2) of triangle
@@ -134,7 +127,7 @@ impl<'a> Atlas<'a> {
     /// filled the gutters, so a point by a chart's border reads its own
     /// chart's values).
     fn read(&self, tri: u32, b1: f32, b2: f32) -> (Rgb, Rgb) {
-        let Some(c) = self.corners.get(tri as usize) else {
+        let Some(Some(c)) = self.corners.get(tri as usize) else {
             return (Rgb::ZERO, Rgb::ZERO);
         };
         let q = c[0] * (1.0 - b1 - b2) + c[1] * b1 + c[2] * b2 - Vec2::splat(0.5);
@@ -292,9 +285,11 @@ impl<'a> Gather<'a> {
         let back = self.est.side_of(t.tri).unwrap_or(false);
         let n = if back { -t.n } else { t.n };
         // The texel's own material: its coat's transmittance T
-        let [a, b, c] = scene.tri_vertices(t.tri);
-        let (b1, b2) = barycentrics(t.p, a, b, c);
-        let sp = scene.surface_point(t.tri, b1, b2);
+        let Some(Some(corners)) = self.atlas.corners.get(t.tri as usize) else {
+            return TexelGather::default();
+        };
+        let l = raster::texel_barycentrics(corners, t.x, t.y);
+        let sp = scene.surface_point(t.tri, l.y, l.z);
         let Some(dp) = scene.material_of(&sp).bsdf(sp.uv).diffuse_part() else {
             return TexelGather::default();
         };
@@ -427,21 +422,6 @@ impl<'a> Gather<'a> {
     }
 }
 
-/// The barycentrics (b1, b2) of `p` in triangle (a, b, c), clamped onto
-/// it.
-fn barycentrics(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> (f32, f32) {
-    let (e1, e2, d) = (b - a, c - a, p - a);
-    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-    let (d1, d2) = (d.dot(e1), d.dot(e2));
-    let den = d11 * d22 - d12 * d12;
-    if den.abs() < 1e-30 {
-        return (0.0, 0.0);
-    }
-    let b1 = ((d22 * d1 - d12 * d2) / den).clamp(0.0, 1.0);
-    let b2 = ((d11 * d2 - d12 * d1) / den).clamp(0.0, 1.0 - b1);
-    (b1, b2)
-}
-
 /// Gathers every covered texel of `density` (the atlas `gather` reads)
 /// into a new atlas, in parallel (the same bytes whatever the thread
 /// count). Texels the density estimate left uncovered (padding, hidden)
@@ -492,20 +472,6 @@ pub fn gather_texels(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn barycentrics_recover_a_point() {
-        let (a, b, c) = (Vec3::ZERO, Vec3::X * 2.0, Vec3::new(0.0, 3.0, 1.0));
-        let p = a * 0.2 + b * 0.5 + c * 0.3;
-        let (b1, b2) = barycentrics(p, a, b, c);
-        assert!(
-            (b1 - 0.5).abs() < 1e-5 && (b2 - 0.3).abs() < 1e-5,
-            "{b1} {b2}"
-        );
-        // outside: clamped onto the triangle
-        let (b1, b2) = barycentrics(b * 2.0, a, b, c);
-        assert!(b1 <= 1.0 && b2 >= 0.0 && b1 + b2 <= 1.0 + 1e-6);
-    }
 
     #[test]
     fn moments_give_the_variance_of_the_mean() {

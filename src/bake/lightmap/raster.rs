@@ -156,10 +156,10 @@ pub fn dilate(values: &mut [Rgb], covered: &[bool], width: u32, height: u32, pas
 
 /// A triangle's corners in texel units (uv × atlas size), or `None` for a
 /// triangle without area on the surface or in uv.
-type Corners = Option<[Vec2; 3]>;
+pub(super) type Corners = Option<[Vec2; 3]>;
 
 /// Per scene triangle, its corners on the atlas in texel units.
-fn uv_corners(scene: &Scene, uv: &LightmapUv) -> Vec<Corners> {
+pub(super) fn uv_corners(scene: &Scene, uv: &LightmapUv) -> Vec<Corners> {
     let size = Vec2::new(uv.width as f32, uv.height as f32);
     let mut out = vec![None; scene.triangles.len()];
     for (shape, s) in scene.shapes.iter().zip(&uv.shapes) {
@@ -256,10 +256,17 @@ fn barycentric(c: &[Vec2; 3], p: Vec2) -> Vec3 {
     }
 }
 
+/// The barycentrics of texel (x, y)'s point on the triangle with atlas
+/// corners `c`: under the texel's centre, or the triangle's point nearest
+/// it.
+pub(super) fn texel_barycentrics(c: &[Vec2; 3], x: u32, y: u32) -> Vec3 {
+    let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+    barycentric(c, closest_point(c, centre))
+}
+
 /// Texel (x, y) owned by triangle `t` with atlas corners `c`.
 fn texel(scene: &Scene, c: &[Vec2; 3], t: u32, x: u32, y: u32) -> Texel {
-    let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-    let l = barycentric(c, closest_point(c, centre));
+    let l = texel_barycentrics(c, x, y);
     let [a, b, cc] = scene.triangles[t as usize].map(|v| scene.positions[v as usize]);
     Texel {
         x,
