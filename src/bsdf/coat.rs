@@ -37,7 +37,7 @@ use glam::{Vec2, Vec3};
 
 use super::fresnel::{fresnel_dielectric, reflect, refract};
 use super::microfacet::Microfacet;
-use crate::scene::MicrofacetKind;
+use crate::scene::{Coat, MicrofacetKind};
 
 /// Number of tabulated cosines (Mitsuba's `MI_ROUGH_TRANSMITTANCE_RES`).
 pub const COAT_RES: usize = 64;
@@ -64,13 +64,25 @@ impl CoatTable {
         self.transmittance[i] * (1.0 - w) + self.transmittance[i + 1] * w
     }
 
-    /// The cached table for these parameters, computed on first use.
+    /// The cached table of Mitsuba's coat ([`Coat::Mitsuba`]) for these
+    /// parameters, computed on first use.
     pub fn get(dist: Microfacet, eta: f32) -> &'static CoatTable {
-        type Key = (u8, u32, u32);
+        Self::cached(dist, eta, Coat::Mitsuba)
+    }
+
+    /// The cached table of `coat` for these parameters, computed on first
+    /// use: Mitsuba's single-scattering coat, or glTF's, which transmits
+    /// all that its specular layer does not reflect ([`Coat::Gltf`]).
+    pub fn cached(dist: Microfacet, eta: f32, coat: Coat) -> &'static CoatTable {
+        type Key = (u8, u32, u32, Option<u32>);
         let key: Key = (
             matches!(dist.kind, MicrofacetKind::Ggx) as u8,
             dist.alpha.to_bits(),
             eta.to_bits(),
+            match coat {
+                Coat::Mitsuba => None,
+                Coat::Gltf { specular } => Some(specular.to_bits()),
+            },
         );
         thread_local! {
             static LOCAL: RefCell<Vec<(Key, &'static CoatTable)>> = const { RefCell::new(Vec::new()) };
@@ -86,11 +98,49 @@ impl CoatTable {
                 .get_or_init(Default::default)
                 .lock()
                 .unwrap_or_else(|e| e.into_inner());
-            *map.entry(key)
-                .or_insert_with(|| Box::leak(Box::new(CoatTable::compute(dist, eta))))
+            *map.entry(key).or_insert_with(|| {
+                Box::leak(Box::new(match coat {
+                    Coat::Mitsuba => CoatTable::compute(dist, eta),
+                    Coat::Gltf { specular } => CoatTable::compute_gltf(dist, eta, specular),
+                }))
+            })
         };
         LOCAL.with(|l| l.borrow_mut().push((key, table)));
         table
+    }
+
+    /// glTF's coat ([`Coat::Gltf`]): t(μ) = 1 − w r(μ), with r(μ) the
+    /// interface's single-scattering reflectance from outside and w the
+    /// specular layer's weight, so that the surface loses no light to the
+    /// rough interface's shadowing (Mitsuba's t(μ) does, see
+    /// [`CoatTable::compute`]); R_int is Mitsuba's, times w.
+    pub fn compute_gltf(dist: Microfacet, eta: f32, w: f32) -> CoatTable {
+        let w = w.clamp(0.0, 1.0);
+        let mitsuba = CoatTable::compute(dist, eta);
+        let mut transmittance = [0.0f32; COAT_RES];
+        for (i, t) in transmittance.iter_mut().enumerate() {
+            let mu = (i as f32 / (COAT_RES - 1) as f32).max(1e-6);
+            *t = 1.0 - w * coat_albedo(dist, mu, eta, true, 32) as f32;
+        }
+        CoatTable {
+            external_diffuse_transmittance: diffuse_mean(&transmittance) as f32,
+            transmittance,
+            internal_reflectance: w * mitsuba.internal_reflectance,
+        }
+    }
+
+    /// The factor on a glTF base colour c that makes the diffuse albedo of
+    /// the coated base c t(μo) ([`Coat::Gltf`]): with Mitsuba's
+    /// f_d = ρ t(μo) t(μi) / (π η² (1 − R_int)), ρ = c η² (1 − R_int) / T̄
+    /// gives ∫ f_d cos θi dωi = c t(μo). It may exceed 1 (ρ is the albedo
+    /// under the coat, before its internal reflections).
+    pub fn gltf_base_gain(&self, eta: f32) -> f32 {
+        let t_ext = self.external_diffuse_transmittance;
+        if t_ext > 0.0 {
+            eta * eta * (1.0 - self.internal_reflectance) / t_ext
+        } else {
+            1.0
+        }
     }
 
     /// Computes the table (tens of milliseconds).
@@ -109,19 +159,24 @@ impl CoatTable {
                 .map(|&mu| coat_albedo(dist, mu, 1.0 / eta, true, 128) * mu as f64)
                 .sum::<f64>()
             / n;
-        let external_diffuse_transmittance = 2.0
-            * mus
-                .iter()
-                .zip(&transmittance)
-                .map(|(&mu, &t)| (t * mu) as f64)
-                .sum::<f64>()
-            / n;
+        let external_diffuse_transmittance = diffuse_mean(&transmittance);
         CoatTable {
             transmittance,
             internal_reflectance: internal_reflectance as f32,
             external_diffuse_transmittance: external_diffuse_transmittance as f32,
         }
     }
+}
+
+/// 2∫₀¹ t(μ) μ dμ over the table's cosines (the mean Mitsuba takes).
+fn diffuse_mean(t: &[f32; COAT_RES]) -> f64 {
+    let n = COAT_RES as f64;
+    2.0 * t
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| (t * (i as f32 / (COAT_RES - 1) as f32).max(1e-6)) as f64)
+        .sum::<f64>()
+        / n
 }
 
 /// Single-scattering reflectance (`reflection = true`) or transmittance of a

@@ -8,9 +8,9 @@ use super::coat::CoatTable;
 use super::fresnel::fresnel_diffuse_reflectance;
 use super::microfacet::Microfacet;
 use super::Bsdf;
-use crate::scene::gltf::{rough_coat_gain, DIELECTRIC_IOR, MIN_ALPHA};
+use crate::scene::gltf::{DIELECTRIC_IOR, MIN_ALPHA};
 use crate::scene::material::MetallicRoughness;
-use crate::scene::{Material, Texture};
+use crate::scene::{Coat, Material, Texture};
 use crate::scene::{MicrofacetKind, Rgb};
 
 /// A cheap mean of a texture for lobe-selection weights: the texture's mean
@@ -66,20 +66,24 @@ impl MetallicRoughness {
             };
         }
         let rq = (r * ROUGHNESS_STEPS).round() / ROUGHNESS_STEPS;
-        let table = CoatTable::get(
+        let table = CoatTable::cached(
             Microfacet::new(MicrofacetKind::Ggx, (rq * rq).max(MIN_ALPHA)),
             DIELECTRIC_IOR,
+            Coat::Gltf {
+                specular: self.specular,
+            },
         );
-        let rho = base * rough_coat_gain(table);
+        let rho = base * table.gltf_base_gain(DIELECTRIC_IOR);
         let d = ((rho.x + rho.y + rho.z) / 3.0).max(0.0);
+        let s = self.specular.clamp(0.0, 1.0);
         Bsdf::RoughPlastic {
             rho,
-            s: Rgb::ONE,
+            s: self.specular_tint * s,
             dist,
             eta: DIELECTRIC_IOR,
             nonlinear: false,
-            // as coat_sampling_weight, with a white coat
-            spec_weight: 1.0 / (d + 1.0),
+            // as coat_sampling_weight, with a grey coat of the layer's weight
+            spec_weight: if d + s > 0.0 { s / (d + s) } else { 0.5 },
             table,
         }
     }
@@ -150,14 +154,33 @@ impl Material {
                 specular_reflectance,
                 eta,
                 nonlinear,
-            } => Bsdf::Plastic {
-                rho: diffuse_reflectance.eval(uv),
-                s: specular_reflectance.eval(uv),
-                eta: *eta,
-                fdr_int: fresnel_diffuse_reflectance(1.0 / *eta),
-                nonlinear: *nonlinear,
-                spec_weight: coat_sampling_weight(diffuse_reflectance, specular_reflectance, uv),
-            },
+                coat,
+            } => {
+                let fdr_int = fresnel_diffuse_reflectance(1.0 / *eta);
+                let rho = diffuse_reflectance.eval(uv);
+                Bsdf::Plastic {
+                    rho: match coat {
+                        Coat::Mitsuba => rho,
+                        // glTF's base colour is the coated surface's diffuse
+                        // reflectance: η² (1 − R_int) / T̄ (about 1.02 at η
+                        // = 1.5), as CoatTable::gltf_base_gain for the
+                        // smooth coat
+                        Coat::Gltf { .. } => {
+                            rho * (eta * eta * (1.0 - fdr_int)
+                                / (1.0 - fresnel_diffuse_reflectance(*eta)))
+                        }
+                    },
+                    s: specular_reflectance.eval(uv),
+                    eta: *eta,
+                    fdr_int,
+                    nonlinear: *nonlinear,
+                    spec_weight: coat_sampling_weight(
+                        diffuse_reflectance,
+                        specular_reflectance,
+                        uv,
+                    ),
+                }
+            }
             Material::RoughPlastic {
                 diffuse_reflectance,
                 specular_reflectance,
@@ -165,10 +188,16 @@ impl Material {
                 alpha,
                 eta,
                 nonlinear,
+                coat,
             } => {
                 let dist = Microfacet::new(*distribution, *alpha);
+                let table = CoatTable::cached(dist, *eta, *coat);
+                let rho = diffuse_reflectance.eval(uv);
                 Bsdf::RoughPlastic {
-                    rho: diffuse_reflectance.eval(uv),
+                    rho: match coat {
+                        Coat::Mitsuba => rho,
+                        Coat::Gltf { .. } => rho * table.gltf_base_gain(*eta),
+                    },
                     s: specular_reflectance.eval(uv),
                     dist,
                     eta: *eta,
@@ -178,7 +207,7 @@ impl Material {
                         specular_reflectance,
                         uv,
                     ),
-                    table: CoatTable::get(dist, *eta),
+                    table,
                 }
             }
             Material::Dielectric {

@@ -392,6 +392,8 @@ pub enum Material {
         eta: f32,
         /// Mitsuba's `nonlinear` flag.
         nonlinear: bool,
+        /// What the base colour means and how the coat passes light to it.
+        coat: Coat,
     },
     /// A rough dielectric coating over a diffuse base (`roughplastic`).
     RoughPlastic {
@@ -407,6 +409,8 @@ pub enum Material {
         eta: f32,
         /// Mitsuba's `nonlinear` flag.
         nonlinear: bool,
+        /// What the base colour means and how the coat passes light to it.
+        coat: Coat,
     },
     /// Smooth glass (`dielectric`).
     Dielectric {
@@ -436,6 +440,31 @@ pub enum Material {
     MetallicRoughness(Box<MetallicRoughness>),
 }
 
+/// What a plastic's base colour means, and how its dielectric coat passes
+/// light down to the base and back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Coat {
+    /// Mitsuba's `plastic` and `roughplastic`: the base colour is the
+    /// albedo ρ under the coat, and the rough coat transmits its
+    /// single-scattering transmittance t(μ), losing what the interface's
+    /// microfacets shadow (at GGX α = 1 and η = 1.5: t(1) = 0.88, a
+    /// cosine-weighted mean of 0.73).
+    Mitsuba,
+    /// glTF's dielectric, the specification's `fresnel_mix`: the base
+    /// colour c is the diffuse reflectance of the coated surface, and the
+    /// coat passes on all it does not reflect: t(μ) = 1 − `specular` ·
+    /// r(μ), with r(μ) the coat's single-scattering reflectance and
+    /// `specular` the weight of the specular layer
+    /// (`KHR_materials_specular`'s factor; 1 without the extension). The
+    /// diffuse albedo seen from cos θo = μ is then c t(μ), which is what
+    /// glTF's (1 − F) c/π integrates to, nearly. Described whole in
+    /// [`crate::scene::gltf`].
+    Gltf {
+        /// Weight of the specular layer, in [0, 1].
+        specular: f32,
+    },
+}
+
 /// The parameters of [`Material::MetallicRoughness`], as glTF names them.
 /// At a texel, metalness = `metallic` × the texture's blue channel and
 /// roughness = `roughness` × its green one (linear values, as the glTF
@@ -452,6 +481,12 @@ pub struct MetallicRoughness {
     /// `metallicRoughnessTexture`, linear (blue: metalness, green:
     /// roughness).
     pub metallic_roughness: Texture,
+    /// Weight of the dielectric's specular layer (`KHR_materials_specular`'s
+    /// `specularFactor`; 1 without the extension): see [`Coat::Gltf`].
+    pub specular: f32,
+    /// The specular layer's tint (`specularColorFactor`; white without the
+    /// extension).
+    pub specular_tint: Rgb,
 }
 
 #[cfg(test)]

@@ -30,7 +30,7 @@ use glam::{Mat4, Vec2, Vec3};
 use crate::geometry::Frame;
 pub use access::{AccessError, FileAccess, FileKind, ReadPolicy};
 pub use env::Environment;
-pub use material::{Material, MicrofacetKind, TexImage, Texture};
+pub use material::{Coat, Material, MicrofacetKind, TexImage, Texture};
 pub use punctual::{PunctualKind, PunctualLight};
 pub use records::{TriRecord, TriRecords};
 pub use shapes::MeshData;

@@ -63,7 +63,9 @@ SEED = "1"
 # 2.5, an orbit of 5 pixels by 4.7 (measured the same way).
 MEAN_TOLERANCE = 1.0
 
-# The lightmapped cube (tests/it/lightmap_glb.rs): kalos renders the .gltf
+# The lightmapped cube (tests/it/lightmap_glb.rs; a glTF dielectric without
+# a specular layer, KHR_materials_specular's factor 0, since the viewer has
+# no sky for a coat to reflect): kalos renders the .gltf
 # (its albedo under a white sky of radiance 1: convex, so every face's
 # irradiance is π), the viewer shows the .glb's lightmap of π times the
 # same albedo texture. Measured at 256², 16 spp (docs/lightmaps.md):

@@ -14,7 +14,7 @@ use kalos::bsdf::coat::gauss_legendre;
 use kalos::bsdf::fresnel::{fresnel_conductor, fresnel_dielectric};
 use kalos::bsdf::{Bsdf, Mode};
 use kalos::sampling::{uniform_sphere, Pcg32};
-use kalos::scene::{Material, MicrofacetKind, Rgb, Texture};
+use kalos::scene::{Coat, Material, MicrofacetKind, Rgb, Texture};
 
 // ---------------------------------------------------------------------------
 // Materials under test, built through the public `Material::bsdf` path
@@ -69,6 +69,7 @@ fn plastic(rho: f32, eta: f32, nonlinear: bool) -> Bsdf {
         specular_reflectance: c(1.0),
         eta,
         nonlinear,
+        coat: Coat::Mitsuba,
     }
     .bsdf(Vec2::ZERO)
 }
@@ -81,6 +82,7 @@ fn rough_plastic(kind: MicrofacetKind, alpha: f32, rho: f32, eta: f32, nonlinear
         alpha,
         eta,
         nonlinear,
+        coat: Coat::Mitsuba,
     }
     .bsdf(Vec2::ZERO)
 }
@@ -838,6 +840,7 @@ fn mitsuba_material(name: &str) -> Bsdf {
             specular_reflectance: c(1.0),
             eta: 1.5,
             nonlinear: true,
+            coat: Coat::Mitsuba,
         }
         .bsdf(Vec2::ZERO),
         "rp_ggx" => rough_plastic(Ggx, 0.2, 0.5, 1.5, false),
@@ -848,6 +851,7 @@ fn mitsuba_material(name: &str) -> Bsdf {
             alpha: 0.4,
             eta: 1.7,
             nonlinear: true,
+            coat: Coat::Mitsuba,
         }
         .bsdf(Vec2::ZERO),
         _ => unreachable!(),
@@ -921,6 +925,7 @@ mod props {
                     specular_reflectance: Texture::Constant(Rgb::ONE),
                     eta,
                     nonlinear: nl,
+                    coat: Coat::Mitsuba,
                 }
                 .bsdf(Vec2::ZERO)
             }),
@@ -940,6 +945,7 @@ mod props {
                         alpha,
                         eta,
                         nonlinear: nl,
+                        coat: Coat::Mitsuba,
                     }
                     .bsdf(Vec2::ZERO)
                 }),

@@ -20,7 +20,7 @@ use kalos::methods::density::surfaces::SurfaceId;
 use kalos::methods::density::{self, decimate, kernel, Settings};
 use kalos::methods::{Budget, Driver, Method, World};
 use kalos::metrics::{rel_mse, rel_mse_pair};
-use kalos::scene::{self, CameraDesc, Material, Scene, Texture};
+use kalos::scene::{self, CameraDesc, Coat, Material, Scene, Texture};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -202,6 +202,7 @@ fn glossy_surfaces_record_their_diffuse_irradiance() {
             specular_reflectance: Texture::Constant(Vec3::ONE),
             eta: 3.0,
             nonlinear: false,
+            coat: Coat::Mitsuba,
         },
         |c| 1.0 - kalos::bsdf::fresnel::fresnel_dielectric(c as f32, 3.0).0 as f64,
         4_000_000,
@@ -675,6 +676,7 @@ fn glossy_view_pass_agrees_with_path() {
             specular_reflectance: Texture::Constant(Vec3::ONE),
             eta: 1.5,
             nonlinear: false,
+            coat: Coat::Mitsuba,
         },
         Material::RoughPlastic {
             diffuse_reflectance: Texture::Constant(Vec3::new(0.2, 0.5, 0.3)),
@@ -683,6 +685,7 @@ fn glossy_view_pass_agrees_with_path() {
             alpha: 0.2,
             eta: 1.5,
             nonlinear: false,
+            coat: Coat::Mitsuba,
         },
     ];
     for (i, m) in mats.into_iter().enumerate() {

@@ -280,7 +280,9 @@ fn a_uv_set_of_another_scene_is_refused() {
 /// face) with a camera seeing three of its faces, as a .gltf with its .bin
 /// and image in `dir`. It has no emitter, so kalos lights it with a
 /// constant white sky of radiance 1; being convex, each face sees the
-/// whole sky: its irradiance is π everywhere, and it shows its albedo.
+/// whole sky: its irradiance is π everywhere, and it shows its albedo. Its
+/// material has no specular layer (`KHR_materials_specular`), so that what
+/// it shows is its albedo alone.
 fn write_cube(dir: &Path) -> PathBuf {
     use glam::{Mat3, Quat};
     let mut pos: Vec<[f32; 3]> = Vec::new();
@@ -345,8 +347,13 @@ fn write_cube(dir: &Path) -> PathBuf {
         "meshes": [{ "primitives": [{
             "attributes": { "POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2 },
             "indices": 3, "material": 0 }] }],
+        // no specular layer (KHR_materials_specular's factor 0): the cube
+        // is Lambertian in kalos and in three.js alike, so that the
+        // viewer, which has no sky to reflect, can match kalos's render
+        "extensionsUsed": ["KHR_materials_specular"],
         "materials": [{ "name": "checker", "pbrMetallicRoughness": {
-            "baseColorTexture": { "index": 0 }, "metallicFactor": 0.0, "roughnessFactor": 1.0 } }],
+            "baseColorTexture": { "index": 0 }, "metallicFactor": 0.0, "roughnessFactor": 1.0 },
+            "extensions": { "KHR_materials_specular": { "specularFactor": 0.0 } } }],
         "textures": [{ "source": 0 }],
         "images": [{ "uri": "checker.png" }],
         "accessors": [

@@ -25,21 +25,27 @@
 //!     Schlick's: equal at normal incidence (0.04), they part most near
 //!     85° (0.57 against Schlick's 0.61 at cos θ = 0.1; 0.036 at most);
 //!   - D and G are the same (GGX, the separable Smith G);
-//!   - the base is Mitsuba's: ρ/(π η² (1 − R_int)) t(cos θo) t(cos θi),
-//!     with t the coat's tabulated transmittance and R_int its internal
-//!     diffuse reflectance (`bsdf::coat`), where glTF weights c/π by
-//!     1 − F(v·h). Mitsuba's rough coat is single-scattering: it drops the
-//!     light the rough interface sends back inside and shadows, so a white
-//!     base under a GGX coat of α = 0.25 reflects 0.74 at normal incidence
-//!     where glTF's reflects about 0.96. kalos therefore scales the base
-//!     colour c by η² (1 − R_int)/T̄ (T̄ the coat's diffuse transmittance
-//!     from outside; [`base_gain`]), so that ρ = c × that factor, which may
-//!     exceed 1, and the diffuse reflectance of the coated base (its
-//!     cosine-weighted mean over exit directions) is c, as glTF's c/π
-//!     nearly is, and a white base reflects about 1 near the normal.
-//!     Both lose what the rough coat shadows at grazing angles. The factor
-//!     is 1.00 for the smooth coat, 1.36 at α = 0.25; `nonlinear` is off,
-//!     so the hue is the base colour's, as glTF's c/π keeps it.
+//!   - the base is Mitsuba's separable ρ/(π η² (1 − R_int)) t(cos θo)
+//!     t(cos θi), where glTF weights c/π by 1 − F(v·h), with glTF's coat
+//!     ([`Coat::Gltf`]) in place of Mitsuba's: Mitsuba's rough coat
+//!     transmits its single-scattering t(μ), which loses the light the
+//!     rough interface shadows (at glTF's default roughness 1, α = 1,
+//!     t(1) = 0.88 and t(0.5) = 0.65, so a white base looked 30 % dark);
+//!     glTF's coat transmits all it does not reflect, t(μ) = 1 − r(μ)
+//!     with r(μ) the coat's directional reflectance, and the base colour
+//!     is scaled (in [`crate::bsdf`], per hit) by η² (1 − R_int)/T̄ (T̄ =
+//!     2∫ t(μ) μ dμ), so that the diffuse albedo seen from cos θo = μ is
+//!     c t(μ) = c (1 − r(μ)): a white dielectric reflects 1 (furnace
+//!     test), and the hue is the base colour's (`nonlinear` off). glTF's
+//!     (1 − F(v·h)) c/π reflects c (1 − r(μ)) too, up to how F(v·h)
+//!     averages over the lobe's half vectors;
+//!   - `KHR_materials_specular`: `specularFactor` w weights the specular
+//!     layer (the coat's lobe is scaled by w × `specularColorFactor`, and
+//!     t(μ) = 1 − w r(μ)); w = 0 is a plain `diffuse`, exactly the
+//!     specification's. The tint colours the whole lobe, where the
+//!     specification tints F0 only (F90 stays w), and the diffuse part
+//!     loses the untinted r(μ); the extension's textures are not read
+//!     (a warning says so).
 //!
 //!   Mapping onto `roughplastic` keeps the Mitsuba model's sampling, its
 //!   chi-square and furnace tests, and its diffuse part
@@ -73,9 +79,11 @@
 //!   transform is composed with diag(−1, 1, −1)). Without one, a camera is
 //!   synthesised, with a warning.
 //!
-//! Skipped with a warning: non-triangle primitives, and texture coordinate
-//! sets other than the first. Ignored: samplers (every texture wraps and
-//! is filtered bilinearly), normal and occlusion textures.
+//! Skipped with a warning: non-triangle primitives, texture coordinate
+//! sets other than the first, and every extension the file uses that is
+//! not in [`READ_EXTENSIONS`] (named once). Ignored: samplers (every
+//! texture wraps and is filtered bilinearly), normal and occlusion
+//! textures.
 //!
 //! Refused before anything is allocated: GLB lengths beyond the file, node
 //! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
@@ -100,7 +108,8 @@ use glam::{Mat3, Mat4, Vec2, Vec3};
 use super::material::MetallicRoughness;
 use super::shapes::MeshData;
 use super::{
-    CameraDesc, Material, MicrofacetKind, Rgb, Scene, SceneError, ShapeSource, TexImage, Texture,
+    CameraDesc, Coat, Material, MicrofacetKind, Rgb, Scene, SceneError, ShapeSource, TexImage,
+    Texture,
 };
 
 /// Largest number of node instances visited: a node referenced from many
@@ -116,11 +125,31 @@ pub(crate) use read::{locate, Located};
 
 const MAX_NODES: u64 = 1 << 20;
 
+/// The extensions kalos reads; a file that uses any other gets a warning
+/// naming it, once. `MOZ_lightmap` (kalos's own bake output) is read as the
+/// asset it lights: kalos computes the lighting anew.
+const READ_EXTENSIONS: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_specular",
+    "KHR_texture_transform",
+    "MOZ_lightmap",
+];
+
 /// Loads a glTF 2.0 file as a scene.
 pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> {
     let err = |msg: String| SceneError::new(path, 0, msg);
     let (doc, buffers, images) = import(path, access)?;
     let mut scene = Scene::empty(path.display().to_string());
+    for ext in doc.extensions_used() {
+        if !READ_EXTENSIONS.contains(&ext) {
+            warn(
+                &mut scene,
+                path,
+                format!("extension {ext} is not read: what it adds to the asset is ignored"),
+            );
+        }
+    }
 
     // Materials, each with its emission
     let mut mats = Vec::new();
@@ -207,6 +236,7 @@ fn material(
     let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
     let metallic = pbr.metallic_factor();
     let metal = metallic >= 0.5;
+    let specular = specular(m, textures.scene, path)?;
     let mr = pbr
         .metallic_roughness_texture()
         .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
@@ -230,15 +260,10 @@ fn material(
             metallic: if metallic.is_finite() { metallic } else { 0.0 },
             roughness,
             metallic_roughness: mr,
+            specular: specular.weight,
+            specular_tint: specular.tint,
         }))
     } else {
-        // a dielectric's base is scaled so that its diffuse reflectance
-        // under the coat is the base colour (see the module doc)
-        let factor = if metal {
-            factor
-        } else {
-            factor * base_gain(roughness)
-        };
         let base = match pbr.base_color_texture() {
             Some(info) => textures
                 .texture(&info, factor, true, "base colour")
@@ -264,7 +289,7 @@ fn material(
                 }
             }
         } else {
-            dielectric(base, roughness)
+            dielectric(base, roughness, specular)
         }
     };
     let emissive = m
@@ -407,65 +432,95 @@ pub(crate) const MIN_ALPHA: f32 = 1e-3;
 /// glTF's dielectric (`metallic` = 0) with base colour `base` and
 /// perceptual roughness `roughness` ∈ [0, 1]: a GGX coat of index 1.5
 /// (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian base, as
-/// `roughplastic` (`plastic` when the roughness is 0). See the module doc
-/// for how this differs from the specification's `fresnel_mix`.
-pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
-    let specular = Texture::Constant(Rgb::ONE);
+/// `roughplastic` (`plastic` when the roughness is 0) with glTF's coat
+/// ([`Coat::Gltf`]); a plain `diffuse` when `KHR_materials_specular`
+/// gives the specular layer no weight. See the module doc for how this
+/// differs from the specification's `fresnel_mix`.
+pub(crate) fn dielectric(base: Texture, roughness: f32, specular: Specular) -> Material {
+    if specular.weight <= 0.0 {
+        // the specification's fresnel_mix with F0 = F90 = 0: c/π exactly
+        return Material::Diffuse { reflectance: base };
+    }
+    let specular_reflectance = Texture::Constant(specular.tint * specular.weight);
+    let coat = Coat::Gltf {
+        specular: specular.weight,
+    };
     if roughness <= 0.0 {
         Material::Plastic {
             diffuse_reflectance: base,
-            specular_reflectance: specular,
+            specular_reflectance,
             eta: DIELECTRIC_IOR,
             nonlinear: false,
+            coat,
         }
     } else {
         Material::RoughPlastic {
             diffuse_reflectance: base,
-            specular_reflectance: specular,
+            specular_reflectance,
             distribution: MicrofacetKind::Ggx,
             alpha: (roughness * roughness).max(MIN_ALPHA),
             eta: DIELECTRIC_IOR,
             nonlinear: false,
+            coat,
         }
     }
 }
 
-/// The factor on a dielectric's base colour that makes the diffuse
-/// reflectance R_d = π k T̄ of its coated base ([`crate::bsdf::DiffusePart`])
-/// equal the base colour: η² (1 − R_int) / T̄, with R_int the coat's
-/// internal diffuse reflectance and T̄ its diffuse transmittance from
-/// outside (1 − F_dr(1/η) and 1 − F_dr(η) for the smooth coat, the
-/// tables of `bsdf::coat` for the rough one). About 1.0 for the smooth
-/// coat; above 1 for rough ones, whose single-scattering tables lose the
-/// light the rough interface sends back inside.
-pub(crate) fn base_gain(roughness: f32) -> f32 {
-    use crate::bsdf::{coat::CoatTable, fresnel::fresnel_diffuse_reflectance, microfacet};
-    let eta = DIELECTRIC_IOR;
-    if roughness <= 0.0 {
-        let (r_int, t_ext) = (
-            fresnel_diffuse_reflectance(1.0 / eta),
-            1.0 - fresnel_diffuse_reflectance(eta),
-        );
-        eta * eta * (1.0 - r_int) / t_ext
-    } else {
-        let alpha = (roughness * roughness).max(MIN_ALPHA);
-        rough_coat_gain(CoatTable::get(
-            microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha),
-            eta,
-        ))
-    }
+/// A dielectric's specular layer as `KHR_materials_specular` sets it: its
+/// weight w (`specularFactor`, in [0, 1]) and its tint
+/// (`specularColorFactor`, at most 1/F0 = 25 per channel, where the
+/// specification clamps F0 × tint to 1). Without the extension, w = 1 and
+/// a white tint.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Specular {
+    pub weight: f32,
+    pub tint: Rgb,
 }
 
-/// [`base_gain`] of the rough coat whose tables are `t` (index
-/// [`DIELECTRIC_IOR`]): η² (1 − R_int) / T̄.
-pub(crate) fn rough_coat_gain(t: &crate::bsdf::coat::CoatTable) -> f32 {
-    let eta = DIELECTRIC_IOR;
-    let t_ext = t.external_diffuse_transmittance;
-    if t_ext > 0.0 {
-        eta * eta * (1.0 - t.internal_reflectance) / t_ext
-    } else {
-        1.0
+/// The material's [`Specular`] layer. Its textures (`specularTexture`,
+/// `specularColorTexture`) are not read: a warning says so, once per
+/// material.
+fn specular(m: &gltf::Material, scene: &mut Scene, path: &Path) -> Result<Specular, SceneError> {
+    let Some(ext) = m.specular() else {
+        return Ok(Specular {
+            weight: 1.0,
+            tint: Rgb::ONE,
+        });
+    };
+    let (w, c) = (
+        ext.specular_factor(),
+        Rgb::from(ext.specular_color_factor()),
+    );
+    if !(w.is_finite() && w >= 0.0 && c.is_finite() && c.min_element() >= 0.0) {
+        return Err(SceneError::new(
+            path,
+            0,
+            format!(
+                "material {} `{}`: KHR_materials_specular's specularFactor and \
+                 specularColorFactor must be finite and non-negative, found {w} and ({}, {}, {})",
+                m.index().map_or("?".into(), |i| i.to_string()),
+                name_of(m),
+                c.x,
+                c.y,
+                c.z
+            ),
+        ));
     }
+    if ext.specular_texture().is_some() || ext.specular_color_texture().is_some() {
+        warn(
+            scene,
+            path,
+            format!(
+                "material `{}`: KHR_materials_specular's textures are not read; its factors \
+                 are used over the whole material",
+                name_of(m)
+            ),
+        );
+    }
+    Ok(Specular {
+        weight: w.min(1.0),
+        tint: c.min(Rgb::splat(1.0 / 0.04)),
+    })
 }
 
 /// A material's emitted radiance: `emissiveFactor` ×

@@ -1,7 +1,7 @@
 //! BSDF plugins: `diffuse`, `twosided`, `conductor`, `roughconductor`,
 //! `plastic`, `roughplastic`, `dielectric`, `thindielectric`, `phong`.
 
-use crate::scene::Material;
+use crate::scene::{Coat, Material};
 
 use super::builder::{addr, Builder};
 use super::props::Props;
@@ -54,6 +54,7 @@ impl<'t> Builder<'t> {
                         specular_reflectance,
                         eta,
                         nonlinear,
+                        coat: Coat::Mitsuba,
                     }
                 } else {
                     let distribution = self.distribution(&mut p)?;
@@ -66,6 +67,7 @@ impl<'t> Builder<'t> {
                         alpha,
                         eta,
                         nonlinear,
+                        coat: Coat::Mitsuba,
                     }
                 }
             }

@@ -9,7 +9,7 @@ use super::lexer::Directive;
 use super::params::Params;
 use super::spectra::{glass_ior, Kind};
 use super::{Builder, Result};
-use crate::scene::{Material, MicrofacetKind, Rgb, Texture};
+use crate::scene::{Coat, Material, MicrofacetKind, Rgb, Texture};
 
 /// pbrt-v4's roughness to a microfacet α: with `remaproughness` (the
 /// default) pbrt takes the square root of the user's value
@@ -258,6 +258,7 @@ impl Builder {
                 specular_reflectance: Texture::Constant(Rgb::ONE),
                 eta,
                 nonlinear: false,
+                coat: Coat::Mitsuba,
             }
         } else {
             Material::RoughPlastic {
@@ -267,6 +268,7 @@ impl Builder {
                 alpha: a,
                 eta,
                 nonlinear: false,
+                coat: Coat::Mitsuba,
             }
         }))
     }
