@@ -17,7 +17,8 @@
 //!   Dielectrics become Mitsuba's `roughplastic` (`plastic` at roughness 0):
 //!   a GGX coat with α = roughness² (at least 10⁻³, as the metals) and
 //!   η = 1.5 over a Lambertian base of the base colour, `nonlinear` off.
-//!   η = 1.5 is glTF's F0 = ((η − 1)/(η + 1))² = 0.04 exactly. How this
+//!   η = 1.5 is glTF's F0 = ((η − 1)/(η + 1))² = 0.04 exactly;
+//!   `KHR_materials_ior` replaces it (see below). How this
 //!   departs from the specification's `fresnel_mix(ior = 1.5, base =
 //!   diffuse_brdf, layer = specular_brdf(α))` (Appendix B), which is
 //!   (1 − F(v·h)) c/π + F(v·h) D V with Schlick's F:
@@ -56,6 +57,16 @@
 //!   metallic–roughness, emissive): scale, rotation and offset, applied to
 //!   the uvs before the lookup, as the extension's matrix; its `texCoord`
 //!   overrides the texture's;
+//! - `KHR_materials_ior`: the dielectric's coat takes η = `ior`, so F0 =
+//!   ((η − 1)/(η + 1))², and the base's gain ([`base_gain`]) is computed
+//!   for that η (the coat tables are made per η). `ior` = 0, the
+//!   extension's special value (F = 1 at every angle: all light goes to
+//!   the specular layer), is a white mirror (`conductor`, or
+//!   `roughconductor` with α = roughness²; the base colour is not seen).
+//!   An `ior` the extension does not allow (below 1 other than 0, not
+//!   finite) is read as 1.5, with a warning. With a
+//!   `metallicRoughnessTexture` the per-texel dielectric keeps η = 1.5,
+//!   with a warning. See `gltf/transmission.rs`;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
@@ -109,6 +120,7 @@ use super::{
 mod checks;
 mod lights;
 mod read;
+mod transmission;
 
 use checks::*;
 use read::*;
@@ -207,10 +219,12 @@ fn material(
     let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
     let metallic = pbr.metallic_factor();
     let metal = metallic >= 0.5;
+    let ior = transmission::ior(m, textures.scene, path);
     let mr = pbr
         .metallic_roughness_texture()
         .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
     let material = if let Some(mr) = mr {
+        transmission::warn_fixed_ior(m, ior, textures.scene, path);
         // metalness and roughness per texel. A constant base colour is a
         // one-texel bitmap: the diffuse part varies over the surface with
         // the texels' metalness and roughness, and a bitmap says so to
@@ -237,7 +251,7 @@ fn material(
         let factor = if metal {
             factor
         } else {
-            factor * base_gain(roughness)
+            factor * base_gain(roughness, ior)
         };
         let base = match pbr.base_color_texture() {
             Some(info) => textures
@@ -264,7 +278,7 @@ fn material(
                 }
             }
         } else {
-            dielectric(base, roughness)
+            dielectric(base, roughness, ior)
         }
     };
     let emissive = m
@@ -404,18 +418,24 @@ pub(crate) const DIELECTRIC_IOR: f32 = 1.5;
 /// lobe's peak outruns f32, and the surface is a mirror to the eye anyway.
 pub(crate) const MIN_ALPHA: f32 = 1e-3;
 
-/// glTF's dielectric (`metallic` = 0) with base colour `base` and
-/// perceptual roughness `roughness` ∈ [0, 1]: a GGX coat of index 1.5
-/// (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian base, as
-/// `roughplastic` (`plastic` when the roughness is 0). See the module doc
-/// for how this differs from the specification's `fresnel_mix`.
-pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
+/// glTF's dielectric (`metallic` = 0) with base colour `base`,
+/// perceptual roughness `roughness` ∈ [0, 1] and index `eta`
+/// (`KHR_materials_ior`, [`DIELECTRIC_IOR`] without it): a GGX coat of
+/// index `eta` (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian
+/// base, as `roughplastic` (`plastic` when the roughness is 0); `eta` = 0
+/// is the extension's F = 1, a white mirror ([`transmission::mirror`]).
+/// See the module doc for how this differs from the specification's
+/// `fresnel_mix`.
+pub(crate) fn dielectric(base: Texture, roughness: f32, eta: f32) -> Material {
+    if eta == 0.0 {
+        return transmission::mirror(roughness);
+    }
     let specular = Texture::Constant(Rgb::ONE);
     if roughness <= 0.0 {
         Material::Plastic {
             diffuse_reflectance: base,
             specular_reflectance: specular,
-            eta: DIELECTRIC_IOR,
+            eta,
             nonlinear: false,
         }
     } else {
@@ -424,7 +444,7 @@ pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
             specular_reflectance: specular,
             distribution: MicrofacetKind::Ggx,
             alpha: (roughness * roughness).max(MIN_ALPHA),
-            eta: DIELECTRIC_IOR,
+            eta,
             nonlinear: false,
         }
     }
@@ -437,10 +457,14 @@ pub(crate) fn dielectric(base: Texture, roughness: f32) -> Material {
 /// outside (1 − F_dr(1/η) and 1 − F_dr(η) for the smooth coat, the
 /// tables of `bsdf::coat` for the rough one). About 1.0 for the smooth
 /// coat; above 1 for rough ones, whose single-scattering tables lose the
-/// light the rough interface sends back inside.
-pub(crate) fn base_gain(roughness: f32) -> f32 {
+/// light the rough interface sends back inside. `eta` is the coat's index
+/// ([`DIELECTRIC_IOR`] without `KHR_materials_ior`); at `eta` = 0 (the
+/// extension's F = 1: the base is not seen) the factor is 1.
+pub(crate) fn base_gain(roughness: f32, eta: f32) -> f32 {
     use crate::bsdf::{coat::CoatTable, fresnel::fresnel_diffuse_reflectance, microfacet};
-    let eta = DIELECTRIC_IOR;
+    if eta == 0.0 {
+        return 1.0;
+    }
     if roughness <= 0.0 {
         let (r_int, t_ext) = (
             fresnel_diffuse_reflectance(1.0 / eta),
@@ -449,17 +473,22 @@ pub(crate) fn base_gain(roughness: f32) -> f32 {
         eta * eta * (1.0 - r_int) / t_ext
     } else {
         let alpha = (roughness * roughness).max(MIN_ALPHA);
-        rough_coat_gain(CoatTable::get(
-            microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha),
+        rough_coat_gain_eta(
+            CoatTable::get(microfacet::Microfacet::new(MicrofacetKind::Ggx, alpha), eta),
             eta,
-        ))
+        )
     }
 }
 
 /// [`base_gain`] of the rough coat whose tables are `t` (index
 /// [`DIELECTRIC_IOR`]): η² (1 − R_int) / T̄.
 pub(crate) fn rough_coat_gain(t: &crate::bsdf::coat::CoatTable) -> f32 {
-    let eta = DIELECTRIC_IOR;
+    rough_coat_gain_eta(t, DIELECTRIC_IOR)
+}
+
+/// [`rough_coat_gain`] of a coat of index `eta` (`t` its tables, made for
+/// that index).
+fn rough_coat_gain_eta(t: &crate::bsdf::coat::CoatTable, eta: f32) -> f32 {
     let t_ext = t.external_diffuse_transmittance;
     if t_ext > 0.0 {
         eta * eta * (1.0 - t.internal_reflectance) / t_ext
