@@ -67,6 +67,21 @@
 //!   finite) is read as 1.5, with a warning. With a
 //!   `metallicRoughnessTexture` the per-texel dielectric keeps η = 1.5,
 //!   with a warning. See `gltf/transmission.rs`;
+//! - `KHR_materials_transmission` on a non-metal (`metallicFactor` < 0.5)
+//!   is glass, of index η = `KHR_materials_ior` (1.5 without it),
+//!   reflecting white and transmitting the base colour (factor × texture),
+//!   as the extension's `specular_btdf` × `baseColor`: Mitsuba's smooth
+//!   `dielectric` when `KHR_materials_volume` has `thicknessFactor` > 0 (a
+//!   solid: light refracts in and out), `thindielectric` otherwise (thin
+//!   walls, as the extension says without a volume: straight through, the
+//!   two faces' inter-reflections summed). Approximations, each named in
+//!   a warning once per material: glTF mixes the glass and the opaque
+//!   dielectric by the transmission t, kalos has no mix of two BSDFs, so t
+//!   is thresholded at 0.5 (glass at or above, the opaque dielectric
+//!   below), and a `transmissionTexture` is averaged over its image (red
+//!   channel) into t first; the volume's attenuation (`attenuationDistance`, `attenuationColor`)
+//!   is not read (clear glass); a `metallicRoughnessTexture` is not read
+//!   on glass; `ior` = 0 makes it the white mirror above;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
@@ -223,7 +238,14 @@ fn material(
     let mr = pbr
         .metallic_roughness_texture()
         .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
-    let material = if let Some(mr) = mr {
+    let glass = if metal {
+        None
+    } else {
+        transmission::glass(m, factor, roughness, ior, &mut textures)
+    };
+    let material = if let Some(glass) = glass {
+        glass
+    } else if let Some(mr) = mr {
         transmission::warn_fixed_ior(m, ior, textures.scene, path);
         // metalness and roughness per texel. A constant base colour is a
         // one-texel bitmap: the diffuse part varies over the surface with
