@@ -312,6 +312,7 @@ fn fractional_and_rough_transmission_are_approximated_with_warnings() {
     );
     let warned = |what: &str| s.warnings.iter().filter(|w| w.contains(what)).count();
     assert_eq!(warned("thresholded"), 2, "{:?}", s.warnings);
+    assert_eq!(warned("rough transmission"), 1, "{:?}", s.warnings);
 }
 
 // ---------------------------------------------------------------------------

@@ -79,7 +79,10 @@
 //!   dielectric by the transmission t, kalos has no mix of two BSDFs, so t
 //!   is thresholded at 0.5 (glass at or above, the opaque dielectric
 //!   below), and a `transmissionTexture` is averaged over its image (red
-//!   channel) into t first; the volume's attenuation (`attenuationDistance`, `attenuationColor`)
+//!   channel) into t first; kalos has no rough dielectric, so rough glass
+//!   (roughness > 0) is smooth glass (sharp where glTF's is frosted: the
+//!   same Fresnel split of reflection and transmission, the blur lost);
+//!   the volume's attenuation (`attenuationDistance`, `attenuationColor`)
 //!   is not read (clear glass); a `metallicRoughnessTexture` is not read
 //!   on glass; `ior` = 0 makes it the white mirror above;
 //! - `doubleSided` → `twosided`;

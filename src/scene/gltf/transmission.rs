@@ -87,7 +87,8 @@ const GLASS_THRESHOLD: f32 = 0.5;
 /// (`factor` × `baseColorTexture`, sRGB). Approximations, each with a
 /// warning once per material: a `transmissionTexture` is averaged over the
 /// image (red channel) and thresholded with its factor; a fractional
-/// transmission is thresholded; the volume's attenuation is dropped; `ior` = 0 (F = 1) is the
+/// transmission is thresholded; a rough one (roughness > 0) is smooth
+/// glass; the volume's attenuation is dropped; `ior` = 0 (F = 1) is the
 /// white mirror of [`mirror`].
 pub(super) fn glass(
     m: &gltf::Material,
@@ -118,6 +119,12 @@ pub(super) fn glass(
             "transmission {t:.3} is thresholded at {GLASS_THRESHOLD} (kalos has no mix of \
              glass and the opaque dielectric): read as {}",
             if glass { "glass" } else { "opaque" }
+        ));
+    }
+    if glass && roughness > 0.0 && ior != 0.0 {
+        notes.push(format!(
+            "rough transmission (roughness {roughness}) is read as smooth glass: kalos has no \
+             rough dielectric"
         ));
     }
     let volume = m.volume();
