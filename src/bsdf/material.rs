@@ -8,7 +8,7 @@ use super::coat::CoatTable;
 use super::fresnel::fresnel_diffuse_reflectance;
 use super::microfacet::Microfacet;
 use super::Bsdf;
-use crate::scene::gltf::{DIELECTRIC_IOR, MIN_ALPHA};
+use crate::scene::gltf::MIN_ALPHA;
 use crate::scene::material::MetallicRoughness;
 use crate::scene::{Coat, Material, Texture};
 use crate::scene::{MicrofacetKind, Rgb};
@@ -44,8 +44,10 @@ impl MetallicRoughness {
     /// The texel at `uv`: metalness m = `metallic` × blue and roughness r =
     /// `roughness` × green of the texture; a GGX conductor tinted by the
     /// base colour where m ≥ 0.5, else the glTF dielectric of
-    /// [`crate::scene::gltf`] (a GGX coat of index 1.5 over the base colour
-    /// times its gain), both with α = r² (at least `MIN_ALPHA`). The
+    /// [`crate::scene::gltf`] (a GGX coat of index `ior` over the base
+    /// colour times its gain, under glTF's coat; a white mirror at `ior`
+    /// 0, a plain diffuse without a specular layer), both with α = r² (at
+    /// least `MIN_ALPHA`). The
     /// dielectric's coat tables are taken at r rounded to 1/32 (its D and G
     /// use the exact α): t(μ) and R_int vary slowly with α.
     #[inline]
@@ -56,31 +58,37 @@ impl MetallicRoughness {
         let r = if r.is_nan() { 1.0 } else { r };
         let base = self.base_color.eval(uv);
         let dist = Microfacet::new(MicrofacetKind::Ggx, (r * r).max(MIN_ALPHA));
-        if metal >= 0.5 {
-            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base colour
+        if metal >= 0.5 || self.ior == 0.0 {
+            // a perfect-mirror Fresnel (eta 0, k 1) scaled by the base
+            // colour; ior 0 (F = 1) is a white one
             return Bsdf::RoughConductor {
                 dist,
                 eta: Rgb::ZERO,
                 k: Rgb::ONE,
-                s: base,
+                s: if metal >= 0.5 { base } else { Rgb::ONE },
             };
         }
+        if self.specular <= 0.0 {
+            // no specular layer: glTF's c/π exactly
+            return Bsdf::Diffuse { r: base };
+        }
+        let eta = self.ior;
         let rq = (r * ROUGHNESS_STEPS).round() / ROUGHNESS_STEPS;
         let table = CoatTable::cached(
             Microfacet::new(MicrofacetKind::Ggx, (rq * rq).max(MIN_ALPHA)),
-            DIELECTRIC_IOR,
+            eta,
             Coat::Gltf {
                 specular: self.specular,
             },
         );
-        let rho = base * table.gltf_base_gain(DIELECTRIC_IOR);
+        let rho = base * table.gltf_base_gain(eta);
         let d = ((rho.x + rho.y + rho.z) / 3.0).max(0.0);
         let s = self.specular.clamp(0.0, 1.0);
         Bsdf::RoughPlastic {
             rho,
             s: self.specular_tint * s,
             dist,
-            eta: DIELECTRIC_IOR,
+            eta,
             nonlinear: false,
             // as coat_sampling_weight, with a grey coat of the layer's weight
             spec_weight: if d + s > 0.0 { s / (d + s) } else { 0.5 },

@@ -487,6 +487,9 @@ pub struct MetallicRoughness {
     /// The specular layer's tint (`specularColorFactor`; white without the
     /// extension).
     pub specular_tint: Rgb,
+    /// The dielectric's index (`KHR_materials_ior`; 1.5 without it). 0 is
+    /// the extension's F = 1: its dielectric texels are white mirrors.
+    pub ior: f32,
 }
 
 #[cfg(test)]

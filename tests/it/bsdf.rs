@@ -124,7 +124,27 @@ fn smooth_cases() -> Vec<(&'static str, Bsdf)> {
             "roughplastic beckmann .4 nonlinear",
             rough_plastic(Beckmann, 0.4, 0.8, 1.7, true),
         ),
+        (
+            "glTF dielectric ggx 1, specular .5",
+            gltf_dielectric(1.0, 0.6, 0.5),
+        ),
+        ("glTF dielectric ggx .3", gltf_dielectric(0.3, 0.6, 1.0)),
     ]
+}
+
+/// A glTF dielectric of GGX α `alpha` and base colour `c` under glTF's coat
+/// with a specular layer of weight `w` (`Coat::Gltf`).
+fn gltf_dielectric(alpha: f32, rho: f32, w: f32) -> Bsdf {
+    Material::RoughPlastic {
+        diffuse_reflectance: c(rho),
+        specular_reflectance: c(w),
+        distribution: MicrofacetKind::Ggx,
+        alpha,
+        eta: 1.5,
+        nonlinear: false,
+        coat: Coat::Gltf { specular: w },
+    }
+    .bsdf(Vec2::ZERO)
 }
 
 /// Outgoing directions: normal, moderate and grazing incidence, off the
@@ -603,6 +623,8 @@ fn rough_models_do_not_create_energy() {
         white_metal,
         rough_plastic(MicrofacetKind::Ggx, 0.3, 1.0, 1.5, false),
         rough_plastic(MicrofacetKind::Beckmann, 0.3, 1.0, 1.5, true),
+        // glTF's coat loses nothing: a white base reflects 1
+        gltf_dielectric(1.0, 1.0, 1.0),
     ];
     for b in bsdfs {
         for wo in wos() {

@@ -17,7 +17,8 @@
 //!   Dielectrics become Mitsuba's `roughplastic` (`plastic` at roughness 0):
 //!   a GGX coat with α = roughness² (at least 10⁻³, as the metals) and
 //!   η = 1.5 over a Lambertian base of the base colour, `nonlinear` off.
-//!   η = 1.5 is glTF's F0 = ((η − 1)/(η + 1))² = 0.04 exactly. How this
+//!   η = 1.5 is glTF's F0 = ((η − 1)/(η + 1))² = 0.04 exactly;
+//!   `KHR_materials_ior` replaces it (see below). How this
 //!   departs from the specification's `fresnel_mix(ior = 1.5, base =
 //!   diffuse_brdf, layer = specular_brdf(α))` (Appendix B), which is
 //!   (1 − F(v·h)) c/π + F(v·h) D V with Schlick's F:
@@ -62,6 +63,32 @@
 //!   metallic–roughness, emissive): scale, rotation and offset, applied to
 //!   the uvs before the lookup, as the extension's matrix; its `texCoord`
 //!   overrides the texture's;
+//! - `KHR_materials_ior`: the dielectric's coat takes η = `ior`, so F0 =
+//!   ((η − 1)/(η + 1))², and the base's gain is computed for that η (the
+//!   coat tables are made per η), per texel too. `ior` = 0, the
+//!   extension's special value (F = 1 at every angle: all light goes to
+//!   the specular layer), is a white mirror (`conductor`, or
+//!   `roughconductor` with α = roughness²; the base colour is not seen).
+//!   An `ior` the extension does not allow (below 1 other than 0, not
+//!   finite) is read as 1.5, with a warning. See `gltf/transmission.rs`;
+//! - `KHR_materials_transmission` on a non-metal (`metallicFactor` < 0.5)
+//!   is glass, of index η = `KHR_materials_ior` (1.5 without it),
+//!   reflecting white and transmitting the base colour (factor × texture),
+//!   as the extension's `specular_btdf` × `baseColor`: Mitsuba's smooth
+//!   `dielectric` when `KHR_materials_volume` has `thicknessFactor` > 0 (a
+//!   solid: light refracts in and out), `thindielectric` otherwise (thin
+//!   walls, as the extension says without a volume: straight through, the
+//!   two faces' inter-reflections summed). Approximations, each named in
+//!   a warning once per material: glTF mixes the glass and the opaque
+//!   dielectric by the transmission t, kalos has no mix of two BSDFs, so t
+//!   is thresholded at 0.5 (glass at or above, the opaque dielectric
+//!   below), and a `transmissionTexture` is averaged over its image (red
+//!   channel) into t first; kalos has no rough dielectric, so rough glass
+//!   (roughness > 0) is smooth glass (sharp where glTF's is frosted: the
+//!   same Fresnel split of reflection and transmission, the blur lost);
+//!   the volume's attenuation (`attenuationDistance`, `attenuationColor`)
+//!   is not read (clear glass); a `metallicRoughnessTexture` is not read
+//!   on glass; `ior` = 0 makes it the white mirror above;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
@@ -118,6 +145,7 @@ use super::{
 mod checks;
 mod lights;
 mod read;
+mod transmission;
 
 use checks::*;
 use read::*;
@@ -237,10 +265,18 @@ fn material(
     let metallic = pbr.metallic_factor();
     let metal = metallic >= 0.5;
     let specular = specular(m, textures.scene, path)?;
+    let ior = transmission::ior(m, textures.scene, path);
     let mr = pbr
         .metallic_roughness_texture()
         .and_then(|info| textures.texture(&info, Rgb::ONE, false, "metallic-roughness"));
-    let material = if let Some(mr) = mr {
+    let glass = if metal {
+        None
+    } else {
+        transmission::glass(m, factor, roughness, ior, &mut textures)
+    };
+    let material = if let Some(glass) = glass {
+        glass
+    } else if let Some(mr) = mr {
         // metalness and roughness per texel. A constant base colour is a
         // one-texel bitmap: the diffuse part varies over the surface with
         // the texels' metalness and roughness, and a bitmap says so to
@@ -262,6 +298,7 @@ fn material(
             metallic_roughness: mr,
             specular: specular.weight,
             specular_tint: specular.tint,
+            ior,
         }))
     } else {
         let base = match pbr.base_color_texture() {
@@ -289,7 +326,7 @@ fn material(
                 }
             }
         } else {
-            dielectric(base, roughness, specular)
+            dielectric(base, roughness, ior, specular)
         }
     };
     let emissive = m
@@ -429,17 +466,22 @@ pub(crate) const DIELECTRIC_IOR: f32 = 1.5;
 /// lobe's peak outruns f32, and the surface is a mirror to the eye anyway.
 pub(crate) const MIN_ALPHA: f32 = 1e-3;
 
-/// glTF's dielectric (`metallic` = 0) with base colour `base` and
-/// perceptual roughness `roughness` ∈ [0, 1]: a GGX coat of index 1.5
-/// (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian base, as
-/// `roughplastic` (`plastic` when the roughness is 0) with glTF's coat
-/// ([`Coat::Gltf`]); a plain `diffuse` when `KHR_materials_specular`
-/// gives the specular layer no weight. See the module doc for how this
-/// differs from the specification's `fresnel_mix`.
-pub(crate) fn dielectric(base: Texture, roughness: f32, specular: Specular) -> Material {
+/// glTF's dielectric (`metallic` = 0) with base colour `base`,
+/// perceptual roughness `roughness` ∈ [0, 1] and index `eta`
+/// (`KHR_materials_ior`, [`DIELECTRIC_IOR`] without it): a GGX coat of
+/// index `eta` (α = roughness², at least [`MIN_ALPHA`]) over a Lambertian
+/// base, as `roughplastic` (`plastic` when the roughness is 0) with glTF's
+/// coat ([`Coat::Gltf`]); `eta` = 0 is the extension's F = 1, a white
+/// mirror ([`transmission::mirror`]); a plain `diffuse` when
+/// `KHR_materials_specular` gives the specular layer no weight. See the
+/// module doc for how this differs from the specification's `fresnel_mix`.
+pub(crate) fn dielectric(base: Texture, roughness: f32, eta: f32, specular: Specular) -> Material {
     if specular.weight <= 0.0 {
         // the specification's fresnel_mix with F0 = F90 = 0: c/π exactly
         return Material::Diffuse { reflectance: base };
+    }
+    if eta == 0.0 {
+        return transmission::mirror(roughness);
     }
     let specular_reflectance = Texture::Constant(specular.tint * specular.weight);
     let coat = Coat::Gltf {
@@ -449,7 +491,7 @@ pub(crate) fn dielectric(base: Texture, roughness: f32, specular: Specular) -> M
         Material::Plastic {
             diffuse_reflectance: base,
             specular_reflectance,
-            eta: DIELECTRIC_IOR,
+            eta,
             nonlinear: false,
             coat,
         }
@@ -459,7 +501,7 @@ pub(crate) fn dielectric(base: Texture, roughness: f32, specular: Specular) -> M
             specular_reflectance,
             distribution: MicrofacetKind::Ggx,
             alpha: (roughness * roughness).max(MIN_ALPHA),
-            eta: DIELECTRIC_IOR,
+            eta,
             nonlinear: false,
             coat,
         }
