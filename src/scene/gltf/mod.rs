@@ -159,7 +159,10 @@ const MAX_NODES: u64 = 1 << 20;
 const READ_EXTENSIONS: &[&str] = &[
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
     "KHR_materials_specular",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
     "KHR_texture_transform",
     "MOZ_lightmap",
 ];
