@@ -30,6 +30,7 @@ mod fuzz_found;
 mod geometry;
 mod glb;
 mod gltf_brdf;
+mod gltf_normalmap;
 mod image_io;
 mod lightmap;
 mod lightmap_gather;
