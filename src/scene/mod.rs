@@ -30,6 +30,7 @@ use glam::{Mat4, Vec2, Vec3};
 use crate::geometry::Frame;
 pub use access::{AccessError, FileAccess, FileKind, ReadPolicy};
 pub use env::Environment;
+pub use gltf::normalmap::NormalMap;
 pub use material::{Coat, Material, MicrofacetKind, TexImage, Texture};
 pub use punctual::{PunctualKind, PunctualLight};
 pub use records::{TriRecord, TriRecords};
@@ -205,6 +206,10 @@ pub struct Shape {
     pub tri_count: u32,
     /// True when the vertices carry smooth shading normals.
     pub smooth: bool,
+    /// A tangent-space normal map perturbing the shading normal (glTF
+    /// `normalTexture`), with the tangents of the shape's triangles;
+    /// `None` for nearly every shape.
+    pub normal_map: Option<Box<NormalMap>>,
     /// Where a glTF loader took the shape from (`None` for other
     /// loaders): enough for a writer to map the shape's triangles and
     /// vertices back to the primitive's accessors.
@@ -388,7 +393,8 @@ pub struct SurfacePoint {
     pub p: Vec3,
     /// Geometric normal (unit, from the triangle's winding).
     pub ng: Vec3,
-    /// Shading frame (normal interpolated for smooth shapes, else `ng`).
+    /// Shading frame (normal interpolated for smooth shapes, else `ng`;
+    /// then perturbed by the shape's normal map, if any).
     pub frame: Frame,
     /// Texture coordinates.
     pub uv: Vec2,
@@ -508,6 +514,7 @@ impl Scene {
             first_tri,
             tri_count,
             smooth: normals.is_some_and(|n| n.len() == positions.len()),
+            normal_map: None,
             source: None,
         });
         shape_id

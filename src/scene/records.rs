@@ -102,7 +102,8 @@ pub(super) fn interpolate(
     let b0 = 1.0 - b1 - b2;
     let p = a * b0 + b * b1 + c * b2;
     let ng = (b - a).cross(c - a).normalize_or(Vec3::Z);
-    let ns = if scene.shapes[shape as usize].smooth {
+    let sh = &scene.shapes[shape as usize];
+    let ns = if sh.smooth {
         let [i0, i1, i2] = indices().map(|i| i as usize);
         let n = scene.normals[i0] * b0 + scene.normals[i1] * b1 + scene.normals[i2] * b2;
         // keep the shading normal on the geometric normal's side
@@ -116,6 +117,11 @@ pub(super) fn interpolate(
         ng
     };
     let uv = uv[0] * b0 + uv[1] * b1 + uv[2] * b2;
+    // a normal map tilts the shading normal (kept on ng's side)
+    let ns = match &sh.normal_map {
+        None => ns,
+        Some(nm) => nm.perturb(tri - sh.first_tri, [b0, b1, b2], uv, ns, ng),
+    };
     SurfacePoint {
         p,
         ng,

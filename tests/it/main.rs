@@ -31,6 +31,7 @@ mod geometry;
 mod glb;
 mod gltf_brdf;
 mod gltf_glass;
+mod gltf_normalmap;
 mod image_io;
 mod lightmap;
 mod lightmap_gather;

@@ -89,6 +89,14 @@
 //!   the volume's attenuation (`attenuationDistance`, `attenuationColor`)
 //!   is not read (clear glass); a `metallicRoughnessTexture` is not read
 //!   on glass; `ior` = 0 makes it the white mirror above;
+//! - `normalTexture` in tangent space, with the primitive's `TANGENT` or
+//!   MikkTSpace tangents, tilts the shading normal at each hit, for every
+//!   method (see `gltf/normalmap.rs`). Approximations: the density
+//!   method and the lightmap bake store irradiance per area of the
+//!   triangle, so the light their diffuse part receives ignores the map
+//!   (the diffuse part's view-dependent factor, the glossy part and the
+//!   other methods use the tilted normal); a normal tilted below the
+//!   triangle is bent back to just above it;
 //! - `doubleSided` → `twosided`;
 //! - a non-zero `emissiveFactor` × `KHR_materials_emissive_strength` → an
 //!   area emitter with that radiance (glTF's emission is unitless: it is
@@ -109,8 +117,7 @@
 //! Skipped with a warning: non-triangle primitives, texture coordinate
 //! sets other than the first, and every extension the file uses that is
 //! not in [`READ_EXTENSIONS`] (named once). Ignored: samplers (every
-//! texture wraps and is filtered bilinearly), normal and occlusion
-//! textures.
+//! texture wraps and is filtered bilinearly) and occlusion textures.
 //!
 //! Refused before anything is allocated: GLB lengths beyond the file, node
 //! cycles, and node DAGs that instance more than [`super::MAX_TRIANGLES`]
@@ -144,6 +151,7 @@ use super::{
 /// exponentially large tree.
 mod checks;
 mod lights;
+pub mod normalmap;
 mod read;
 mod transmission;
 
@@ -185,8 +193,16 @@ pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> 
     // Materials, each with its emission
     let mut mats = Vec::new();
     let mut textures: Vec<[Option<Arc<TexImage>>; 2]> = vec![[None, None]; images.len()];
+    let mut normal_maps = Vec::new();
     for m in doc.materials() {
         mats.push(material(&m, &images, &mut textures, &mut scene, path)?);
+        normal_maps.push(normalmap::normal_texture(
+            &m,
+            &images,
+            &mut textures,
+            &mut scene,
+            path,
+        ));
     }
 
     // Walk the node tree of the default scene
@@ -200,6 +216,7 @@ pub fn load_gltf(path: &Path, access: &FileAccess) -> Result<Scene, SceneError> 
         root: doc.as_json(),
         buffers: &buffers,
         mats: &mats,
+        normal_maps: &normal_maps,
         default_mat: None,
         scene,
         camera_seen: false,
@@ -627,6 +644,8 @@ struct Walk<'a> {
     buffers: &'a [gltf::buffer::Data],
     /// Each glTF material's index in the scene, and its emission.
     mats: &'a [MaterialEntry],
+    /// Each glTF material's normal texture, if it has one.
+    normal_maps: &'a [Option<normalmap::NormalTexture>],
     /// The white diffuse material of primitives without one, once added.
     default_mat: Option<u32>,
     scene: Scene,
@@ -732,6 +751,19 @@ impl Walk<'_> {
             uvs,
             indices,
         };
+        // a normal map's tangents, in object space
+        let normal_map = prim
+            .material()
+            .index()
+            .and_then(|i| self.normal_maps.get(i)?.as_ref())
+            .and_then(|tex| {
+                let given = reader.read_tangents().map(|t| t.collect());
+                let what = format!("mesh {} primitive {k}", mesh.index());
+                Some((
+                    tex,
+                    normalmap::primitive_tangents(&m, given, scene, path, &what)?,
+                ))
+            });
         m.transform(&world);
         let mirrored = Mat3::from_mat4(world).determinant() < 0.0;
         if mirrored {
@@ -780,6 +812,9 @@ impl Walk<'_> {
             kept,
             mirrored,
         }));
+        if let Some((tex, tangents)) = normal_map {
+            normalmap::attach(scene, shape, tex, &tangents, world);
+        }
         Ok(())
     }
 }

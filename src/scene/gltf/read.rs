@@ -137,7 +137,7 @@ pub(super) fn import(path: &Path, access: &FileAccess) -> Result<Imported, Scene
 }
 
 /// The images of `document` a material reads (as its base colour, its
-/// metallic–roughness or its emission; None for the others),
+/// metallic–roughness, its emission or its normals; None for the others),
 /// each read from where `image_src` says ([`locate`]d by [`import`]) or
 /// from its buffer view, and declared to `access` from its header before
 /// it is decoded. `text` is the glTF's JSON text, to name a URI's line.
@@ -167,6 +167,7 @@ pub(super) fn read_images(
             pbr.base_color_texture().map(|i| i.texture()),
             pbr.metallic_roughness_texture().map(|i| i.texture()),
             m.emissive_texture().map(|i| i.texture()),
+            m.normal_texture().map(|i| i.texture()),
         ];
         for t in sources.into_iter().flatten() {
             if let Some(u) = used.get_mut(t.source().index()) {
@@ -385,14 +386,20 @@ pub(super) fn reserve_meshes(
         if k == 0 {
             continue;
         }
-        let (mut vertices, mut triangles) = (0u64, 0u64);
+        let (mut vertices, mut triangles, mut tangents) = (0u64, 0u64, 0u64);
         for p in mesh
             .primitives()
             .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
         {
             let n = p.get(&gltf::Semantic::Positions).map_or(0, |a| a.count()) as u64;
             vertices += n;
-            triangles += p.indices().map_or(n, |a| a.count() as u64) / 3;
+            let t = p.indices().map_or(n, |a| a.count() as u64) / 3;
+            triangles += t;
+            if p.material().normal_texture().is_some() {
+                // a normal map's corner tangents, in object and in world
+                // space, and the TANGENT attribute read
+                tangents = tangents.saturating_add(t.saturating_mul(96).saturating_add(n * 16));
+            }
         }
         let item = format!(
             "glTF mesh {} `{}` ({triangles} triangles × {k} instances)",
@@ -402,7 +409,9 @@ pub(super) fn reserve_meshes(
         access
             .reserve(
                 item,
-                crate::scene::mesh_memory(vertices, triangles).saturating_mul(k),
+                crate::scene::mesh_memory(vertices, triangles)
+                    .saturating_add(tangents)
+                    .saturating_mul(k),
             )
             .map_err(|e| SceneError::new(path, 0, e.to_string()))?;
     }

@@ -561,7 +561,8 @@ struct Shaded {
 /// Which vertices the lanes shade: the common case (a diffuse BSDF on a
 /// surface that does not emit, below the depth limit); every other vertex
 /// takes the scalar step here. A shaded lane's reflectance and shading
-/// normal (interpolated for smooth shapes, lane by lane).
+/// normal (interpolated for smooth shapes, lane by lane; a normal-mapped
+/// shape's is the scalar surface point's).
 #[inline(always)]
 fn shade_or_scatter(
     world: &World,
@@ -607,7 +608,10 @@ fn shade_or_scatter(
         sh.vec |= 1 << i;
         sh.two_sided |= u32::from(material.is_two_sided()) << i;
         V3::set(&mut sh.r, i, ri);
-        if s.smooth {
+        if s.normal_map.is_some() {
+            // a normal map's frame is the scalar surface point's
+            V3::set(&mut sh.ns, i, world.surface_point(&lh[i]).frame.n);
+        } else if s.smooth {
             let ng = V3::lane(&ng_a, i);
             let [i0, i1, i2] = scene.triangles[lh[i].tri as usize].map(|i| i as usize);
             let n = scene.normals[i0] * b0_a[i]
