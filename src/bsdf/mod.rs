@@ -414,13 +414,13 @@ impl Bsdf {
                 // m from the side of wo; F at the microfacet picks the lobe
                 let m = dist.sample_m(wo * wo.z.signum(), u);
                 let (f, cos_t, eta_it, eta_ti) = fresnel_dielectric(wo.dot(m), eta);
-                let (wi, lobe_eta) = if uc < f {
-                    (reflect(wo, m), 1.0)
+                let reflected = uc < f;
+                let wi = if reflected {
+                    reflect(wo, m)
                 } else {
-                    (refract(wo, m, cos_t, eta_ti), eta_it)
+                    refract(wo, m, cos_t, eta_ti)
                 };
                 // a reflection below or a refraction above the surface is lost
-                let reflected = lobe_eta == 1.0;
                 if !wi.is_finite() || (wi.z * wo.z > 0.0) != reflected || wi.z == 0.0 {
                     return None;
                 }
