@@ -118,6 +118,7 @@ impl Material {
     /// <bsdf type="plastic"><float name="int_ior" value="1.49"/></bsdf>
     /// <bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf>
     /// <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
+    /// <bsdf type="roughdielectric"><float name="alpha" value="0.1"/></bsdf>
     /// <bsdf type="thindielectric"><float name="int_ior" value="1.5"/></bsdf>
     /// <bsdf type="twosided"><bsdf type="diffuse"/></bsdf>
     /// ```
@@ -227,6 +228,18 @@ impl Material {
                 r: specular_reflectance.eval(uv),
                 t: specular_transmittance.eval(uv),
             },
+            Material::RoughDielectric {
+                distribution,
+                alpha,
+                eta,
+                specular_reflectance,
+                specular_transmittance,
+            } => Bsdf::RoughDielectric {
+                dist: Microfacet::new(*distribution, *alpha),
+                eta: *eta,
+                r: specular_reflectance.eval(uv),
+                t: specular_transmittance.eval(uv),
+            },
             Material::ThinDielectric {
                 eta,
                 specular_reflectance,
@@ -249,7 +262,9 @@ impl Material {
         match self {
             Material::TwoSided(inner) => !matches!(
                 inner.base(),
-                Material::Dielectric { .. } | Material::ThinDielectric { .. }
+                Material::Dielectric { .. }
+                    | Material::RoughDielectric { .. }
+                    | Material::ThinDielectric { .. }
             ),
             _ => false,
         }
@@ -293,6 +308,10 @@ impl Material {
                 ..
             } => specular_reflectance,
             Material::Dielectric {
+                specular_transmittance,
+                ..
+            }
+            | Material::RoughDielectric {
                 specular_transmittance,
                 ..
             }

@@ -6,7 +6,7 @@
 //!   [`Mode::Radiance`] (camera paths) `wo` points toward the camera side of
 //!   the path; with [`Mode::Importance`] (light paths) `wo` points toward the
 //!   light side and `wi` is where the particle goes next.
-//! - The reflective models (everything but `dielectric` and `thindielectric`)
+//! - The reflective models (everything but the three dielectrics)
 //!   are one-sided, as in Mitsuba: they are zero (and `sample` returns `None`)
 //!   when `wo.z <= 0` or `wi.z <= 0`. For `twosided` materials the integrator
 //!   flips the frame before calling ([`crate::scene::Material::is_two_sided`]).
@@ -47,7 +47,8 @@ use crate::scene::{luminance, Rgb};
 
 use coat::CoatTable;
 use fresnel::{
-    fresnel_conductor, fresnel_dielectric, fresnel_diffuse_reflectance, reflect, thin_reflectance,
+    fresnel_conductor, fresnel_dielectric, fresnel_diffuse_reflectance, reflect, refract,
+    thin_reflectance,
 };
 use microfacet::Microfacet;
 
@@ -165,6 +166,23 @@ pub enum Bsdf {
         /// Multiplier on transmission.
         t: Rgb,
     },
+    /// Rough glass (Mitsuba's `roughdielectric`): microfacet reflection
+    /// f_r = r F D G / (4 |cos θo cos θi|) and refraction (Walter et al.
+    /// 2007, eq. 21) f_t = t (1 − F) D G η² |wo·m| |wi·m| / (|cos θo cos θi|
+    /// (wo·m + η wi·m)²), η the index entered over the index left, times
+    /// 1/η² in radiance mode; m the generalised half vector. A sample draws
+    /// m (visible normals for GGX) and reflects with probability F(wo·m),
+    /// else refracts. Single scattering: energy between microfacets is lost.
+    RoughDielectric {
+        /// Normal distribution.
+        dist: Microfacet,
+        /// Relative index (interior / exterior).
+        eta: f32,
+        /// Multiplier on reflection.
+        r: Rgb,
+        /// Multiplier on transmission.
+        t: Rgb,
+    },
     /// Thin glass pane: reflection with the interreflections of both faces
     /// summed, R' = R + T²R/(1 − R²), and straight-through transmission 1 − R'.
     ThinDielectric {
@@ -214,7 +232,7 @@ pub fn shading_normal_correction_over(
 impl Bsdf {
     /// f(wo, wi), without the cosine. Zero for delta lobes.
     #[inline(always)]
-    pub fn eval(&self, wo: Vec3, wi: Vec3, _mode: Mode) -> Rgb {
+    pub fn eval(&self, wo: Vec3, wi: Vec3, mode: Mode) -> Rgb {
         match *self {
             Bsdf::Diffuse { r } => {
                 if wo.z <= 0.0 || wi.z <= 0.0 {
@@ -287,6 +305,9 @@ impl Bsdf {
                 let t = table.t(wo.z) * table.t(wi.z);
                 f + internal_scattering(rho, table.internal_reflectance, nonlinear)
                     * (FRAC_1_PI / (eta * eta) * t)
+            }
+            Bsdf::RoughDielectric { dist, eta, r, t } => {
+                eval_rough_dielectric(dist, eta, r, t, wo, wi, mode)
             }
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => {
                 Rgb::ZERO
@@ -386,6 +407,35 @@ impl Bsdf {
                 self.smooth_sample(wo, wi, mode)
             }
             Bsdf::Dielectric { eta, r, t } => sample_dielectric(wo, uc, eta, r, t, mode),
+            Bsdf::RoughDielectric { dist, eta, .. } => {
+                if wo.z == 0.0 {
+                    return None;
+                }
+                // m from the side of wo; F at the microfacet picks the lobe
+                let m = dist.sample_m(wo * wo.z.signum(), u);
+                let (f, cos_t, eta_it, eta_ti) = fresnel_dielectric(wo.dot(m), eta);
+                let reflected = uc < f;
+                let wi = if reflected {
+                    reflect(wo, m)
+                } else {
+                    refract(wo, m, cos_t, eta_ti)
+                };
+                // a reflection below or a refraction above the surface is lost
+                if !wi.is_finite() || (wi.z * wo.z > 0.0) != reflected || wi.z == 0.0 {
+                    return None;
+                }
+                let pdf = self.pdf(wo, wi);
+                if !(pdf > 0.0 && pdf.is_finite()) {
+                    return None;
+                }
+                Some(BsdfSample {
+                    wi,
+                    f: self.eval(wo, wi, mode),
+                    pdf,
+                    delta: false,
+                    eta: if reflected { 1.0 } else { eta_it },
+                })
+            }
             Bsdf::ThinDielectric { eta, r, t } => sample_thin_dielectric(wo, uc, eta, r, t),
         }
     }
@@ -437,6 +487,7 @@ impl Bsdf {
                 };
                 ps * spec + (1.0 - ps) * wi.z * FRAC_1_PI
             }
+            Bsdf::RoughDielectric { dist, eta, .. } => pdf_rough_dielectric(dist, eta, wo, wi),
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => 0.0,
         }
     }
@@ -445,7 +496,7 @@ impl Bsdf {
     /// roulette: exact for `diffuse`, `conductor`, `dielectric`,
     /// `thindielectric` (and `plastic` up to the F_dr fits); for the rough
     /// models the Fresnel factor at the macro-normal without the shadowing
-    /// loss (an upper estimate); for `phong` kd + ks (exact at normal incidence).
+    /// loss (an upper estimate; `roughdielectric` as `dielectric`); for `phong` kd + ks (exact at normal incidence).
     #[inline(always)]
     pub fn albedo(&self, wo: Vec3) -> Rgb {
         let a = match *self {
@@ -481,7 +532,7 @@ impl Bsdf {
                     + internal_scattering(rho, table.internal_reflectance, nonlinear)
                         * (t_o * t_out)
             }
-            Bsdf::Dielectric { eta, r, t } => {
+            Bsdf::Dielectric { eta, r, t } | Bsdf::RoughDielectric { eta, r, t, .. } => {
                 let f = fresnel_dielectric(wo.z, eta).0;
                 r * f + t * (1.0 - f)
             }
@@ -513,12 +564,14 @@ impl Bsdf {
 
     /// True when some lobe is glossy: a non-delta lobe concentrated about a
     /// direction (Phong with a specular part, the rough conductor, the coat
-    /// of rough plastic). The glossy camera pass of `plb` estimates such
+    /// of rough plastic, rough glass). The glossy camera pass of `plb` estimates such
     /// lobes from the camera side too.
     pub fn has_glossy(&self) -> bool {
         match self {
             Bsdf::Phong { ks, .. } => ks.max_element() > 0.0,
-            Bsdf::RoughConductor { .. } | Bsdf::RoughPlastic { .. } => true,
+            Bsdf::RoughConductor { .. }
+            | Bsdf::RoughPlastic { .. }
+            | Bsdf::RoughDielectric { .. } => true,
             _ => false,
         }
     }
@@ -532,7 +585,10 @@ impl Bsdf {
     /// True when light can pass through the surface (the dielectrics); these
     /// are two-sided by construction and must not be frame-flipped.
     pub fn is_transmissive(&self) -> bool {
-        matches!(self, Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. })
+        matches!(
+            self,
+            Bsdf::Dielectric { .. } | Bsdf::RoughDielectric { .. } | Bsdf::ThinDielectric { .. }
+        )
     }
 
     /// Completes a non-delta sample at `wi` from `eval` and `pdf`, so that the
@@ -766,6 +822,98 @@ fn sample_dielectric(
             delta: true,
             eta: eta_it,
         })
+    }
+}
+
+/// The generalised half vector of `roughdielectric` (Walter et al. 2007,
+/// eq. 16), on the side of the macro-normal, with the relative index η
+/// entered over left (1 for reflection): m ∝ wo + wi (reflection), wo + η wi
+/// (refraction). `None` when degenerate or when wo or wi sees the back of m
+/// (no microfacet joins them).
+#[inline]
+fn rough_dielectric_half(eta: f32, wo: Vec3, wi: Vec3) -> Option<(Vec3, bool, f32)> {
+    if wo.z == 0.0 || wi.z == 0.0 {
+        return None;
+    }
+    let reflected = wo.z * wi.z > 0.0;
+    let eta_rel = match (reflected, wo.z > 0.0) {
+        (true, _) => 1.0,
+        (false, true) => eta,
+        (false, false) => 1.0 / eta,
+    };
+    let m = wo + wi * eta_rel;
+    let l2 = m.length_squared();
+    if l2 <= 0.0 || !l2.is_finite() {
+        return None;
+    }
+    let m = m / l2.sqrt();
+    let m = if m.z < 0.0 { -m } else { m };
+    if wo.dot(m) * wo.z <= 0.0 || wi.dot(m) * wi.z <= 0.0 {
+        return None;
+    }
+    Some((m, reflected, eta_rel))
+}
+
+/// [`Bsdf::eval`] for `roughdielectric` (Mitsuba 3's form).
+#[inline]
+fn eval_rough_dielectric(
+    dist: Microfacet,
+    eta: f32,
+    r: Rgb,
+    t: Rgb,
+    wo: Vec3,
+    wi: Vec3,
+    mode: Mode,
+) -> Rgb {
+    let Some((m, reflected, eta_rel)) = rough_dielectric_half(eta, wo, wi) else {
+        return Rgb::ZERO;
+    };
+    let dg = dist.d(m) * dist.g(wo, wi, m);
+    if dg <= 0.0 || dg.is_nan() {
+        return Rgb::ZERO;
+    }
+    let f = fresnel_dielectric(wo.dot(m), eta).0;
+    let cc = (wo.z * wi.z).abs();
+    if reflected {
+        r * (f * dg / (4.0 * cc))
+    } else {
+        let (om, im) = (wo.dot(m), wi.dot(m));
+        let den = om + eta_rel * im;
+        // radiance is compressed by 1/η² into the denser side; importance is not
+        let scale = match mode {
+            Mode::Radiance => 1.0,
+            Mode::Importance => eta_rel * eta_rel,
+        };
+        let v = ((1.0 - f) * dg * scale * om * im / (cc * den * den)).abs();
+        if v.is_finite() {
+            t * v
+        } else {
+            Rgb::ZERO
+        }
+    }
+}
+
+/// [`Bsdf::pdf`] for `roughdielectric`: the density of m times the lobe's
+/// probability F or 1 − F times the Jacobian of the half-vector map,
+/// 1/(4 |wi·m|) for reflection, η² |wi·m| / (wo·m + η wi·m)² for refraction.
+#[inline]
+fn pdf_rough_dielectric(dist: Microfacet, eta: f32, wo: Vec3, wi: Vec3) -> f32 {
+    let Some((m, reflected, eta_rel)) = rough_dielectric_half(eta, wo, wi) else {
+        return 0.0;
+    };
+    let pm = dist.pdf_m(wo * wo.z.signum(), m);
+    let f = fresnel_dielectric(wo.dot(m), eta).0;
+    let im = wi.dot(m);
+    let p = if reflected {
+        pm * f / (4.0 * im.abs())
+    } else {
+        let den = wo.dot(m) + eta_rel * im;
+        pm * (1.0 - f) * (eta_rel * eta_rel * im.abs() / (den * den))
+    };
+    if p.is_finite() {
+        p
+    } else {
+        0.0
     }
 }
 

@@ -421,6 +421,20 @@ pub enum Material {
         /// Multiplier on transmission.
         specular_transmittance: Texture,
     },
+    /// Rough glass (`roughdielectric`): microfacet reflection and refraction
+    /// (Walter et al. 2007), the lobe chosen by Fresnel.
+    RoughDielectric {
+        /// Distribution.
+        distribution: MicrofacetKind,
+        /// Roughness α.
+        alpha: f32,
+        /// Relative index of refraction (int_ior / ext_ior).
+        eta: f32,
+        /// Multiplier on reflection.
+        specular_reflectance: Texture,
+        /// Multiplier on transmission.
+        specular_transmittance: Texture,
+    },
     /// A thin pane of glass (`thindielectric`): reflection and straight-through
     /// transmission with the interreflections of the two faces summed.
     ThinDielectric {

@@ -19,6 +19,7 @@ fn material_name(m: &Material) -> String {
         M::Plastic { .. } => "plastic".into(),
         M::RoughPlastic { .. } => "roughplastic".into(),
         M::Dielectric { .. } => "dielectric".into(),
+        M::RoughDielectric { .. } => "roughdielectric".into(),
         M::ThinDielectric { .. } => "thindielectric".into(),
         M::TwoSided(inner) => format!("twosided({})", material_name(inner)),
         M::MetallicRoughness(_) => "gltf metallic-roughness (per texel)".into(),

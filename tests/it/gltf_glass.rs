@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use glam::{Vec2, Vec3};
 use kalos::bsdf::{Bsdf, Mode};
 use kalos::sampling::Pcg32;
-use kalos::scene::{self, Material, Rgb, Scene, Texture};
+use kalos::scene::{self, Material, MicrofacetKind, Rgb, Scene, Texture};
 
 fn tmp() -> tempfile::TempDir {
     tempfile::Builder::new()
@@ -282,17 +282,28 @@ fn transmission_with_a_volume_is_solid_glass() {
 }
 
 /// A fractional transmission is thresholded at 0.5 (kalos has no mix of
-/// the two BSDFs), rough transmission is read as smooth glass, and each
-/// approximation is named in a warning.
+/// the two BSDFs), rough thin-walled transmission is read as the smooth
+/// pane, and each approximation is named in a warning; rough solid glass
+/// (with a volume) is the GGX `roughdielectric` of α = roughness², which
+/// approximates nothing, so it warns of nothing.
 #[test]
 fn fractional_and_rough_transmission_are_approximated_with_warnings() {
     let d = tmp();
     let tr = |t: f32| format!(r#""KHR_materials_transmission":{{"transmissionFactor":{t}}}"#);
     let mats = format!(
-        "[{},{},{}]",
+        "[{},{},{},{}]",
         mat([0.5; 3], 0.0, &tr(0.3)),
         mat([0.5; 3], 0.0, &tr(0.7)),
         mat([0.5; 3], 0.4, &tr(1.0)),
+        mat(
+            [0.5; 3],
+            0.4,
+            &format!(
+                r#"{},"KHR_materials_ior":{{"ior":1.4}},
+                "KHR_materials_volume":{{"thicknessFactor":0.1}}"#,
+                tr(1.0)
+            )
+        ),
     );
     let s = load(&square(d.path(), "approx", &mats));
     assert!(
@@ -310,9 +321,28 @@ fn fractional_and_rough_transmission_are_approximated_with_warnings() {
         "{:?}",
         s.materials[2]
     );
+    match &s.materials[3] {
+        Material::RoughDielectric {
+            distribution,
+            alpha,
+            eta,
+            ..
+        } => {
+            assert_eq!(*distribution, MicrofacetKind::Ggx);
+            assert!((alpha - 0.16).abs() < 1e-6, "α {alpha}");
+            assert_eq!(*eta, 1.4);
+        }
+        m => panic!("not a roughdielectric: {m:?}"),
+    }
     let warned = |what: &str| s.warnings.iter().filter(|w| w.contains(what)).count();
     assert_eq!(warned("thresholded"), 2, "{:?}", s.warnings);
-    assert_eq!(warned("rough transmission"), 1, "{:?}", s.warnings);
+    assert_eq!(warned("rough"), 1, "{:?}", s.warnings);
+    assert_eq!(
+        warned("rough thin-walled transmission"),
+        1,
+        "{:?}",
+        s.warnings
+    );
 }
 
 // ---------------------------------------------------------------------------

@@ -111,6 +111,8 @@ pub fn eval_glass(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
                 Rgb::ZERO
             }
         }
+        // rough glass is not a δ: its f is the transfer's as it is
+        Bsdf::RoughDielectric { .. } => bsdf.eval(wo, wi, Mode::Radiance),
         _ => Rgb::ZERO,
     }
 }
@@ -118,7 +120,10 @@ pub fn eval_glass(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> Rgb {
 /// True for the BSDFs that [`eval_glass`] transfers.
 #[inline]
 pub fn is_glass(bsdf: &Bsdf) -> bool {
-    matches!(bsdf, Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. })
+    matches!(
+        bsdf,
+        Bsdf::Dielectric { .. } | Bsdf::RoughDielectric { .. } | Bsdf::ThinDielectric { .. }
+    )
 }
 
 /// f̃_i for radiance flowing along `d` into the patch and leaving toward `w`

@@ -74,18 +74,20 @@
 //! - `KHR_materials_transmission` on a non-metal (`metallicFactor` < 0.5)
 //!   is glass, of index η = `KHR_materials_ior` (1.5 without it),
 //!   reflecting white and transmitting the base colour (factor × texture),
-//!   as the extension's `specular_btdf` × `baseColor`: Mitsuba's smooth
+//!   as the extension's `specular_btdf` × `baseColor`: Mitsuba's
 //!   `dielectric` when `KHR_materials_volume` has `thicknessFactor` > 0 (a
-//!   solid: light refracts in and out), `thindielectric` otherwise (thin
+//!   solid: light refracts in and out; rough, `roughdielectric` with GGX
+//!   α = roughness², at least 10⁻³), `thindielectric` otherwise (thin
 //!   walls, as the extension says without a volume: straight through, the
 //!   two faces' inter-reflections summed). Approximations, each named in
 //!   a warning once per material: glTF mixes the glass and the opaque
 //!   dielectric by the transmission t, kalos has no mix of two BSDFs, so t
 //!   is thresholded at 0.5 (glass at or above, the opaque dielectric
 //!   below), and a `transmissionTexture` is averaged over its image (red
-//!   channel) into t first; kalos has no rough dielectric, so rough glass
-//!   (roughness > 0) is smooth glass (sharp where glTF's is frosted: the
-//!   same Fresnel split of reflection and transmission, the blur lost);
+//!   channel) into t first; thin-walled rough glass (roughness > 0, no
+//!   volume) is the smooth pane (sharp where glTF's is frosted: the same
+//!   Fresnel split of reflection and transmission, the blur lost), as
+//!   Mitsuba has no rough `thindielectric`;
 //!   the volume's attenuation (`attenuationDistance`, `attenuationColor`)
 //!   is not read (clear glass); a `metallicRoughnessTexture` is not read
 //!   on glass; `ior` = 0 makes it the white mirror above;

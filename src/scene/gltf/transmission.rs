@@ -63,16 +63,18 @@ const GLASS_THRESHOLD: f32 = 0.5;
 
 /// The glass of a non-metal material `m` with `KHR_materials_transmission`
 /// (`None` when it has none, or its transmission is below
-/// [`GLASS_THRESHOLD`]): a smooth `dielectric` (solid: its
-/// `KHR_materials_volume` has `thicknessFactor` > 0) or `thindielectric`
+/// [`GLASS_THRESHOLD`]): a `dielectric` (solid: its `KHR_materials_volume`
+/// has `thicknessFactor` > 0; a GGX `roughdielectric` of α = roughness²,
+/// at least [`MIN_ALPHA`], when roughness > 0) or `thindielectric`
 /// (thin-walled, as the extension says without a volume), of index `ior`
 /// ([`ior`]), reflecting white and transmitting the base colour
 /// (`factor` × `baseColorTexture`, sRGB). Approximations, each with a
 /// warning once per material: a `transmissionTexture` is averaged over the
 /// image (red channel) and thresholded with its factor; a fractional
-/// transmission is thresholded; a rough one (roughness > 0) is smooth
-/// glass; the volume's attenuation is dropped; `ior` = 0 (F = 1) is the
-/// white mirror of [`mirror`].
+/// transmission is thresholded; a rough thin-walled one is the smooth pane
+/// (Mitsuba has no rough `thindielectric`, and a rough interface on each
+/// face of a pane has no closed form); the volume's attenuation is dropped;
+/// `ior` = 0 (F = 1) is the white mirror of [`mirror`].
 pub(super) fn glass(
     m: &gltf::Material,
     factor: Rgb,
@@ -104,14 +106,14 @@ pub(super) fn glass(
             if glass { "glass" } else { "opaque" }
         ));
     }
-    if glass && roughness > 0.0 && ior != 0.0 {
-        notes.push(format!(
-            "rough transmission (roughness {roughness}) is read as smooth glass: kalos has no \
-             rough dielectric"
-        ));
-    }
     let volume = m.volume();
     let solid = volume.as_ref().is_some_and(|v| v.thickness_factor() > 0.0);
+    if glass && roughness > 0.0 && ior != 0.0 && !solid {
+        notes.push(format!(
+            "rough thin-walled transmission (roughness {roughness}) is read as a smooth pane: \
+             kalos has no rough thin dielectric"
+        ));
+    }
     if let (true, Some(v)) = (glass, &volume) {
         let d = v.attenuation_distance();
         if d.is_finite() && d > 0.0 {
@@ -140,7 +142,15 @@ pub(super) fn glass(
         None => Texture::Constant(factor),
     };
     let white = Texture::Constant(Rgb::ONE);
-    Some(if solid {
+    Some(if solid && roughness > 0.0 {
+        Material::RoughDielectric {
+            distribution: MicrofacetKind::Ggx,
+            alpha: (roughness * roughness).max(MIN_ALPHA),
+            eta: ior,
+            specular_reflectance: white,
+            specular_transmittance: tint,
+        }
+    } else if solid {
         Material::Dielectric {
             eta: ior,
             specular_reflectance: white,

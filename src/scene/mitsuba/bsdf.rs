@@ -1,5 +1,6 @@
 //! BSDF plugins: `diffuse`, `twosided`, `conductor`, `roughconductor`,
-//! `plastic`, `roughplastic`, `dielectric`, `thindielectric`, `phong`.
+//! `plastic`, `roughplastic`, `dielectric`, `roughdielectric`,
+//! `thindielectric`, `phong`.
 
 use crate::scene::{Coat, Material};
 
@@ -87,6 +88,21 @@ impl<'t> Builder<'t> {
                         specular_reflectance,
                         specular_transmittance,
                     }
+                }
+            }
+            "roughdielectric" => {
+                let eta = self.eta(&mut p, 1.5046)?;
+                let specular_reflectance = self.color(&mut p, "specular_reflectance", 1.0)?;
+                let specular_transmittance = self.color(&mut p, "specular_transmittance", 1.0)?;
+                let distribution = self.distribution(&mut p)?;
+                let alpha = self.alpha(&mut p)?;
+                p.ignore(&["sample_visible"]);
+                Material::RoughDielectric {
+                    distribution,
+                    alpha,
+                    eta,
+                    specular_reflectance,
+                    specular_transmittance,
                 }
             }
             "phong" => self.phong(el, &mut p)?,

@@ -278,6 +278,7 @@ pub fn has_diffuse(m: &Material) -> bool {
         Material::Conductor { .. }
         | Material::RoughConductor { .. }
         | Material::Dielectric { .. }
+        | Material::RoughDielectric { .. }
         | Material::ThinDielectric { .. } => false,
         Material::TwoSided(inner) => has_diffuse(inner),
     }

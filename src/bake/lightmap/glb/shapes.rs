@@ -122,7 +122,9 @@ pub(super) fn material_json(out: &mut Out, scene: &Scene, i: u32, info: &mut Wri
         Material::RoughConductor { alpha, .. } => (1.0, alpha.sqrt().min(1.0)),
         Material::Dielectric { .. } | Material::ThinDielectric { .. } => (0.0, 0.0),
         Material::Plastic { .. } => (0.0, 0.1),
-        Material::RoughPlastic { alpha, .. } => (0.0, alpha.sqrt().min(1.0)),
+        Material::RoughPlastic { alpha, .. } | Material::RoughDielectric { alpha, .. } => {
+            (0.0, alpha.sqrt().min(1.0))
+        }
         _ => (0.0, 1.0),
     };
     let mut pbr = json!({ "metallicFactor": metallic, "roughnessFactor": num(roughness) });
