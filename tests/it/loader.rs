@@ -367,7 +367,14 @@ fn materials_defaults_and_refs() {
                </bsdf>
            </shape>
            <shape type="disk"><bsdf type="dielectric"/></shape>
-           <shape type="disk"><bsdf type="conductor"/></shape>"#,
+           <shape type="disk"><bsdf type="conductor"/></shape>
+           <shape type="disk"><bsdf type="roughdielectric">
+               <string name="distribution" value="ggx"/>
+               <float name="alpha" value="0.3"/>
+               <float name="int_ior" value="1.4"/>
+               <rgb name="specular_transmittance" value="0.9, 0.8, 0.7"/>
+           </bsdf></shape>
+           <shape type="disk"><bsdf type="roughdielectric"/></shape>"#,
     );
     let mat = |i: usize| &s.materials[s.shapes[i].material as usize];
     match mat(0) {
@@ -404,6 +411,35 @@ fn materials_defaults_and_refs() {
     }
     match mat(4) {
         Material::Conductor { eta, k, .. } => assert_eq!((*eta, *k), (Vec3::ZERO, Vec3::ONE)),
+        m => panic!("{m:?}"),
+    }
+    match mat(5) {
+        Material::RoughDielectric {
+            distribution,
+            alpha,
+            eta,
+            specular_transmittance: Texture::Constant(t),
+            ..
+        } => {
+            assert_eq!(*distribution, kalos::scene::MicrofacetKind::Ggx);
+            assert_eq!(*alpha, 0.3);
+            assert!((eta - 1.4 / 1.000277).abs() < 1e-5, "{eta}");
+            assert_eq!(*t, Vec3::new(0.9, 0.8, 0.7));
+        }
+        m => panic!("{m:?}"),
+    }
+    // Mitsuba's defaults: Beckmann, α = 0.1, bk7 in air
+    match mat(6) {
+        Material::RoughDielectric {
+            distribution,
+            alpha,
+            eta,
+            ..
+        } => {
+            assert_eq!(*distribution, kalos::scene::MicrofacetKind::Beckmann);
+            assert_eq!(*alpha, 0.1);
+            assert!((eta - 1.5046 / 1.000277).abs() < 1e-5, "{eta}");
+        }
         m => panic!("{m:?}"),
     }
 }

@@ -34,7 +34,8 @@
 //!   row-major) and `lookat`, composed in document order (each new one
 //!   multiplied on the left).
 //! - BSDFs `diffuse`, `twosided`, `conductor`, `roughconductor`, `plastic`,
-//!   `roughplastic`, `dielectric`, `thindielectric` and kalos's own `phong`;
+//!   `roughplastic`, `dielectric`, `roughdielectric`, `thindielectric` and
+//!   kalos's own `phong`;
 //!   colours as `<rgb>`, `<float>`, `<spectrum>` (one value, or
 //!   `λ:value` pairs converted roughly to RGB), or textures `bitmap` and
 //!   `checkerboard`, inline or by `<ref>`.
