@@ -9,7 +9,8 @@
 //
 // A lightmapped .glb (`kalos bake --lightmap`, `MOZ_lightmap` materials) is
 // shown with its own materials and textures and its lightmap on uv 1
-// (lightmap.js), in a scene with no other light: a diffuse surface of
+// (lightmap.js), in a scene with no other light (the asset's lamps are
+// switched off: the lightmap holds their light): a diffuse surface of
 // albedo R shows R·E/π, its radiance, scaled by 2^exposure through the
 // lightmap's intensity (and emitters' emissive intensity).
 
@@ -48,7 +49,16 @@ export async function show($) {
   let hasUnbaked = false;
   // lightmapped: each mesh's own material, its lightmap and error map
   const lit = [];
+  // the asset's own lamps (KHR_lights_punctual) are kept in the .glb, but
+  // their light is already in the lightmap: switched off here, or it would
+  // be counted twice
+  let lampsOff = 0;
   gltf.scene.traverse((o) => {
+    if (o.isLight && lightmapped) {
+      o.visible = false;
+      lampsOff += 1;
+      return;
+    }
     if (!o.isMesh) return;
     const g = o.geometry;
     const radiance = g.getAttribute("_radiance");
@@ -155,6 +165,7 @@ export async function show($) {
     `${Math.round(triangles)} triangles; ` +
     (sceneCamera ? "first view: the scene's camera" : "the bake holds no camera") +
     (lightmapped ? "; lightmap on uv 1" : "") +
+    (lampsOff ? `; ${lampsOff} lamp(s) off (their light is in the lightmap)` : "") +
     (hasUnbaked ? (lightmapped ? "; some materials have no lightmap (specular)"
       : "; grey: not baked (specular)") : "");
   controls.addEventListener("change", draw);
@@ -170,6 +181,7 @@ export async function show($) {
   window.kalos.sceneCamera = !!sceneCamera;
   window.kalos.setExposure = (v) => { $("exposure").value = v; expose(); };
   window.kalos.lightmapped = lightmapped;
+  window.kalos.lampsOff = lampsOff;
   window.kalos.lightmaps = lightmaps.size;
   window.kalos.setErrorMap = (on) => { $("error-map").checked = on; showError(on); };
   home();
