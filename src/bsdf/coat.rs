@@ -116,16 +116,17 @@ impl CoatTable {
     /// [`CoatTable::compute`]); R_int is Mitsuba's, times w.
     pub fn compute_gltf(dist: Microfacet, eta: f32, w: f32) -> CoatTable {
         let w = w.clamp(0.0, 1.0);
-        let mitsuba = CoatTable::compute(dist, eta);
+        let mus: Vec<f32> = (0..COAT_RES)
+            .map(|i| (i as f32 / (COAT_RES - 1) as f32).max(1e-6))
+            .collect();
         let mut transmittance = [0.0f32; COAT_RES];
-        for (i, t) in transmittance.iter_mut().enumerate() {
-            let mu = (i as f32 / (COAT_RES - 1) as f32).max(1e-6);
+        for (t, &mu) in transmittance.iter_mut().zip(&mus) {
             *t = 1.0 - w * coat_albedo(dist, mu, eta, true, 32) as f32;
         }
         CoatTable {
             external_diffuse_transmittance: diffuse_mean(&transmittance) as f32,
             transmittance,
-            internal_reflectance: w * mitsuba.internal_reflectance,
+            internal_reflectance: w * internal_reflectance(dist, eta, &mus) as f32,
         }
     }
 
@@ -152,20 +153,23 @@ impl CoatTable {
         for (t, &mu) in transmittance.iter_mut().zip(&mus) {
             *t = coat_albedo(dist, mu, eta, false, 32) as f32;
         }
-        let n = mus.len() as f64;
-        let internal_reflectance = 2.0
-            * mus
-                .iter()
-                .map(|&mu| coat_albedo(dist, mu, 1.0 / eta, true, 128) * mu as f64)
-                .sum::<f64>()
-            / n;
         let external_diffuse_transmittance = diffuse_mean(&transmittance);
         CoatTable {
             transmittance,
-            internal_reflectance: internal_reflectance as f32,
+            internal_reflectance: internal_reflectance(dist, eta, &mus) as f32,
             external_diffuse_transmittance: external_diffuse_transmittance as f32,
         }
     }
+}
+
+/// R_int = 2∫₀¹ r(μ, 1/η) μ dμ over the cosines `mus`: the coat's diffuse
+/// reflectance seen from inside.
+fn internal_reflectance(dist: Microfacet, eta: f32, mus: &[f32]) -> f64 {
+    2.0 * mus
+        .iter()
+        .map(|&mu| coat_albedo(dist, mu, 1.0 / eta, true, 128) * mu as f64)
+        .sum::<f64>()
+        / mus.len() as f64
 }
 
 /// 2∫₀¹ t(μ) μ dμ over the table's cosines (the mean Mitsuba takes).

@@ -426,17 +426,7 @@ impl Bsdf {
                 if !wi.is_finite() || (wi.z * wo.z > 0.0) != reflected || wi.z == 0.0 {
                     return None;
                 }
-                let pdf = self.pdf(wo, wi);
-                if !(pdf > 0.0 && pdf.is_finite()) {
-                    return None;
-                }
-                Some(BsdfSample {
-                    wi,
-                    f: self.eval(wo, wi, mode),
-                    pdf,
-                    delta: false,
-                    eta: if reflected { 1.0 } else { eta_it },
-                })
+                self.sample_at(wo, wi, mode, if reflected { 1.0 } else { eta_it })
             }
             Bsdf::ThinDielectric { eta, r, t } => sample_thin_dielectric(wo, uc, eta, r, t),
         }
@@ -599,6 +589,13 @@ impl Bsdf {
         if wi.z <= 0.0 || !wi.is_finite() {
             return None;
         }
+        self.sample_at(wo, wi, mode, 1.0)
+    }
+
+    /// The non-delta sample at `wi` (either side of the surface), its value
+    /// and density from `eval` and `pdf`, with the relative index `eta` it
+    /// crosses; `None` where the density is zero or not finite.
+    fn sample_at(&self, wo: Vec3, wi: Vec3, mode: Mode, eta: f32) -> Option<BsdfSample> {
         let pdf = self.pdf(wo, wi);
         if !(pdf > 0.0 && pdf.is_finite()) {
             return None;
@@ -608,7 +605,7 @@ impl Bsdf {
             f: self.eval(wo, wi, mode),
             pdf,
             delta: false,
-            eta: 1.0,
+            eta,
         })
     }
 
