@@ -31,7 +31,7 @@ fn tmp() -> tempfile::TempDir {
 /// (u along x, v along z), drawn with material 0. `materials` is the JSON
 /// array of materials; `rest` more top-level members (`"textures":[…]`
 /// and the like), with a leading comma, or empty.
-fn square(dir: &Path, name: &str, s: f32, materials: &str, rest: &str) -> PathBuf {
+pub(crate) fn square(dir: &Path, name: &str, s: f32, materials: &str, rest: &str) -> PathBuf {
     let mut bin = Vec::new();
     let corners = [[-s, -s], [-s, s], [s, s], [s, -s]];
     for [x, z] in corners {

@@ -27,44 +27,17 @@ fn tmp() -> tempfile::TempDir {
 }
 
 /// Writes `name` in `dir`: a glTF file with one square of half-side 1 in
-/// the y = 0 plane, facing +y, drawn with material 0. `materials` is the
-/// JSON array of materials.
+/// the y = 0 plane, facing +y, drawn with material 0
+/// ([`crate::gltf_brdf::square`]), declaring the glass extensions.
+/// `materials` is the JSON array of materials.
 fn square(dir: &Path, name: &str, materials: &str) -> PathBuf {
-    let mut bin = Vec::new();
-    let corners = [[-1.0f32, -1.0], [-1.0, 1.0], [1.0, 1.0], [1.0, -1.0]];
-    for [x, z] in corners {
-        for v in [x, 0.0, z] {
-            bin.extend(v.to_le_bytes());
-        }
-    }
-    for _ in corners {
-        for v in [0.0f32, 1.0, 0.0] {
-            bin.extend(v.to_le_bytes());
-        }
-    }
-    for i in [0u16, 1, 2, 0, 2, 3] {
-        bin.extend(i.to_le_bytes());
-    }
-    std::fs::write(dir.join(format!("{name}.bin")), &bin).unwrap();
-    let json = format!(
-        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
-"extensionsUsed":["KHR_materials_ior","KHR_materials_transmission","KHR_materials_volume"],
-"nodes":[{{"mesh":0}}],
-"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"NORMAL":1}},
-  "indices":2,"material":0}}]}}],
-"materials":{materials},
-"accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3",
-               "min":[-1,0,-1],"max":[1,0,1]}},
-             {{"bufferView":1,"componentType":5126,"count":4,"type":"VEC3"}},
-             {{"bufferView":2,"componentType":5123,"count":6,"type":"SCALAR"}}],
-"bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},
-               {{"buffer":0,"byteOffset":48,"byteLength":48}},
-               {{"buffer":0,"byteOffset":96,"byteLength":12}}],
-"buffers":[{{"byteLength":108,"uri":"{name}.bin"}}]}}"#
-    );
-    let p = dir.join(format!("{name}.gltf"));
-    std::fs::write(&p, json).unwrap();
-    p
+    crate::gltf_brdf::square(
+        dir,
+        name,
+        1.0,
+        materials,
+        r#","extensionsUsed":["KHR_materials_ior","KHR_materials_transmission","KHR_materials_volume"]"#,
+    )
 }
 
 fn load(p: &Path) -> Scene {
