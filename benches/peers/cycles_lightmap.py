@@ -49,7 +49,8 @@ Commands (PY is the venv's python):
         time (to score later with compare)
     PY benches/peers/cycles_lightmap.py compare cbox.glb REF.exr REF-a.exr REF-b.exr X.exr...
         the errors of any atlas (a kalos bake's .lightmap.exr) and its mean
-        ratio to REF
+        ratio to REF; the last error leaves out the texels whose centre
+        lies inside geometry (`inside_geometry`)
 
 Options: --threads (2), --margin (4), --bounces (64), --seed (curve, bake).
 Times are of `bpy.ops.object.bake` alone (import and set-up excluded): wall
@@ -270,18 +271,69 @@ def covered(obj, size):
     return mask
 
 
+def inside_geometry(obj, size, rays=32, seed=1):
+    """Per texel (Blender's row order), whether its centre lies inside
+    geometry: more than a quarter of `rays` cosine-weighted rays from the
+    point of uv map 1 under the texel's centre meet the back of a face
+    (kalos's rule for a hidden texel, `gather::BACKFACE_SHARE`, computed
+    here independently with Blender's BVH). Such texels are the floor
+    under a box's foot: Cycles bakes the point under the box (dark), kalos
+    the visible floor beside it. Texels whose centre lies on no triangle
+    are False."""
+    from mathutils import Vector
+    from mathutils.bvhtree import BVHTree
+
+    bvh = BVHTree.FromObject(obj, bpy.context.evaluated_depsgraph_get())
+    me, mw = obj.data, obj.matrix_world
+    me.calc_loop_triangles()
+    uv = me.uv_layers[1].data
+    rng = np.random.default_rng(seed)
+    out = np.zeros((size, size), dtype=bool)
+    side = int(math.sqrt(rays))
+    for tri in me.loop_triangles:
+        p = np.array([uv[i].uv[:] for i in tri.loops], dtype=np.float64) * size
+        P = [mw @ me.vertices[v].co for v in tri.vertices]
+        n = (mw.to_3x3() @ tri.normal).normalized()
+        e1, e2 = p[1] - p[0], p[2] - p[0]
+        det = e1[0] * e2[1] - e2[0] * e1[1]
+        if abs(det) < 1e-12:
+            continue
+        t = Vector((1, 0, 0)) if abs(n.x) < 0.9 else Vector((0, 1, 0))
+        t = (t - n * n.dot(t)).normalized()
+        b = n.cross(t)
+        for y in range(max(int(p[:, 1].min()), 0), min(int(p[:, 1].max()) + 1, size)):
+            for x in range(max(int(p[:, 0].min()), 0), min(int(p[:, 0].max()) + 1, size)):
+                c = np.array([x + 0.5, y + 0.5]) - p[0]
+                l1 = (c[0] * e2[1] - e2[0] * c[1]) / det
+                l2 = (e1[0] * c[1] - c[0] * e1[1]) / det
+                if l1 < 0 or l2 < 0 or l1 + l2 > 1:
+                    continue
+                q = P[0] * (1 - l1 - l2) + P[1] * l1 + P[2] * l2 + n * 1e-4
+                backs = 0
+                for k in range(rays):
+                    u1 = (k % side + rng.random()) / side
+                    u2 = (k // side % side + rng.random()) / side
+                    r, ph = math.sqrt(u1), 2 * math.pi * u2
+                    w = t * (r * math.cos(ph)) + b * (r * math.sin(ph)) + n * math.sqrt(max(0.0, 1 - u1))
+                    loc, nor, _, _ = bvh.ray_cast(q, w)
+                    backs += loc is not None and nor.dot(w) > 0
+                out[y, x] = backs > rays / 4
+    return out
+
+
 # The luminance weights (Rec. 709) of the luminance metrics.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
-def metrics(x, ref, a, b, mask):
+def metrics(x, ref, a, b, mask, inside=None):
     """The error of atlas x against ref (the mean of halves a and b) over
     the covered texels where every channel of ref is above 1e-3 of its
     median: {name: (error with the reference's noise subtracted in
     quadrature, raw error, the reference's own noise)}. The metrics:
     per-texel relative per channel (the primary one), per-texel relative
     on luminance, and the two normalised by the mean over texels instead
-    of each texel's value (dark texels weigh less)."""
+    of each texel's value (dark texels weigh less); with `inside` (the
+    texels of `inside_geometry`), the last again without those texels."""
     r = ref[mask].astype(np.float64)
     keep = (r > 1e-3 * np.median(r, axis=0)).all(axis=1)
     r = r[keep]
@@ -294,6 +346,10 @@ def metrics(x, ref, a, b, mask):
         "over the channel's mean, per channel": (e / r.mean(0), d / r.mean(0)),
         "over the mean luminance, luminance": ((e @ LUMA) / rl.mean(), (d @ LUMA) / rl.mean()),
     }
+    if inside is not None:
+        vis = ~inside[mask][keep]
+        rv = rl[vis].mean()
+        forms["the same, centres on visible surfaces"] = ((e[vis] @ LUMA) / rv, (d[vis] @ LUMA) / rv)
     out = {}
     for name, (ee, dd) in forms.items():
         raw, noise = np.mean(ee**2), np.mean(dd**2)
@@ -388,10 +444,12 @@ def main():
 
     ref, a, b = (load_exr(p) for p in args.rest[:3])
     if args.cmd == "compare":
+        inside = inside_geometry(obj, size)
+        log(f"texels whose centre lies inside geometry: {(inside & mask).sum()}")
         for p in args.rest[3:]:
             x = load_exr(p)
             ratio = x[mask].sum(0) / ref[mask].sum(0)
-            print(f"{p}: mean ratio to the reference (R, G, B) {np.round(ratio, 4)}; {show(metrics(x, ref, a, b, mask))}")
+            print(f"{p}: mean ratio to the reference (R, G, B) {np.round(ratio, 4)}; {show(metrics(x, ref, a, b, mask, inside))}")
         return
 
     image = setup_cycles(obj, size, args.threads, args.bounces)
