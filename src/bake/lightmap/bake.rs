@@ -398,6 +398,8 @@ pub fn bake_lightmap_watched(
         ctl.check()?;
         stats.gather_rays = rays;
         stats.gather_hidden = hidden;
+        let chart = gather::texel_charts(&texels, &uv, uv.width, uv.height);
+        gather::combine_with_density(&mut gathered, &lightmap, &chart);
         dilate(&mut gathered, 2);
         lightmap = gathered;
     }
