@@ -152,8 +152,8 @@ struct LightmapArgs {
 #[derive(Args)]
 struct DataflowArgs {
     /// Bake on a timely dataflow of N worker threads (per process with
-    /// --processes): hits exchanged by surface, each worker estimating and
-    /// decimating its own surfaces; the same bytes as without.
+    /// --processes): hits exchanged by surface, large surfaces cut into
+    /// tiles shared by the workers; the same bytes as without.
     #[arg(long, value_name = "N")]
     workers: Option<usize>,
     /// This process's index, from 0, in a bake across processes (needs

@@ -336,20 +336,45 @@ pub fn estimate_planar(
 /// hits: the bandwidth and the over-mesh depend only on the total count
 /// n_i, known before the first chunk; each chunk (and, for a rectangle, its
 /// mirror images, made per hit on the fly) is binned and gathered at every
-/// over-mesh vertex, and the partial sums are added. With one chunk the
-/// result is bit for bit that of summing all hits at once; with several,
-/// only the order of the f32 additions differs (relative changes of order
-/// 1e-7).
+/// over-mesh vertex, and the partial sums are added.
+///
+/// The sums are exact: each kernel term c_j·K2 (an f32, as before) is
+/// rounded to a fixed point of [`FIXED_BITS`] fractional bits and added
+/// in an `i128`, so that a vertex's sum is the same whatever the order of
+/// its terms and however the hits are cut into chunks, or into the tiles
+/// of a dataflow bake, whose workers each see only the hits near their
+/// vertices ([`PlanarEstimator::keep_only`]). The rounding (below 1e-12
+/// of φ per term) is far under the f32 rounding of a term.
 pub struct PlanarEstimator {
     rectangle: bool,
     size: Vec2,
     bw: f32,
     verts: Vec<Vec2>,
     tris: Vec<[u32; 3]>,
-    sum: Vec<Vec3>,
+    sum: Vec<[i128; 3]>,
+    keep: Option<Vec<bool>>,
     chart_tris: Vec<[Vec2; 3]>,
     phi: f32,
     empty: bool,
+}
+
+/// Fractional bits of the fixed-point kernel sums of [`PlanarEstimator`]:
+/// a term (at most 65408·3/π, the largest RGB9E5 power times K2's peak) is
+/// below 2^56, so an `i128` sum holds 2^71 of them.
+pub const FIXED_BITS: i32 = 40;
+
+/// A kernel term in the fixed point of [`FIXED_BITS`] (truncated; the
+/// terms are never negative).
+#[inline]
+fn to_fixed(x: f32) -> i64 {
+    // times a power of two: exact in f32 (no term comes near f32's range)
+    (x * (1u64 << FIXED_BITS) as f32) as i64
+}
+
+/// A fixed-point sum back to f32.
+#[inline]
+fn from_fixed_sum(x: i128) -> f32 {
+    (x as f64 / (1u64 << FIXED_BITS) as f64) as f32
 }
 
 impl PlanarEstimator {
@@ -364,7 +389,7 @@ impl PlanarEstimator {
     ) -> Self {
         if n == 0 {
             let (verts, tris) = overmesh(rectangle, size, chart_tris, f32::INFINITY, 4);
-            let sum = vec![Vec3::ZERO; verts.len()];
+            let sum = vec![[0; 3]; verts.len()];
             return PlanarEstimator {
                 rectangle,
                 size,
@@ -372,6 +397,7 @@ impl PlanarEstimator {
                 verts,
                 tris,
                 sum,
+                keep: None,
                 chart_tris: Vec::new(),
                 phi: p.phi,
                 empty: true,
@@ -380,7 +406,7 @@ impl PlanarEstimator {
         let unit = (area / n as f32).sqrt();
         let bw = p.c1 * unit;
         let (verts, tris) = overmesh(rectangle, size, chart_tris, p.c2 * unit, p.max_verts);
-        let sum = vec![Vec3::ZERO; verts.len()];
+        let sum = vec![[0; 3]; verts.len()];
         PlanarEstimator {
             rectangle,
             size,
@@ -388,6 +414,7 @@ impl PlanarEstimator {
             verts,
             tris,
             sum,
+            keep: None,
             chart_tris: chart_tris.to_vec(),
             phi: p.phi,
             empty: false,
@@ -455,27 +482,65 @@ impl PlanarEstimator {
         drop(fill);
 
         let inv_h2 = 1.0 / (bw * bw);
+        let keep = self.keep.as_deref();
         self.sum
             .par_iter_mut()
             .zip(self.verts.par_iter())
-            .for_each(|(acc, &x)| {
+            .enumerate()
+            .for_each(|(i, (acc, &x))| {
+                if keep.is_some_and(|k| !k[i]) {
+                    return;
+                }
                 let c = ((x - lo) / cell).floor();
                 let cx = c.x.max(0.0) as usize;
                 let cy = c.y.max(0.0) as usize;
-                let mut sum = Vec3::ZERO;
+                // Terms are below 2^56: an i64 holds 64 of them, then
+                // goes into the i128 sum
+                let mut part = [0i64; 3];
+                let mut terms = 0u32;
                 for yy in cy.saturating_sub(1)..=(cy + 1).min(ny - 1) {
                     for xx in cx.saturating_sub(1)..=(cx + 1).min(nx - 1) {
                         let k = yy * nx + xx;
                         for &(q, col) in &sorted[start[k] as usize..start[k + 1] as usize] {
                             let w = k2((x - q).length_squared() * inv_h2);
                             if w > 0.0 {
-                                sum += col * w;
+                                let t = col * w;
+                                part[0] += to_fixed(t.x);
+                                part[1] += to_fixed(t.y);
+                                part[2] += to_fixed(t.z);
+                                terms += 1;
+                                if terms == 64 {
+                                    for (a, b) in acc.iter_mut().zip(part) {
+                                        *a += b as i128;
+                                    }
+                                    (part, terms) = ([0; 3], 0);
+                                }
                             }
                         }
                     }
                 }
-                *acc += sum;
+                for (a, b) in acc.iter_mut().zip(part) {
+                    *a += b as i128;
+                }
             });
+    }
+
+    /// Estimates only the vertices where `keep` is true (one flag a vertex,
+    /// in the order of [`PlanarEstimator::verts`]); the others stay black.
+    /// A dataflow worker estimates the vertices of its own tiles so.
+    pub fn keep_only(&mut self, keep: Vec<bool>) {
+        debug_assert_eq!(keep.len(), self.verts.len());
+        self.keep = Some(keep);
+    }
+
+    /// The over-mesh's vertices, in chart coordinates.
+    pub fn verts(&self) -> &[Vec2] {
+        &self.verts
+    }
+
+    /// The kernel bandwidth h (0 without hits).
+    pub fn bandwidth(&self) -> f32 {
+        self.bw
     }
 
     /// Over-mesh vertices so far (the memory the estimate holds).
@@ -489,9 +554,9 @@ impl PlanarEstimator {
         let bw = self.bw;
         if self.empty {
             return Estimate {
+                h: vec![Vec3::ZERO; self.verts.len()],
                 verts: self.verts,
                 tris: self.tris,
-                h: self.sum,
                 bandwidth: 0.0,
             };
         }
@@ -508,11 +573,21 @@ impl PlanarEstimator {
             (pv, pt, g)
         });
         let scale = self.phi / (bw * bw);
+        let keep = self.keep.as_deref();
         let h: Vec<Vec3> = self
             .sum
             .par_iter()
             .zip(self.verts.par_iter())
-            .map(|(&sum, &x)| {
+            .enumerate()
+            .map(|(i, (&sum, &x))| {
+                if keep.is_some_and(|k| !k[i]) {
+                    return Vec3::ZERO;
+                }
+                let sum = Vec3::new(
+                    from_fixed_sum(sum[0]),
+                    from_fixed_sum(sum[1]),
+                    from_fixed_sum(sum[2]),
+                );
                 let mut est = sum * scale;
                 if let Some((pv, pt, g)) = &poly {
                     let m = kernel_mass(x, bw, |y| g.inside(pv, pt, y));

@@ -307,6 +307,44 @@ pub struct BakeStats {
     pub max_hits_in_memory: u64,
     /// Largest number of hit records the bucket sort of phase 1 held at once.
     pub max_sort_records: u64,
+    /// A dataflow bake's estimate work, worker by worker (empty in one
+    /// process).
+    pub workers: Vec<WorkerLoad>,
+}
+
+/// One dataflow worker's estimate work in phase 2.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WorkerLoad {
+    /// Hit records it estimated from: its surfaces' and tiles' hits and
+    /// the halo it received.
+    pub hits: u64,
+    /// Over-mesh vertices it estimated (all of its surfaces', those of its
+    /// tiles, three per triangle of its curved shapes).
+    pub verts: u64,
+    /// Of `hits`, those of the halo: hits of other workers' tiles within a
+    /// kernel width of its own.
+    pub halo: u64,
+}
+
+impl WorkerLoad {
+    /// The work: hits plus vertices.
+    pub fn work(&self) -> u64 {
+        self.hits + self.verts
+    }
+}
+
+impl BakeStats {
+    /// The most loaded worker's estimate work over the mean (1 when even;
+    /// None in one process).
+    pub fn balance(&self) -> Option<f64> {
+        let n = self.workers.len();
+        let total: u64 = self.workers.iter().map(WorkerLoad::work).sum();
+        let max = self.workers.iter().map(WorkerLoad::work).max()?;
+        if total == 0 {
+            return Some(1.0);
+        }
+        Some(max as f64 * n as f64 / total as f64)
+    }
 }
 
 impl std::fmt::Display for BakeStats {
@@ -350,7 +388,25 @@ impl std::fmt::Display for BakeStats {
             f,
             "hits in memory   {} at most in phase 2, {} in the bucket sort",
             self.max_hits_in_memory, self.max_sort_records
-        )
+        )?;
+        if let Some(b) = self.balance() {
+            write!(
+                f,
+                "\nbalance: {b:.3} (the most loaded worker's estimate work over the mean; \
+                 work = hits + over-mesh vertices)"
+            )?;
+            for (i, w) in self.workers.iter().enumerate() {
+                write!(
+                    f,
+                    "\n  worker {i:<3} {} hits (halo {}) + {} vertices = {}",
+                    w.hits,
+                    w.halo,
+                    w.verts,
+                    w.work()
+                )?;
+            }
+        }
+        Ok(())
     }
 }
 

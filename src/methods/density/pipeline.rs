@@ -203,8 +203,9 @@ pub fn estimate_within(
 }
 
 /// [`estimate_within`] for a worker of the dataflow bake
-/// ([`super::dataflow`]): `hits` holds only the surfaces it owns, and the
-/// black meshes of hitless front sides are made only where `owns` says so
+/// ([`super::dataflow`]): the planar sides where `owns` says so (`hits`
+/// may hold others: the tiles of a tiled surface, estimated apart), and
+/// the black meshes of hitless front sides only where `owns` says so
 /// (every surface is owned by exactly one worker).
 pub fn estimate_owned(
     scene: &Scene,
@@ -229,7 +230,7 @@ pub fn estimate_owned(
     };
     let cap = s.chunk_hits.max(1) as u64;
     let (mut planar, in_memory_planar) =
-        estimate_planar(scene, surfaces, hits, &params, cap, &mut read)?;
+        estimate_planar(scene, surfaces, hits, &params, cap, &mut read, owns)?;
     let (curved, in_memory_curved) =
         estimate_curved(scene, surfaces, s.c1, hits, phi, cap, &mut read)?;
     add_black_fronts(scene, surfaces, &params, &mut planar, owns);
@@ -269,8 +270,8 @@ impl Reads<'_, '_> {
     }
 }
 
-/// The planar surfaces of phase 2, in the order of `hits`' runs; returns
-/// them and the largest hit buffer.
+/// The planar surfaces of phase 2 that `owns` says so, in the order of
+/// `hits`' runs; returns them and the largest hit buffer.
 fn estimate_planar(
     scene: &Scene,
     surfaces: &Surfaces,
@@ -278,8 +279,10 @@ fn estimate_planar(
     params: &Params,
     cap: u64,
     reads: &mut Reads,
+    owns: &dyn Fn(SurfaceId) -> bool,
 ) -> Result<(Vec<PlanarMesh>, u64), DensityError> {
-    let is_planar = |id: SurfaceId| surfaces.get(id).is_some_and(|s| s.kind == Kind::Planar);
+    let is_planar =
+        |id: SurfaceId| owns(id) && surfaces.get(id).is_some_and(|s| s.kind == Kind::Planar);
     let new_estimator = |run: &Run| {
         let surf = surfaces.of(run.surface);
         let ct = surf.chart_tris(scene);

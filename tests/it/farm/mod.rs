@@ -5,7 +5,9 @@
 //! Kubernetes job in `farm/` run as written.
 
 mod chains;
+mod netns;
 mod recipe;
+mod tiles;
 
 use crate::common::kalos;
 use std::path::{Path, PathBuf};

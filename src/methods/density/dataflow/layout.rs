@@ -2,6 +2,7 @@
 //! by a host file; and the errors of a dataflow bake.
 
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, Once};
 
 use timely::CommunicationConfig;
 
@@ -66,6 +67,14 @@ impl Workers {
         }
     }
 
+    /// The address of process `i` of a cluster.
+    pub fn address(&self, i: usize) -> Option<&str> {
+        match self {
+            Workers::Threads(_) => None,
+            Workers::Cluster { addresses, .. } => addresses.get(i).map(String::as_str),
+        }
+    }
+
     pub(super) fn config(&self) -> Result<CommunicationConfig, DataflowError> {
         match self {
             Workers::Threads(0) => Err(DataflowError::NoWorkers),
@@ -111,6 +120,55 @@ pub fn read_hostfile(path: &Path) -> Result<Vec<String>, DataflowError> {
         hosts.push(l.to_string());
     }
     Ok(hosts)
+}
+
+/// Panics of timely's network threads (named `timely:recv-N` and
+/// `timely:send-N`, N the remote process), recorded by the hook of
+/// [`watch_network`]: the remote process and the message.
+static LOST: Mutex<Vec<(usize, String)>> = Mutex::new(Vec::new());
+
+/// Installs (once) a panic hook that records the panics of timely's
+/// network threads instead of printing them: a lost connection to process
+/// N ends its threads with a panic, which the bake reports as an error
+/// naming N ([`lost_peer`]). Other panics go to the hook before. Forgets
+/// what was recorded before.
+pub(super) fn watch_network() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        let prev = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            let thread = std::thread::current();
+            let remote = thread
+                .name()
+                .and_then(|n| {
+                    n.strip_prefix("timely:recv-")
+                        .or_else(|| n.strip_prefix("timely:send-"))
+                })
+                .and_then(|i| i.parse::<usize>().ok());
+            let Some(remote) = remote else {
+                return prev(info);
+            };
+            let p = info.payload();
+            let msg = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "the connection failed".into());
+            LOST.lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push((remote, msg));
+        }));
+    });
+    LOST.lock().unwrap_or_else(|e| e.into_inner()).clear();
+}
+
+/// The first connection lost since [`watch_network`]: the remote process
+/// and why.
+pub(super) fn lost_peer() -> Option<(usize, String)> {
+    LOST.lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .first()
+        .cloned()
 }
 
 /// An error of a dataflow bake.
@@ -168,6 +226,17 @@ pub enum DataflowError {
         worker: usize,
         /// What it reported.
         reason: String,
+    },
+    /// The connection to another process was lost (it died, or the network
+    /// between failed).
+    #[error("lost the connection to process {process} ({address}): {cause}")]
+    Lost {
+        /// The process's index.
+        process: usize,
+        /// Its address, from the host file.
+        address: String,
+        /// What the network thread reported.
+        cause: String,
     },
     /// A worker thread panicked (a lost connection to a peer process ends
     /// timely's network thread with a panic).

@@ -2,33 +2,49 @@
 //! (`kalos bake --workers N`, `--process I --processes N --hostfile FILE`).
 //!
 //! The paper's pipeline (§4: trace, "sort by surface id", estimate,
-//! decimate) with the sort done by the exchange:
+//! decimate) with the sort done by the exchange, and work split below the
+//! surface:
 //!
+//! 0. every worker traces the same small pilot (the bake's first chunks)
+//!    and deals the tiles of the large planar surfaces by its hits
+//!    ([`Tiling`], module `tiles`); every other surface is owned whole
+//!    ([`owner`]);
 //! 1. every worker traces its share of each batch of particle chunks and
-//!    sends each hit to the worker that owns its surface ([`owner`]); the
+//!    sends each hit to the worker that owns its tile, or its surface; the
 //!    owner writes them to its own hit file, in its own scratch directory
 //!    (bounded memory: [`super::hitfile`]);
 //! 2. every worker estimates its own surfaces
-//!    ([`pipeline::estimate_owned`]);
+//!    ([`pipeline::estimate_owned`]), then its tiles: with every tiled
+//!    surface's hit count known, the hits within a kernel width of another
+//!    worker's tile go to it as a halo, each worker estimates its tiles'
+//!    over-mesh vertices, and sends them to the surface's owner, which
+//!    assembles the surface's over-mesh;
 //! 3. the white point is a percentile over all over-mesh vertices: worker 0
 //!    gathers the vertex luminances and sends the white point back;
-//! 4. every worker decimates its own surfaces, and worker 0 gathers the
-//!    meshes and assembles the [`Bake`], which the caller writes.
+//! 4. every worker decimates its own surfaces (a tiled surface whole, at
+//!    its owner: decimation is not split), and worker 0 gathers the meshes
+//!    and assembles the [`Bake`], which the caller writes.
 //!
-//! Same bytes as [`super::bake`]. A surface's estimate depends on the
-//! order of its hits (float sums), so the owner restores the order of the
-//! single-process bake: the batches are timely's timestamps, and once a
-//! batch is complete at a worker its hit packets are written in
-//! (channel run, chunk) order, which is the order in which one process
-//! pushes them. Each chunk's particles come from the chunk's own stream
-//! whoever traces it. Everything after depends on a surface's hits alone,
-//! or (the white point, the statistics) on sets, gathered and sorted by
-//! surface before use.
+//! Same bytes as [`super::bake`]. A planar estimate sums kernel terms in
+//! exact fixed point ([`super::kernel::FIXED_BITS`]), so a vertex's value
+//! does not depend on the order of its hits, nor on which worker holds
+//! them: a tile's worker, holding every hit within a kernel width of its
+//! vertices, computes them bit for bit as one process does. The owner of a
+//! curved shape restores the order of the single-process bake (its 3D
+//! estimate sums in f32): the batches are timely's timestamps, and once a
+//! batch is complete at a worker its hit packets are written in (channel
+//! run, chunk) order, which is the order in which one process pushes them.
+//! Each chunk's particles come from the chunk's own stream whoever traces
+//! it. Everything after depends on a surface's hits alone, or (the white
+//! point, the statistics) on sets, gathered and sorted by surface before
+//! use.
 //!
 //! Failures. Every worker takes part in every round, so that a failure
 //! never leaves a peer waiting: a worker that fails or is cancelled while
 //! tracing sends an abort to all; after that, each round carries every
 //! worker's status, and all stop together with the first failure's reason.
+//! A process that dies ends the connections to it: the others stop with
+//! [`DataflowError::Lost`], naming it and its address.
 
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -44,19 +60,22 @@ use timely::dataflow::{InputHandleVec, ProbeHandle};
 use timely::worker::Worker;
 use timely::WorkerConfig;
 
+mod gather;
 mod layout;
+mod tiles;
 
 pub use layout::{read_hostfile, DataflowError, Workers};
+pub use tiles::{Tiling, TILES_PER_WORKER};
 
 use super::control::{Control, Limits, Phase, Tick};
 use super::decimate::Report;
 use super::hits::{Hit, HitSink, HIT_BYTES};
-use super::mesh::{CurvedMesh, DisplayMesh, PlanarMesh};
+use super::mesh::PlanarMesh;
 use super::particles;
-use super::pipeline::{self, Decimated};
+use super::pipeline;
 use super::scratch::ScratchDir;
 use super::surfaces::{Kind, SurfaceId, Surfaces};
-use super::{Bake, BakeStats, DensityError, MethodError, Settings, World};
+use super::{Bake, DensityError, MethodError, Settings, World};
 
 /// What a dataflow bake made: the bake at the process of worker 0, and
 /// what this process sent to other workers.
@@ -154,6 +173,9 @@ pub fn bake_dataflow(
         .into());
     }
     let config = workers.config()?;
+    if matches!(workers, Workers::Cluster { .. }) {
+        layout::watch_network();
+    }
     let first_local = match workers {
         Workers::Threads(_) => 0,
         Workers::Cluster {
@@ -205,9 +227,17 @@ pub fn bake_dataflow(
     let mut results = std::mem::take(&mut *finished.lock().unwrap_or_else(|e| e.into_inner()));
     let panicked = joined.map_or(true, |j| j.iter().any(|r| r.is_err()));
     if panicked || results.len() < local_workers {
-        results.push(Err(DataflowError::Worker(
-            "the connection to another process was lost, or the worker panicked".into(),
-        )));
+        let lost = layout::lost_peer().map(|(process, cause)| DataflowError::Lost {
+            process,
+            address: workers.address(process).unwrap_or("?").to_string(),
+            cause,
+        });
+        results.insert(
+            0,
+            Err(lost.unwrap_or(DataflowError::Worker(
+                "the connection to another process was lost, or the worker panicked".into(),
+            ))),
+        );
     }
 
     // This process's outcome: its own failures first, then a bake
@@ -256,8 +286,10 @@ type Packet = (u32, u32, u64, Vec<u8>);
 const ABORT: u32 = u32::MAX;
 
 /// Per-worker figures sent to worker 0: hits received, rays traced,
-/// over-mesh triangles, most records sorted at once, most hits in memory.
-type Figures = (u64, u64, u64, u64, u64);
+/// over-mesh triangles, most records sorted at once, most hits in memory,
+/// and its estimate work: hits (with the halo), over-mesh vertices, and
+/// the halo's hits.
+type Figures = (u64, u64, u64, u64, u64, u64, u64, u64);
 
 /// A decimated planar mesh on the wire: surface (encoded), vertices (x, y
 /// pairs), triangles, irradiance (r, g, b triples), bandwidth, hits, and
@@ -294,6 +326,43 @@ struct Local {
     bytes_sent: u64,
 }
 
+/// A worker's estimate with its tiles' meshes, and its figures.
+fn local_of(
+    mut est: pipeline::Estimated,
+    t: tiles::TileOut,
+    tr: &Traced,
+    hits: &impl super::hits::HitSource,
+) -> Local {
+    let verts = est.planar.iter().map(|m| m.verts.len() as u64).sum::<u64>()
+        + est
+            .curved
+            .iter()
+            .map(|m| 3 * m.tris.len() as u64)
+            .sum::<u64>()
+        + t.verts;
+    est.planar.extend(t.meshes);
+    est.planar.sort_by_key(|m| m.surface);
+    let tris = est.planar.iter().map(|m| m.tris.len() as u64).sum::<u64>()
+        + est.curved.iter().map(|m| m.tris.len() as u64).sum::<u64>();
+    let figures = (
+        tr.hits_received,
+        tr.rays,
+        tris,
+        hits.max_sort_records(),
+        est.max_hits_in_memory,
+        tr.hits_received + t.halo_received,
+        verts,
+        t.halo_received,
+    );
+    Local {
+        est,
+        figures,
+        particles: tr.particles,
+        hits_sent: tr.hits_sent + t.halo_sent,
+        bytes_sent: tr.bytes_sent + t.halo_bytes,
+    }
+}
+
 /// Runs one worker of the bake; returns the bake at worker 0.
 fn run_worker(
     worker: &mut Worker,
@@ -306,10 +375,11 @@ fn run_worker(
     let peers = worker.peers();
     let scene = &world.scene;
 
-    // Phase 1: trace and exchange into this worker's hit file (the
-    // exchange runs even when the scratch directory failed, so that the
-    // peers hear of it)
+    // Phase 1: the pilot deals the tiles; trace and exchange into this
+    // worker's hit file (the exchange runs even when the scratch directory
+    // failed, so that the peers hear of it)
     let t = Instant::now();
+    let tiling = Tiling::new(surfaces, peers, &tiles::pilot_hits(world, surfaces, s));
     let made = ScratchDir::new(s).and_then(|dir| {
         let sink = pipeline::file_sink(surfaces, s, &dir)?;
         Ok((dir, sink))
@@ -317,40 +387,45 @@ fn run_worker(
     let (scratch, traced) = match made {
         Ok((dir, sink)) => (
             Some(dir),
-            trace_exchange(worker, world, surfaces, s, Some(sink), ctl),
+            trace_exchange(worker, world, (surfaces, &tiling), s, Some(sink), ctl),
         ),
         Err(e) => {
-            let _ = trace_exchange(worker, world, surfaces, s, None, ctl);
+            let _ = trace_exchange(worker, world, (surfaces, &tiling), s, None, ctl);
             (None, Err(e.into()))
         }
     };
     let t_trace = t.elapsed().as_secs_f64();
     let t = Instant::now();
 
-    // Phase 2: this worker's surfaces
-    let local: Result<Local, DataflowError> = traced.and_then(|tr| {
+    // Phase 2: this worker's surfaces, then its tiles
+    let grouped = traced.and_then(|mut tr| {
         ctl.tick(Phase::Group, 0, 1);
-        let sink = tr.sink.ok_or(DataflowError::Worker("no hit sink".into()))?;
+        let sink = tr.sink.take();
+        let sink = sink.ok_or(DataflowError::Worker("no hit sink".into()))?;
         let hits = pipeline::group(sink)?;
-        let owns = |id: SurfaceId| owner(surfaces, id, peers) == me;
-        let est = pipeline::estimate_owned(scene, surfaces, s, &hits, tr.phi, ctl, &owns)?;
-        let tris = est.planar.iter().map(|m| m.tris.len() as u64).sum::<u64>()
-            + est.curved.iter().map(|m| m.tris.len() as u64).sum::<u64>();
-        use super::hits::HitSource;
-        let figures = (
-            tr.hits_received,
-            tr.rays,
-            tris,
-            hits.max_sort_records(),
-            est.max_hits_in_memory,
-        );
-        Ok(Local {
-            est,
-            figures,
-            particles: tr.particles,
-            hits_sent: tr.hits_sent,
-            bytes_sent: tr.bytes_sent,
-        })
+        Ok((tr, hits))
+    });
+    let owns = |id: SurfaceId| owner(surfaces, id, peers) == me && !tiling.is_split(id);
+    let (grouped, est) = match grouped {
+        Ok((tr, hits)) => {
+            let est = pipeline::estimate_owned(scene, surfaces, s, &hits, tr.phi, ctl, &owns);
+            (Some((tr, hits)), est.map_err(DataflowError::from))
+        }
+        Err(e) => (None, Err(e)),
+    };
+    let job = tiles::TileJob {
+        scene,
+        surfaces,
+        tiling: &tiling,
+        s,
+        phi: grouped.as_ref().map_or(0.0, |g| g.0.phi),
+    };
+    let st = status_of(&est);
+    let tiled = tiles::run(worker, &job, grouped.as_ref().map(|g| &g.1), st, ctl);
+    let local: Result<Local, DataflowError> = est.and_then(|est| {
+        let t = tiled?;
+        let (tr, hits) = grouped.ok_or(DataflowError::Worker("no hit file".into()))?;
+        Ok(local_of(est, t, &tr, &hits))
     });
     drop(scratch);
     let t_estimate = t.elapsed().as_secs_f64();
@@ -398,8 +473,8 @@ fn run_worker(
         me as u32,
         st.clone(),
         figures,
-        to_wire_planar(planar, reports),
-        to_wire_curved(est.curved),
+        gather::to_wire_planar(planar, reports),
+        gather::to_wire_curved(est.curved),
     );
     let mut parts = round(worker, vec![(0, mine)]);
     if me != 0 {
@@ -415,7 +490,7 @@ fn run_worker(
         parts.iter().map(|p| (p.0 as usize, &p.1)),
         Ok::<(), DataflowError>(()),
     )?;
-    let mut bake = assemble(surfaces, s, w0, parts);
+    let mut bake = gather::assemble(surfaces, s, w0, parts);
     bake.stats.particles = particles;
     bake.stats.t_trace = t_trace;
     bake.stats.t_estimate = t_estimate;
@@ -489,13 +564,14 @@ fn packet_bytes(p: &Packet) -> u64 {
 fn trace_exchange(
     worker: &mut Worker,
     world: &World,
-    surfaces: &Surfaces,
+    (surfaces, tiling): (&Surfaces, &Tiling),
     s: &Settings,
     sink: Option<super::hitfile::HitWriter>,
     ctl: &mut Control,
 ) -> Result<Traced, DataflowError> {
     let route = Route {
         surfaces,
+        tiling,
         me: worker.index(),
         peers: worker.peers(),
     };
@@ -663,9 +739,10 @@ fn write_batch(r: &mut Receiver, mut packets: Vec<Packet>) {
 }
 
 /// Where this worker's hits go: worker `me` of `peers`, the surfaces owned
-/// by [`owner`].
+/// by [`owner`], the tiles of tiled surfaces by their owners ([`Tiling`]).
 struct Route<'a> {
     surfaces: &'a Surfaces,
+    tiling: &'a Tiling,
     me: usize,
     peers: usize,
 }
@@ -693,7 +770,7 @@ impl Route<'_> {
             tr.rays += rays;
             let mut by_owner: Vec<Vec<u8>> = vec![Vec::new(); self.peers];
             for h in hits {
-                by_owner[owner(self.surfaces, h.surface, self.peers)]
+                by_owner[self.tiling.owner_of_hit(self.surfaces, &h)]
                     .extend_from_slice(&h.to_bytes());
             }
             for (w, bytes) in by_owner.into_iter().enumerate() {
@@ -809,107 +886,4 @@ fn decimate_owned(
     }
     let out = pipeline::decimate_each(scene, surfaces, planar, w0, s.epsilon, ctl)?;
     Ok(out.into_iter().unzip())
-}
-
-fn to_wire_planar(planar: Vec<PlanarMesh>, reports: Vec<Report>) -> Vec<PlanarWire> {
-    planar
-        .into_iter()
-        .zip(reports)
-        .map(|(m, r)| {
-            (
-                m.surface.encode(),
-                m.verts.iter().flat_map(|v| [v.x, v.y]).collect(),
-                m.tris,
-                m.h.iter().flat_map(|h| [h.x, h.y, h.z]).collect(),
-                m.bandwidth,
-                m.hits,
-                r.max_error,
-                r.sum_error,
-                r.removed,
-            )
-        })
-        .collect()
-}
-
-fn to_wire_curved(curved: Vec<CurvedMesh>) -> Vec<CurvedWire> {
-    curved
-        .into_iter()
-        .map(|m| {
-            let h = m.h.iter().flatten().flat_map(|h| [h.x, h.y, h.z]).collect();
-            (m.shape, m.back, m.tris, h)
-        })
-        .collect()
-}
-
-/// Worker 0: the bake from every worker's part, in the order of the
-/// single-process bake (planar meshes by surface side, curved ones by shape
-/// and side; the error statistics summed in that order).
-fn assemble(surfaces: &Surfaces, s: &Settings, w0: f32, parts: Vec<PartWire>) -> Bake {
-    use glam::{Vec2, Vec3};
-    let mut stats = BakeStats {
-        bytes_per_hit: HIT_BYTES,
-        surfaces: surfaces.list.len(),
-        ..Default::default()
-    };
-    let mut planar: Vec<(PlanarMesh, Report)> = Vec::new();
-    let mut curved: Vec<CurvedMesh> = Vec::new();
-    for (_, _, f, wp, wc) in parts {
-        stats.hits += f.0;
-        stats.rays += f.1;
-        stats.tris_before += f.2;
-        stats.max_sort_records = stats.max_sort_records.max(f.3);
-        stats.max_hits_in_memory = stats.max_hits_in_memory.max(f.4);
-        for (id, v, tris, h, bw, hits, max_e, sum_e, removed) in wp {
-            let verts = v.chunks_exact(2).map(|c| Vec2::new(c[0], c[1])).collect();
-            let h = h
-                .chunks_exact(3)
-                .map(|c| Vec3::new(c[0], c[1], c[2]))
-                .collect();
-            let m = PlanarMesh::unindexed(SurfaceId::decode(id), verts, tris, h, bw, hits);
-            planar.push((
-                m,
-                Report {
-                    max_error: max_e,
-                    sum_error: sum_e,
-                    removed,
-                    ..Report::default()
-                },
-            ));
-        }
-        for (shape, back, tris, h) in wc {
-            let h = h
-                .chunks_exact(9)
-                .map(|c| {
-                    [
-                        Vec3::new(c[0], c[1], c[2]),
-                        Vec3::new(c[3], c[4], c[5]),
-                        Vec3::new(c[6], c[7], c[8]),
-                    ]
-                })
-                .collect();
-            curved.push(CurvedMesh {
-                shape,
-                back,
-                tris,
-                h,
-            });
-        }
-    }
-    planar.sort_by_key(|p| p.0.surface);
-    let (planar, reports): (Vec<PlanarMesh>, Vec<Report>) = planar.into_iter().unzip();
-    curved.sort_by_key(|m| (m.shape, m.back));
-    if s.decimate {
-        let d = Decimated::of(&reports);
-        stats.max_brightness_error = d.max_error;
-        stats.mean_brightness_error = d.mean_error;
-    }
-    stats.hit_file_bytes = stats.hits * HIT_BYTES as u64;
-    let mesh = DisplayMesh::new(planar, curved);
-    stats.tris_after = mesh.triangle_count();
-    Bake {
-        surfaces: surfaces.clone(),
-        mesh,
-        w0,
-        stats,
-    }
 }
