@@ -327,6 +327,7 @@ pub(super) struct Guided {
 /// guides and the BSDF is a plain reflector (no delta lobe, no
 /// transmission), else [`scatter`]. The factor is f |wi·ns| / p(ω) with the
 /// shading-normal correction, as in [`scatter`].
+#[inline(always)]
 pub(super) fn scatter_guided(
     v: &Vertex,
     guide: Option<&DirGuide>,
@@ -369,6 +370,7 @@ pub(super) fn scatter_guided(
 /// direction and the factor cos θ / p(ω) that turns the emission sample's
 /// positional power (Le / p_pos) into the ray's power (zero below the
 /// emitter).
+#[inline(always)]
 pub(super) fn emit_guided(
     n: Vec3,
     d_cos: Vec3,
