@@ -76,6 +76,19 @@
 //! (eq. (23)), and the painter's sort by centroid can misorder overlapping
 //! patches. Memory is O(patches), independent of the BRDFs.
 //!
+//! Bias. That discretisation does not average out: `bundle` converges to
+//! the patch solution, not to the image `path` converges to, and the
+//! difference is darkening. Measured against Mitsuba 3 references (image
+//! means, default settings; issue #38, at 30–60 s on 2 cores): about
+//! 1.3 % dark on cbox, and about 8 % dark on a diffuse variant of
+//! two-rooms-baffle, where the light reaches the camera's room through a
+//! small gap that a patch's constant radiance blurs. Earlier figures, with
+//! their commands, are in docs/notebook/bundle.md: cbox's channel means
+//! within −1.3 % to +0.9 % of the reference at 300 iterations (first
+//! shot), glass-mirror 11–12 % dark (light through glass, which the
+//! transfer absorbs). A user who needs the unbiased image should use
+//! `path`, `light` or `plb`.
+//!
 //! ```text
 //! kalos render scenes/cbox/cbox.xml --method bundle --time 10 -o b.exr
 //! kalos render scene.xml --method bundle --patches 57000 --map-res 1024 \

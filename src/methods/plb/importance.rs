@@ -8,6 +8,7 @@ use crate::scene::luminance;
 /// `ComputeImportance` of §3.1: the potential impact of eq. (9) plus λ times
 /// the image impact of each child, eq. (8), averaged over the hit and its
 /// children. Left unnormalised (the selection normalises by the sum).
+#[inline]
 pub(super) fn compute_importance(hits: &mut [Hit], lambda: f64) {
     for h in hits.iter_mut() {
         h.s = 0.0;
@@ -89,6 +90,7 @@ impl CellStats {
         }
     }
 
+    #[inline]
     fn add(&mut self, cell: usize, r: f64) {
         self.sum[cell] += r;
         self.n[cell] += 1;
@@ -126,6 +128,7 @@ impl ImportanceGrid {
         }
     }
 
+    #[inline]
     pub(super) fn cell(&self, p: glam::Vec3) -> u32 {
         let q = ((p - self.lo) * self.scale).max(glam::Vec3::ZERO);
         let r = GRID_RES as u32 - 1;
@@ -137,6 +140,7 @@ impl ImportanceGrid {
         (z * GRID_RES as u32 + y) * GRID_RES as u32 + x
     }
 
+    #[inline]
     pub(super) fn record(&mut self, cell: u32, r: f64) {
         if !r.is_finite() {
             return;
@@ -146,6 +150,7 @@ impl ImportanceGrid {
     }
 
     /// The mean r over all slots (1 before anything was recorded).
+    #[inline]
     fn mean(&self) -> f64 {
         let a = &self.all;
         if a.total > 0.0 {
@@ -156,6 +161,7 @@ impl ImportanceGrid {
     }
 
     /// W(cell): the mean r of the cell's rays, shrunk toward the mean.
+    #[inline]
     pub(super) fn value(&self, cell: u32) -> f64 {
         let a = &self.all;
         let (sum, n) = (a.sum[cell as usize], a.n[cell as usize] as f64);
@@ -163,8 +169,21 @@ impl ImportanceGrid {
     }
 
     /// W(cell) + f r̄, always positive.
+    #[inline]
     pub(super) fn weight(&self, cell: u32) -> f64 {
-        self.value(cell) + GRID_FLOOR * self.mean()
+        self.weights()(cell)
+    }
+
+    /// [`ImportanceGrid::weight`] of any cell, with the mean r̄ computed
+    /// once (the same values: for the phase end's pass over the population).
+    #[inline]
+    pub(super) fn weights(&self) -> impl Fn(u32) -> f64 + '_ {
+        let mean = self.mean();
+        move |cell| {
+            let a = &self.all;
+            let (sum, n) = (a.sum[cell as usize], a.n[cell as usize] as f64);
+            (sum + GRID_PRIOR * mean) / (n + GRID_PRIOR) + GRID_FLOOR * mean
+        }
     }
 }
 

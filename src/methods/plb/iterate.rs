@@ -9,13 +9,14 @@ use std::sync::Arc;
 
 use super::guide::{emit_guided, scatter_guided, DirGuide, DirRecord};
 use super::importance::{ImportanceGrid, LIGHT_SLOT};
-use super::purge::end_phase;
+use super::purge::{end_phase, Scratch};
 use super::{Measure, Settings, Variant};
 use crate::film::Film;
 use crate::geometry::{offset_point, Ray};
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb, SurfacePoint};
+use crate::simd::dispatched;
 use crate::transport::{
     connect_emission_sample, connect_to_camera, follow_delta_chain, Landing, Vertex,
 };
@@ -88,6 +89,8 @@ pub(super) struct Lane {
     pub(super) dirs: Option<Vec<DirRecord>>,
     /// The directional densities of this pass (guided, after the first).
     pub(super) guide: Option<Arc<DirGuide>>,
+    /// The purge's buffers.
+    pub(super) scratch: Scratch,
 }
 
 impl Lane {
@@ -101,6 +104,7 @@ impl Lane {
             grid,
             dirs,
             guide: None,
+            scratch: Scratch::default(),
             born: 0,
             hits: Vec::new(),
             cum: Vec::new(),
@@ -116,6 +120,7 @@ impl Lane {
         }
     }
 
+    #[inline(always)]
     fn push(&mut self, hit: Hit) {
         let w = if hit.spawn { hit.s } else { 0.0 };
         if hit.spawn {
@@ -126,6 +131,7 @@ impl Lane {
     }
 
     /// Rebuilds the prefix sums and Σ out_lum after the purge.
+    #[inline]
     pub(super) fn rebuild(&mut self) {
         self.cum.clear();
         self.reflected = 0.0;
@@ -179,8 +185,32 @@ struct Source {
     dir: Option<(u32, glam::Vec3)>,
 }
 
+dispatched! {
+    /// `steps` steps of one lane ([`iterate`]); returns the rays traced. The
+    /// per-pass loop that runtime dispatch compiles for x86-64-v3
+    /// ([`crate::simd::dispatch`]), as light tracing's: the step, its trace
+    /// and the phase end are inlined into it.
+    pub(super) fn run_lane(
+        world: &World,
+        s: &Settings,
+        rng: Pcg32,
+        steps: u64,
+        lane: &mut Lane,
+    ) -> u64 {
+        // A plain loop: an iterator adaptor would be a function of its own,
+        // compiled for the baseline only
+        let mut rng = rng;
+        let mut rays = 0;
+        for _ in 0..steps {
+            rays += iterate(world, s, &mut rng, lane);
+        }
+        rays
+    }
+}
+
 /// One step of `Iterate` (§3), ending the phase when it is full. Returns the
 /// rays traced.
+#[inline(always)]
 pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut Lane) -> u64 {
     let form = Form::of(s);
     let mut rays = 0;
@@ -352,6 +382,7 @@ fn landing_value(c: &Hit, grid: Option<&ImportanceGrid>, guided: bool) -> f64 {
 /// camera connection; `birth` (the factor from stored to actual power) when
 /// the hit is measured at birth. Returns the rays.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn trace(
     world: &World,
     ray: Ray,

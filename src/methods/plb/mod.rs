@@ -120,7 +120,7 @@ use std::sync::Arc;
 
 use guide::{DirGuide, DirStats};
 use importance::{share_grids, CellStats, ImportanceGrid, SLOTS};
-use iterate::{iterate, Form, Lane};
+use iterate::{run_lane, Form, Lane};
 
 /// Settings of progressive light path building.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -271,9 +271,11 @@ impl Settings {
     /// before a render ([`crate::render::memory_estimate`]): per lane, the
     /// cap plus the phase's new hits (each step appends one, the purge at
     /// the phase's end brings them back to the cap), each with its prefix
-    /// sum.
+    /// sum and the purge's two buffers (its importance, its new index).
     pub fn population_bytes(&self) -> u64 {
-        let per_hit = (std::mem::size_of::<iterate::Hit>() + std::mem::size_of::<f64>()) as u64;
+        let per_hit = (std::mem::size_of::<iterate::Hit>()
+            + 2 * std::mem::size_of::<f64>()
+            + std::mem::size_of::<u32>()) as u64;
         let hits = self.population as u64 + u64::from(self.phase_len);
         self.lanes as u64 * hits * per_hit
     }
@@ -456,10 +458,8 @@ impl Method for Plb {
             .par_iter_mut()
             .enumerate()
             .map(|(i, lane)| {
-                let mut rng = Pcg32::keyed(&[s.seed, pass, i as u64, 0x91b]);
-                (0..n)
-                    .map(|_| iterate(world, s, &mut rng, lane))
-                    .sum::<u64>()
+                let rng = Pcg32::keyed(&[s.seed, pass, i as u64, 0x91b]);
+                run_lane(world, s, rng, n, lane)
             })
             .sum::<u64>();
         if let Some(shared) = self.shared.as_mut() {
