@@ -9,12 +9,12 @@ use std::f32::consts::{FRAC_1_PI, PI};
 
 use glam::{Vec2, Vec3};
 
-use super::LANES;
+use super::{LaneSampler, LANES};
 use crate::accel::Hit;
 use crate::bsdf::Bsdf;
 use crate::emitter::TriLight;
 use crate::geometry::Ray;
-use crate::sampling::{sin_cos_quarter, Pcg32, PCG_MULT};
+use crate::sampling::{sin_cos_quarter, Pcg32, Sampler, SobolSampler, PCG_MULT};
 use crate::scene::records::TriRecord;
 use crate::scene::Rgb;
 use crate::simd::F8 as V;
@@ -152,28 +152,127 @@ impl Paths {
     }
 }
 
+/// The samplers of eight lanes: a lane that takes the scalar step takes
+/// its sampler out ([`Lanes::get`]) and puts it back ([`Lanes::set`]); the
+/// lanes shaded together draw their vertex's numbers together. Each lane
+/// draws what the scalar step would draw ([`crate::transport::CameraPath::scatter`]),
+/// in its order and at its dimensions, so that lanes and scalar steps give
+/// the same bits.
+pub trait Lanes<S: Sampler> {
+    /// Eight lanes holding placeholder samplers.
+    fn new() -> Self;
+    /// A placeholder sampler, for slots not yet given a pixel's.
+    fn blank() -> S;
+    /// Lane `i`'s sampler.
+    fn get(&self, i: usize) -> S;
+    /// Sets lane `i`'s sampler to `s`.
+    fn set(&mut self, i: usize, s: &S);
+    /// The numbers of the vertex at `depth[i]` of each lane `i` of `mask`,
+    /// as `scatter` draws them after [`Sampler::start_vertex`]: the light's
+    /// choice and point, the BSDF's lobe and direction (lanes outside
+    /// `mask` hold meaningless numbers and keep their samplers), in
+    /// registers of eight lanes.
+    fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6];
+    /// Russian roulette's number of each lane of `mask`, the draw after
+    /// [`Lanes::vertex`]'s.
+    fn roulette(&mut self, mask: u32) -> __m256;
+}
+
 /// The [`Pcg32`] of each lane, by field, so that the lanes that all draw
-/// advance together ([`Rngs::draw`]); a lane that takes the scalar step
-/// takes its generator out ([`Rngs::get`]) and puts it back.
+/// advance together ([`Rngs::draw`]).
 #[repr(C, align(32))]
-struct Rngs {
+pub struct Rngs {
     state: [u64; LANES],
     inc: [u64; LANES],
 }
 
-impl Rngs {
-    /// Lane `i`'s generator.
+impl Lanes<Pcg32> for Rngs {
+    #[inline(always)]
+    fn new() -> Self {
+        Rngs {
+            state: [0; LANES],
+            inc: [0; LANES],
+        }
+    }
+
+    #[inline(always)]
+    fn blank() -> Pcg32 {
+        Pcg32::new(0, 0)
+    }
+
     #[inline(always)]
     fn get(&self, i: usize) -> Pcg32 {
         Pcg32::from_parts(self.state[i], self.inc[i])
     }
 
-    /// Sets lane `i`'s generator to `r`.
     #[inline(always)]
     fn set(&mut self, i: usize, r: &Pcg32) {
         (self.state[i], self.inc[i]) = r.parts();
     }
 
+    /// Independent numbers ignore the depth: the eight generators advance
+    /// together.
+    #[inline(always)]
+    fn vertex(&mut self, mask: u32, _depth: &[u32; LANES]) -> [__m256; 6] {
+        self.draw::<6>(mask).map(|u| u.0)
+    }
+
+    #[inline(always)]
+    fn roulette(&mut self, mask: u32) -> __m256 {
+        let [u] = self.draw::<1>(mask);
+        u.0
+    }
+}
+
+/// The [`SobolSampler`] of each lane. A lane's numbers are coordinates of
+/// its own pixel's Sobol point, at dimensions that depend on its depth.
+pub struct SobolLanes([SobolSampler; LANES]);
+
+impl Lanes<SobolSampler> for SobolLanes {
+    #[inline(always)]
+    fn new() -> Self {
+        SobolLanes(std::array::from_fn(|_| Self::blank()))
+    }
+
+    #[inline(always)]
+    fn blank() -> SobolSampler {
+        SobolSampler::new(0, 0, 0)
+    }
+
+    #[inline(always)]
+    fn get(&self, i: usize) -> SobolSampler {
+        self.0[i].clone()
+    }
+
+    #[inline(always)]
+    fn set(&mut self, i: usize, s: &SobolSampler) {
+        self.0[i] = s.clone();
+    }
+
+    #[inline(always)]
+    fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6] {
+        let mut u = [[0.0f32; LANES]; 6];
+        for i in lanes(mask) {
+            let s = &mut self.0[i];
+            s.start_vertex(depth[i]);
+            for uk in &mut u {
+                uk[i] = s.next_f32();
+            }
+        }
+        u.map(|uk| V::load(&uk).0)
+    }
+
+    #[inline(always)]
+    fn roulette(&mut self, mask: u32) -> __m256 {
+        let mut u = [0.0f32; LANES];
+        for i in lanes(mask) {
+            u[i] = self.0[i].next_f32();
+        }
+        V::load(&u).0
+    }
+}
+
+impl Rngs {
     /// `N` numbers of each lane of `mask`, each drawn as
     /// [`Pcg32::next_f32`] draws it (in lanes outside `mask` the numbers
     /// are meaningless and the generators stay as they were).
@@ -339,11 +438,11 @@ const CHUNK: usize = 8 * LANES;
 
 /// [`super::radiance_row`] with the common case in AVX lanes.
 #[target_feature(enable = "avx2")]
-pub(super) fn radiance_row(
+pub(super) fn radiance_row<S: LaneSampler>(
     world: &World,
     limits: &DepthLimits,
     w: usize,
-    mut start: impl FnMut(usize) -> (Pcg32, Ray),
+    mut start: impl FnMut(usize) -> (S, Ray),
     mut finish: impl FnMut(usize, Rgb, u64),
 ) {
     let mut paths = Paths {
@@ -359,17 +458,14 @@ pub(super) fn radiance_row(
         depth: [0; LANES],
         rays: [0; LANES],
     };
-    let mut rngs = Rngs {
-        state: [0; LANES],
-        inc: [0; LANES],
-    };
+    let mut rngs = S::Lanes::new();
     let mut pixel = [0usize; LANES];
     let mut found = [None; LANES];
     let mut alive = 0u32;
     // The camera rays of CHUNK pixels at a time are traced up front, in
     // packets of neighbouring pixels; a lane whose path ended takes the
     // next pixel of the chunk
-    let mut chunk_rngs: [Pcg32; CHUNK] = std::array::from_fn(|_| Pcg32::new(0, 0));
+    let mut chunk_rngs: [S; CHUNK] = std::array::from_fn(|_| S::Lanes::blank());
     let mut chunk_rays = [Ray::new(Vec3::ZERO, Vec3::Z); CHUNK];
     let mut chunk_hits = [None; CHUNK];
     let (mut chunk0, mut chunk_n) = (0, 0);
@@ -440,12 +536,12 @@ pub(super) fn radiance_row(
 /// One vertex of each path of `mask`, whose rays hit at `hits`; returns the
 /// paths that go on.
 #[inline(always)]
-fn vertices(
+fn vertices<S: Sampler>(
     world: &World,
     limits: &DepthLimits,
     paths: &mut Paths,
     hits: &[Option<Hit>; LANES],
-    rngs: &mut Rngs,
+    rngs: &mut impl Lanes<S>,
     mask: u32,
 ) -> u32 {
     // Each lane's hit (lanes outside the mask repeat the first lane's, and
@@ -467,7 +563,7 @@ fn vertices(
     }
     // The lanes' numbers, in the scalar order: the light's choice and
     // point, then the BSDF's lobe and direction
-    let u = rngs.draw::<6>(sh.vec);
+    let u = rngs.vertex(sh.vec, &paths.depth).map(V);
     let fr = frame(&sh, sp.ng, V3::load(&paths.d).neg());
     let ls = choose_lights(world, limits, sp.p, fr.ng_o, u[0], sh.vec);
     let ne = next_event(paths, &sh, &sp, &fr, &ls, [u[1], u[2]]);
@@ -564,11 +660,11 @@ struct Shaded {
 /// normal (interpolated for smooth shapes, lane by lane; a normal-mapped
 /// shape's is the scalar surface point's).
 #[inline(always)]
-fn shade_or_scatter(
+fn shade_or_scatter<S: Sampler>(
     world: &World,
     limits: &DepthLimits,
     paths: &mut Paths,
-    rngs: &mut Rngs,
+    rngs: &mut impl Lanes<S>,
     lh: &[Hit; LANES],
     sp: &Surface,
     mask: u32,
@@ -901,10 +997,10 @@ fn trace_shadows(
 /// The next segment of the lanes that go on, after Russian roulette's
 /// draws; returns the paths that go on.
 #[inline(always)]
-fn next_segment(
+fn next_segment<S: Sampler>(
     limits: &DepthLimits,
     paths: &mut Paths,
-    rngs: &mut Rngs,
+    rngs: &mut impl Lanes<S>,
     sp: &Surface,
     fr: &Frame8,
     bs: &BsdfSample,
@@ -928,7 +1024,7 @@ fn next_segment(
     let stop = if rr_lanes == 0 {
         0
     } else {
-        let [u_rr] = rngs.draw::<1>(rr_lanes);
+        let u_rr = V(rngs.roulette(rr_lanes));
         (rr_m & u_rr.ge(qrr)).bits()
     };
     alive &= !stop;
