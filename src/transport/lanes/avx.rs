@@ -251,24 +251,117 @@ impl Lanes<SobolSampler> for SobolLanes {
 
     #[inline(always)]
     fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6] {
-        let mut u = [[0.0f32; LANES]; 6];
         for i in lanes(mask) {
-            let s = &mut self.0[i];
-            s.start_vertex(depth[i]);
-            for uk in &mut u {
-                uk[i] = s.next_f32();
-            }
+            self.0[i].start_vertex(depth[i]);
         }
-        u.map(|uk| V::load(&uk).0)
+        self.draw::<6>(mask)
     }
 
     #[inline(always)]
     fn roulette(&mut self, mask: u32) -> __m256 {
-        let mut u = [0.0f32; LANES];
+        let [u] = self.draw::<1>(mask);
+        u
+    }
+}
+
+impl SobolLanes {
+    /// The next `N` draws of each lane of `mask`: the Sobol coordinates
+    /// and their seeds lane by lane, the Owen scramble
+    /// ([`crate::sampling::sobol::owen_scramble`]) of all eight lanes at
+    /// once, then the hashed numbers of draws past the table put back.
+    #[inline(always)]
+    fn draw<const N: usize>(&mut self, mask: u32) -> [__m256; N] {
+        let mut x = [[0u32; LANES]; N];
+        let mut seed = [[0u32; LANES]; N];
+        let mut hashed = [0u32; N];
         for i in lanes(mask) {
-            u[i] = self.0[i].next_f32();
+            let s = &mut self.0[i];
+            for k in 0..N {
+                match s.next_unscrambled() {
+                    (xk, Some(sk)) => (x[k][i], seed[k][i]) = (xk, sk),
+                    (xk, None) => {
+                        x[k][i] = xk;
+                        hashed[k] |= 1 << i;
+                    }
+                }
+            }
         }
-        V::load(&u).0
+        std::array::from_fn(|k| {
+            // SAFETY: loads of eight u32 from arrays of eight, register
+            // operations; only inlined into `radiance_row`, which runs
+            // where the CPU has AVX2
+            unsafe {
+                let xk = _mm256_loadu_si256(x[k].as_ptr().cast());
+                let sk = _mm256_loadu_si256(seed[k].as_ptr().cast());
+                let m = V::mask(hashed[k]).0;
+                let y = _mm256_castps_si256(_mm256_blendv_ps(
+                    _mm256_castsi256_ps(owen_scramble8(xk, sk)),
+                    _mm256_castsi256_ps(xk),
+                    m,
+                ));
+                // (x >> 8) as f32 * 2^-24, as the scalar `to_unit`
+                _mm256_mul_ps(
+                    _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(y)),
+                    _mm256_set1_ps(1.0 / 16_777_216.0),
+                )
+            }
+        })
+    }
+}
+
+/// The bits of eight u32 reversed: the bytes of each swapped, then each
+/// byte's nibbles looked up reversed and swapped.
+#[inline(always)]
+fn reverse_bits8(x: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        #[rustfmt::skip]
+        let bswap = _mm256_setr_epi8(
+            3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12,
+            3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12,
+        );
+        // rev4[n] and rev4[n] << 4, for the low and the high nibble
+        #[rustfmt::skip]
+        let (lo_tbl, hi_tbl) = (
+            _mm256_setr_epi8(
+                0, 8, 4, 12, 2, 10, 6, 14, 1, 9, 5, 13, 3, 11, 7, 15,
+                0, 8, 4, 12, 2, 10, 6, 14, 1, 9, 5, 13, 3, 11, 7, 15,
+            ),
+            _mm256_setr_epi8(
+                0x00, -0x80, 0x40, -0x40, 0x20, -0x60, 0x60, -0x20,
+                0x10, -0x70, 0x50, -0x30, 0x30, -0x50, 0x70, -0x10,
+                0x00, -0x80, 0x40, -0x40, 0x20, -0x60, 0x60, -0x20,
+                0x10, -0x70, 0x50, -0x30, 0x30, -0x50, 0x70, -0x10,
+            ),
+        );
+        let x = _mm256_shuffle_epi8(x, bswap);
+        let nib = _mm256_set1_epi8(0x0f);
+        let lo = _mm256_and_si256(x, nib);
+        let hi = _mm256_and_si256(_mm256_srli_epi16::<4>(x), nib);
+        _mm256_or_si256(
+            _mm256_shuffle_epi8(hi_tbl, lo),
+            _mm256_shuffle_epi8(lo_tbl, hi),
+        )
+    }
+}
+
+/// [`crate::sampling::sobol::owen_scramble`] of eight u32 `x` with their
+/// seeds, the same operations on 32-bit lanes.
+#[inline(always)]
+fn owen_scramble8(x: __m256i, seed: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let mul = |a: __m256i, c: u32| _mm256_mullo_epi32(a, _mm256_set1_epi32(c as i32));
+        let mut x = reverse_bits8(x);
+        x = _mm256_xor_si256(x, mul(x, 0x3d20_adea));
+        x = _mm256_add_epi32(x, seed);
+        let odd = _mm256_or_si256(_mm256_srli_epi32::<16>(seed), _mm256_set1_epi32(1));
+        x = _mm256_mullo_epi32(x, odd);
+        x = _mm256_xor_si256(x, mul(x, 0x0552_6c56));
+        x = _mm256_xor_si256(x, mul(x, 0x53a2_2864));
+        reverse_bits8(x)
     }
 }
 
