@@ -286,11 +286,13 @@ impl SobolLanes {
                 }
             }
         }
-        std::array::from_fn(|k| {
-            // SAFETY: loads of eight u32 from arrays of eight, register
-            // operations; only inlined into `radiance_row`, which runs
-            // where the CPU has AVX2
-            unsafe {
+        // A loop, not `array::from_fn` (see `Rngs::draw`)
+        // SAFETY: loads of eight u32 from arrays of eight, register
+        // operations; only inlined into `radiance_row`, which runs where
+        // the CPU has AVX2
+        unsafe {
+            let mut out = [_mm256_setzero_ps(); N];
+            for (k, o) in out.iter_mut().enumerate() {
                 let xk = _mm256_loadu_si256(x[k].as_ptr().cast());
                 let sk = _mm256_loadu_si256(seed[k].as_ptr().cast());
                 let m = V::mask(hashed[k]).0;
@@ -300,12 +302,13 @@ impl SobolLanes {
                     m,
                 ));
                 // (x >> 8) as f32 * 2^-24, as the scalar `to_unit`
-                _mm256_mul_ps(
+                *o = _mm256_mul_ps(
                     _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(y)),
                     _mm256_set1_ps(1.0 / 16_777_216.0),
-                )
+                );
             }
-        })
+            out
+        }
     }
 }
 
@@ -353,14 +356,13 @@ fn owen_scramble8(x: __m256i, seed: __m256i) -> __m256i {
     // SAFETY: register operations only; only inlined into `radiance_row`,
     // which runs where the CPU has AVX2
     unsafe {
-        let mul = |a: __m256i, c: u32| _mm256_mullo_epi32(a, _mm256_set1_epi32(c as i32));
         let mut x = reverse_bits8(x);
-        x = _mm256_xor_si256(x, mul(x, 0x3d20_adea));
+        x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x3d20_adea)));
         x = _mm256_add_epi32(x, seed);
         let odd = _mm256_or_si256(_mm256_srli_epi32::<16>(seed), _mm256_set1_epi32(1));
         x = _mm256_mullo_epi32(x, odd);
-        x = _mm256_xor_si256(x, mul(x, 0x0552_6c56));
-        x = _mm256_xor_si256(x, mul(x, 0x53a2_2864));
+        x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x0552_6c56)));
+        x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x53a2_2864)));
         reverse_bits8(x)
     }
 }
@@ -380,24 +382,39 @@ impl Rngs {
             let old = [_mm256_load_si256(sp), _mm256_load_si256(sp.add(1))];
             let inc = [_mm256_load_si256(ip), _mm256_load_si256(ip.add(1))];
             let mut s = old;
-            let out = std::array::from_fn(|_| {
+            // A loop, not `array::from_fn`: a closure does not inherit the
+            // caller's AVX2, and out of line its intrinsics become calls
+            // (as `main`'s binary had it, at twice the time per sample)
+            let mut out = [V(_mm256_setzero_ps()); N];
+            for o in &mut out {
                 let x = pack32(xsh_rr(s[0]), xsh_rr(s[1]));
                 s = [step(s[0], inc[0]), step(s[1], inc[1])];
                 // (x >> 8) as f32 * 2^-24
-                V(_mm256_mul_ps(
+                *o = V(_mm256_mul_ps(
                     _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(x)),
                     _mm256_set1_ps(1.0 / 16_777_216.0),
-                ))
-            });
-            let m = |bits: i64| {
-                let lane = _mm256_setr_epi64x(bits, bits << 1, bits << 2, bits << 3);
-                let set = _mm256_set1_epi64x(i64::from(mask));
-                _mm256_cmpeq_epi64(_mm256_and_si256(set, lane), lane)
-            };
-            _mm256_store_si256(sp, _mm256_blendv_epi8(old[0], s[0], m(1)));
-            _mm256_store_si256(sp.add(1), _mm256_blendv_epi8(old[1], s[1], m(16)));
+                ));
+            }
+            _mm256_store_si256(sp, _mm256_blendv_epi8(old[0], s[0], mask64(mask, 1)));
+            _mm256_store_si256(
+                sp.add(1),
+                _mm256_blendv_epi8(old[1], s[1], mask64(mask, 16)),
+            );
             out
         }
+    }
+}
+
+/// The u64 lanes of `mask` whose bits start at `bits` (1 for lanes 0–3,
+/// 16 for lanes 4–7), as all-ones lanes.
+#[inline(always)]
+fn mask64(mask: u32, bits: i64) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let lane = _mm256_setr_epi64x(bits, bits << 1, bits << 2, bits << 3);
+        let set = _mm256_set1_epi64x(i64::from(mask));
+        _mm256_cmpeq_epi64(_mm256_and_si256(set, lane), lane)
     }
 }
 
