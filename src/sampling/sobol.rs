@@ -311,11 +311,34 @@ impl SobolSampler {
     /// and `d` (independent numbers).
     #[inline]
     fn sample(&self, d: u32) -> u32 {
-        if (d as usize) < SOBOL_DIMENSIONS {
-            owen_scramble(sobol(self.shuffled, d as usize), seed32(self.key, d))
-        } else {
-            (mix64(self.key ^ mix64((self.index as u64) << 32 | d as u64)) >> 32) as u32
+        match self.unscrambled(d) {
+            (x, Some(seed)) => owen_scramble(x, seed),
+            (x, None) => x,
         }
+    }
+
+    /// Dimension `d` before the scramble: inside the table, the Sobol
+    /// point's coordinate and the seed of its scramble; past it, the
+    /// hashed number itself and None.
+    #[inline(always)]
+    fn unscrambled(&self, d: u32) -> (u32, Option<u32>) {
+        if (d as usize) < SOBOL_DIMENSIONS {
+            (sobol(self.shuffled, d as usize), Some(seed32(self.key, d)))
+        } else {
+            let x = mix64(self.key ^ mix64((self.index as u64) << 32 | d as u64));
+            ((x >> 32) as u32, None)
+        }
+    }
+
+    /// The next draw before its scramble ([`SobolSampler::unscrambled`]),
+    /// for `path`'s lanes, which scramble eight lanes' draws at a time:
+    /// [`Sampler::next_f32`] is the same draw scrambled by
+    /// [`owen_scramble`] and made a float.
+    #[inline(always)]
+    pub(crate) fn next_unscrambled(&mut self) -> (u32, Option<u32>) {
+        let x = self.unscrambled(self.dim);
+        self.dim = self.dim.wrapping_add(1);
+        x
     }
 }
 

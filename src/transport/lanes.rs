@@ -10,17 +10,19 @@
 //! lane, by power or down the light tree). Every other vertex goes through
 //! [`super::CameraPath::scatter`], the step [`radiance_from_hit`] runs,
 //! lane by lane. A lane runs the scalar operations in their order (Rust
-//! never contracts to FMA), draws its numbers from its own stream in the
-//! scalar order (the eight generators advance together where all the
-//! lanes draw), and computes the concentric map's sine and cosine with the
-//! scalar polynomial's operations, so a pixel's radiance is the same bits
-//! as [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
+//! never contracts to FMA), draws its numbers from its own pixel's sampler
+//! in the scalar order and at the scalar dimensions ([`LaneSampler`]: the
+//! eight PCG32 generators advance together where all the lanes draw; a
+//! Sobol lane's numbers are its pixel's point's coordinates at its own
+//! vertex's dimensions), and computes the concentric map's sine and cosine
+//! with the scalar polynomial's operations, so a pixel's radiance is the
+//! same bits as [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
 //! traced first, in packets of eight neighbours; a lane whose path ends
 //! takes the next of those pixels, so that the lanes stay full until the
 //! row runs out.
 
 use crate::geometry::Ray;
-use crate::sampling::{Pcg32, Sampler};
+use crate::sampling::{Pcg32, Sampler, SobolSampler};
 use crate::scene::Rgb;
 use crate::world::World;
 
@@ -29,19 +31,39 @@ use super::{radiance_from_hit, DepthLimits};
 /// Paths advanced together.
 pub const LANES: usize = 8;
 
+/// A sampler whose numbers the AVX lanes draw for eight paths at a time,
+/// each lane its own pixel's: PCG32 (`--sampler independent`) and the
+/// Owen-scrambled Sobol points (`--sampler sobol`).
+pub trait LaneSampler: Sampler + Clone {
+    /// How eight lanes hold their samplers and draw a vertex's numbers.
+    #[cfg(target_arch = "x86_64")]
+    #[doc(hidden)]
+    type Lanes: avx::Lanes<Self>;
+}
+
+impl LaneSampler for Pcg32 {
+    #[cfg(target_arch = "x86_64")]
+    type Lanes = avx::Rngs;
+}
+
+impl LaneSampler for SobolSampler {
+    #[cfg(target_arch = "x86_64")]
+    type Lanes = avx::SobolLanes;
+}
+
 /// Runs one camera path per pixel x of a row of `w`: `start(x)` gives the
-/// pixel's stream (after it has drawn the camera ray's numbers) and its
+/// pixel's sampler (after it has drawn the camera ray's numbers) and its
 /// camera ray; `finish(x, L, rays)` takes the path's radiance and the rays
 /// it traced, [`radiance_from_hit`]'s answer at depth 1. Where the CPU has
 /// AVX2, eight paths run at a time in lanes, and a lane whose path ends
 /// takes the next pixel; elsewhere the camera rays of eight neighbouring
 /// pixels are traced together and each path then runs alone.
 #[inline(always)]
-pub fn radiance_row(
+pub fn radiance_row<S: LaneSampler>(
     world: &World,
     limits: &DepthLimits,
     w: usize,
-    start: impl FnMut(usize) -> (Pcg32, Ray),
+    start: impl FnMut(usize) -> (S, Ray),
     finish: impl FnMut(usize, Rgb, u64),
 ) {
     #[cfg(target_arch = "x86_64")]
@@ -55,8 +77,8 @@ pub fn radiance_row(
 
 /// [`radiance_row`] without lanes, for any [`Sampler`]: the camera rays of
 /// eight neighbouring pixels are traced together, then each path runs
-/// alone through [`radiance_from_hit`]. The lanes draw from PCG32 streams
-/// only, so a low-discrepancy sampler takes this loop.
+/// alone through [`radiance_from_hit`]. The loop of CPUs without AVX2 and
+/// of scenes with lights other than triangles.
 #[inline(always)]
 pub fn radiance_row_packets<S: Sampler>(
     world: &World,
