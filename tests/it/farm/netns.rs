@@ -30,12 +30,28 @@ fn unavailable() -> Option<String> {
         return Some(format!("not running as root (euid {euid})"));
     }
     match Command::new("ip").arg("-V").output() {
-        Ok(o) if o.status.success() => None,
+        Ok(o) if o.status.success() => {}
+        Ok(o) => {
+            return Some(format!(
+                "`ip -V` failed: {}",
+                String::from_utf8_lossy(&o.stderr)
+            ))
+        }
+        Err(e) => return Some(format!("no `ip` command (iproute2): {e}")),
+    }
+    // Root in a container may still lack the right to make namespaces
+    // (CAP_SYS_ADMIN, CAP_NET_ADMIN): try one
+    let probe = format!("kalos-probe-{}", std::process::id());
+    match Command::new("ip").args(["netns", "add", &probe]).output() {
+        Ok(o) if o.status.success() => {
+            let _ = Command::new("ip").args(["netns", "del", &probe]).output();
+            None
+        }
         Ok(o) => Some(format!(
-            "`ip -V` failed: {}",
-            String::from_utf8_lossy(&o.stderr)
+            "cannot make a network namespace: {}",
+            String::from_utf8_lossy(&o.stderr).trim()
         )),
-        Err(e) => Some(format!("no `ip` command (iproute2): {e}")),
+        Err(e) => Some(format!("`ip netns add` did not run: {e}")),
     }
 }
 
