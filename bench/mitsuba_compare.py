@@ -5,7 +5,8 @@ in one invocation on one machine.
 Usage: python3 bench/mitsuba_compare.py [--scene cbox|big-room-textured|FILE.xml]
            [--ref FILE] [--spp 64] [--repeats 3] [--pairs path,light]
            [--variants scalar_rgb,llvm_ad_rgb] [--kalos [LABEL=]BIN ...]
-           [--ref-spp 1024]
+           [--ref-spp 1024] [--mi-samplers independent,multijitter,ldsampler]
+           [--kalos-samplers independent,sobol]
 
 Installs Mitsuba 3 into bench/.venv when it is missing (pip install mitsuba
 numpy).
@@ -32,6 +33,17 @@ the ratios within each repeat (the runs of one repeat are back to back).
 
 Several --kalos binaries (e.g. builds for different target CPUs) are timed
 alternately with each other; `--variants none` leaves Mitsuba out.
+
+Samplers: without --mi-samplers Mitsuba uses the scene file's sampler. With
+it, every Mitsuba variant runs once per listed sampler type (independent,
+multijitter, ldsampler, orthogonal, stratified): the scene's `<sampler>`
+elements (includes inlined; one is added to a sensor that has none) get that
+type and keep their other parameters, and the sample count is --spp as
+before. --kalos-samplers runs kalos `path` once per `--sampler` value
+(`light` has no sampler option and runs once). All these configurations
+still run alternately within each repeat. Each pair then prints, per
+Mitsuba variant, the best kalos configuration over the best Mitsuba one
+(best: the lowest median time to relMSE 1e-3).
 """
 import argparse, glob, json, os, re, statistics, subprocess, sys
 
@@ -65,10 +77,36 @@ def llvm_env():
 
 
 MI_SCRIPT = r"""
-import sys, time, mitsuba as mi
+import os, sys, time, mitsuba as mi
 variant, scene_file, integrator, spp, seed, out = sys.argv[1:7]
+sampler = sys.argv[7] if len(sys.argv) > 7 else ''
 mi.set_variant(variant)
-scene = mi.load_file(scene_file)
+if sampler:
+    # The scene with its includes inlined and every sampler set to `sampler`;
+    # the scene's directory stays on the file resolver for meshes and textures
+    import xml.etree.ElementTree as ET
+    def inline(path):
+        root = ET.parse(path).getroot()
+        def walk(el):
+            for i, c in reversed(list(enumerate(el))):
+                if c.tag == 'include':
+                    sub = inline(os.path.join(os.path.dirname(path), c.get('filename')))
+                    el[i:i + 1] = list(sub)
+                else:
+                    walk(c)
+        walk(root)
+        return root
+    root = inline(scene_file)
+    for sensor in root.iter('sensor'):
+        if sensor.find('sampler') is None:
+            ET.SubElement(sensor, 'sampler', {'type': sampler})
+    for s in root.iter('sampler'):
+        s.set('type', sampler)
+    fr = mi.file_resolver() if hasattr(mi, 'file_resolver') else mi.Thread.thread().file_resolver()
+    fr.prepend(os.path.dirname(os.path.abspath(scene_file)))
+    scene = mi.load_string(ET.tostring(root, encoding='unicode'))
+else:
+    scene = mi.load_file(scene_file)
 integ = mi.load_dict({'type': integrator, 'max_depth': -1})
 # warm-up (JIT compilation for llvm) not timed
 mi.render(scene, integrator=integ, spp=1, seed=999)
@@ -88,17 +126,19 @@ def rel_mse(kalos, img, ref):
     return float(re.search(r"relMSE\s+(\S+)", out).group(1))
 
 
-def run_mitsuba(py, variant, scene, integrator, spp, seed, out, env):
-    r = subprocess.run([py, "-c", MI_SCRIPT, variant, scene, integrator, str(spp), str(seed), out],
+def run_mitsuba(py, variant, scene, integrator, spp, seed, out, env, sampler=""):
+    r = subprocess.run([py, "-c", MI_SCRIPT, variant, scene, integrator, str(spp), str(seed), out]
+                       + ([sampler] if sampler else []),
                        capture_output=True, text=True, env=env)
     if r.returncode != 0:
         raise RuntimeError(r.stderr[-2000:])
     return float(re.search(r"TIME (\S+)", r.stdout).group(1))
 
 
-def run_kalos(kalos, scene, method, spp, seed, out):
+def run_kalos(kalos, scene, method, spp, seed, out, sampler=""):
     r = subprocess.run([kalos, "render", scene, "--method", method, "--spp", str(spp), "--seed", str(seed),
-                        "-o", out, "-q"], check=True, capture_output=True, text=True)
+                        "-o", out, "-q"] + (["--sampler", sampler] if sampler else []),
+                       check=True, capture_output=True, text=True)
     # "..., 1.23 s (+0.01 s load/build), ..." : render time without loading
     return float(re.search(r"passes, (\S+) s", r.stdout).group(1))
 
@@ -155,6 +195,11 @@ def main():
     ap.add_argument("--variants", default="scalar_rgb,llvm_ad_rgb")
     ap.add_argument("--kalos", action="append", help="[LABEL=]BIN, repeatable")
     ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--mi-samplers", default="",
+                    help="comma-separated Mitsuba sampler types, each run per variant "
+                         "(default: the scene file's sampler)")
+    ap.add_argument("--kalos-samplers", default="",
+                    help="comma-separated kalos --sampler values for `path` (default: kalos's default)")
     ap.add_argument("--ensure-only", action="store_true",
                     help="only install Mitsuba into bench/.venv (if missing) and exit")
     args = ap.parse_args()
@@ -188,12 +233,26 @@ def main():
     print(f"scene {scene}, reference {ref} (own relMSE {e_ref:.2e} subtracted), {args.spp} spp, "
           f"{args.repeats} repeats, {loadavg()}", flush=True)
 
+    mi_samplers = [s for s in args.mi_samplers.split(",") if s] or [""]
+    kalos_samplers = [s for s in args.kalos_samplers.split(",") if s] or [""]
     for method in args.pairs.split(","):
         mi_integ = MI_INTEGRATOR[method]
-        runners = [(f"{label} {method}", lambda s, o, b=b: run_kalos(b, scene, method, args.spp, s, o))
-                   for label, b in kalos_bins]
-        runners += [(f"mitsuba {mi_integ} {v}", lambda s, o, v=v: run_mitsuba(py, v, scene, mi_integ, args.spp, s, o, env))
-                    for v in variants]
+        ks = kalos_samplers if method == "path" else [""]
+        runners, kalos_runners = [], {}  # kalos_runners: binary label -> its runner labels
+        for label, b in kalos_bins:
+            for ksamp in ks:
+                name = f"{label} {method}" + (f" {ksamp}" if ksamp else "")
+                runners.append((name, lambda s, o, b=b, ksamp=ksamp:
+                                run_kalos(b, scene, method, args.spp, s, o, ksamp)))
+                kalos_runners.setdefault(label, []).append(name)
+        mi_runners = {}  # variant -> its runner labels
+        for v in variants:
+            for msamp in mi_samplers:
+                name = f"mitsuba {mi_integ} {v}" + (f" {msamp}" if msamp else "")
+                runners.append((name, lambda s, o, v=v, msamp=msamp:
+                                run_mitsuba(py, v, scene, mi_integ, args.spp, s, o, env, msamp)))
+                mi_runners.setdefault(v, []).append(name)
+        width = max(34, max(len(label) for label, _ in runners))
         results = {label: ([], []) for label, _ in runners}
         dead = set()
         # Step the renderers alternately: repeat k of each, then k + 1
@@ -211,7 +270,7 @@ def main():
                 e = max(rel_mse(kalos, out, ref) - e_ref, 1e-12)
                 results[label][0].append(t)
                 results[label][1].append(e)
-                print(f"  {label:34s} seed {k + 1}: {t:7.2f} s, relMSE {e:.3e}", flush=True)
+                print(f"  {label:{width}s} seed {k + 1}: {t:7.2f} s, relMSE {e:.3e}", flush=True)
         rows = {}
         for label, (ts, es) in results.items():
             if ts:
@@ -219,18 +278,31 @@ def main():
                 rows[label] = (statistics.median(ts), statistics.median(es), statistics.median(ttt))
         print(f"{method}: median render time, relMSE at {args.spp} spp, time to relMSE {TARGET:g}")
         for label, (t, e, ttt) in rows.items():
-            print(f"  {label:34s} {t:7.2f} s  {e:.3e}  {ttt:8.2f} s")
+            print(f"  {label:{width}s} {t:7.2f} s  {e:.3e}  {ttt:8.2f} s")
         # Ratios of the same repeat, then their median: a repeat's renderers
         # ran back to back, so a load that changes between repeats cancels
         def paired(a, b):
             (ta, ea), (tb, eb) = results[a], results[b]
             return statistics.median(x * y / (u * v) for x, y, u, v in zip(ta, ea, tb, eb))
-        for label, _ in kalos_bins:
-            mine = f"{label} {method}"
-            for other in rows:
-                if mine in rows and other != mine and (label == kalos_bins[0][0] or not other.startswith("kalos")):
-                    print(f"ratio {mine} / {other}: {paired(mine, other):.3f} "
-                          f"(median of the repeats' ratios; ratio of the medians {rows[mine][2] / rows[other][2]:.3f})")
+        if len(ks) == 1 and len(mi_samplers) == 1:
+            for label, _ in kalos_bins:
+                mine = kalos_runners[label][0]
+                for other in rows:
+                    if mine in rows and other != mine and (label == kalos_bins[0][0] or not other.startswith("kalos")):
+                        print(f"ratio {mine} / {other}: {paired(mine, other):.3f} "
+                              f"(median of the repeats' ratios; ratio of the medians {rows[mine][2] / rows[other][2]:.3f})")
+        else:
+            # Each side at its best configuration: the lowest median time to the target
+            def best(names):
+                names = [n for n in names if n in rows]
+                return min(names, key=lambda n: rows[n][2]) if names else None
+            for label, _ in kalos_bins:
+                mine = best(kalos_runners[label])
+                for v in variants:
+                    other = best(mi_runners[v])
+                    if mine and other:
+                        print(f"best ratio {v}: {mine} / {other}: {rows[mine][2] / rows[other][2]:.3f} "
+                              f"(ratio of the medians; median of the repeats' ratios {paired(mine, other):.3f})")
         print(loadavg(), flush=True)
 
 
