@@ -13,7 +13,7 @@ use pyo3::types::PyDict;
 use kalos::bake::job::{BakeError, BakeEvent, BakeJob, Baked};
 use kalos::bake::lightmap::bake::{self as lmbake, LightmapBake, LightmapSettings};
 use kalos::bake::lightmap::estimate::Options;
-use kalos::bake::lightmap::gather::GatherOptions;
+use kalos::bake::lightmap::gather::{GatherOptions, DEFAULT_LIGHTS, DEFAULT_RAYS};
 use kalos::bake::lightmap::Lightmap as Atlas;
 use kalos::bake::{self as kbake, BakedMesh as Mesh};
 use kalos::job::SceneInput;
@@ -314,10 +314,11 @@ impl LightmapResult {
 /// `texel_density` (texels per metre) or `lightmap_size` (texels a side,
 /// default 512), `neighbours` (a fixed k for the estimator; without it k
 /// grows with the hits) and `sectors` (its
-/// visibility rays), `gather` and `gather_lights` (a final gather's rays
-/// and light samples per texel, e.g. 64; the lights default to the rays;
-/// none: the density estimate alone; with a gather the default particles
-/// are 250 k), `time` (seconds) and `rays` limits; `output`, if
+/// visibility rays), `gather` and `gather_lights` (the final gather's
+/// rays and light samples per texel, default 64 each, the lights
+/// defaulting to the rays; 0 and 0: no gather, the density estimate
+/// alone, the paper's method; with a gather the default particles are
+/// 250 k), `time` (seconds) and `rays` limits; `output`, if
 /// given, is where the atlas is saved (.exr). Returns a
 /// `kalos.LightmapResult` whose `atlas` and `error` are numpy arrays.
 #[pyfunction]
@@ -389,8 +390,8 @@ pub fn bake(
                 ..d
             },
             gather: GatherOptions {
-                rays: gather.unwrap_or(0),
-                lights: gather_lights.or(gather).unwrap_or(0),
+                rays: gather.unwrap_or(DEFAULT_RAYS),
+                lights: gather_lights.or(gather).unwrap_or(DEFAULT_LIGHTS),
                 seed: 0,
             },
         });

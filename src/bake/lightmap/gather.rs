@@ -69,11 +69,12 @@ use crate::scene::SurfacePoint;
 use crate::transport::{shadow_clear, CameraPath, DepthLimits, Shading};
 use crate::world::World;
 
-/// Settings of the final gather. The default is no gather (the density
-/// estimate is the atlas): on the gap-lit interior the gather's speckle
-/// and its fireflies next to emitters measured worse than the density
-/// estimate's blotches, though on the directly lit Cornell box it halves
-/// the error at equal time (see docs/lightmaps.md).
+/// Settings of the final gather. `Default` is no gather (the atlas is
+/// the density estimate, the paper's method, as the estimator's own tests
+/// use it); `kalos bake --lightmap` and Python's `kalos.bake` gather with
+/// [`GatherOptions::RECOMMENDED`], which measured better than the density
+/// estimate alone on the Cornell box and the gap-lit interior at equal
+/// time (docs/lightmaps.md).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct GatherOptions {
     /// Indirect rays per texel (0 with `lights` 0: no gather; the atlas is

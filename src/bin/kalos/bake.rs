@@ -117,19 +117,19 @@ struct LightmapArgs {
     /// Visibility rays per texel, cutting the kernel at walls (0: none).
     #[arg(long, value_name = "N", default_value_t = 12, requires = "lightmap")]
     sectors: usize,
-    /// A final gather from the density atlas, N indirect rays per texel
-    /// (`--gather` alone: 64): each texel's direct light by light sampling,
-    /// its indirect light by rays reading the atlas one bounce away. Halves
-    /// the error on directly lit scenes at equal time; on a room lit
-    /// through a gap its speckle is worse than the density estimate's
-    /// blotches. Without it the atlas is the density estimate (the paper's
-    /// method). With it the bake traces 250 k particles unless --particles
-    /// is given.
-    #[arg(long, value_name = "N", num_args = 0..=1, default_missing_value = "64", requires = "lightmap")]
-    gather: Option<u32>,
+    /// The final gather from the density atlas, N indirect rays per texel
+    /// (default 64): each texel's direct light by light sampling, its
+    /// indirect light by rays reading the atlas one bounce away, combined
+    /// with the density estimate by inverse variance (docs/lightmaps.md).
+    /// `--gather 0 --gather-lights 0`: no gather, the atlas is the density
+    /// estimate (the paper's method). With a gather the bake traces 250 k
+    /// particles unless --particles is given.
+    #[arg(long, value_name = "N", num_args = 0..=1, default_value_t = gather::DEFAULT_RAYS,
+          default_missing_value = "64", requires = "lightmap")]
+    gather: u32,
     /// Light samples per texel of the final gather (default: as many as
     /// --gather's rays).
-    #[arg(long, value_name = "N", requires = "gather")]
+    #[arg(long, value_name = "N", requires = "lightmap")]
     gather_lights: Option<u32>,
     /// Show the lightmap refining in the browser as the bake runs (`kalos
     /// view`'s page; the address is printed): the asset first, then a
@@ -300,8 +300,8 @@ fn job(a: &BakeArgs, particles_given: bool) -> Result<BakeJob> {
                 ..Default::default()
             },
             gather: gather::GatherOptions {
-                rays: l.gather.unwrap_or(0),
-                lights: l.gather_lights.or(l.gather).unwrap_or(0),
+                rays: l.gather,
+                lights: l.gather_lights.unwrap_or(l.gather),
                 seed: 0,
             },
         })
