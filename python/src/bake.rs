@@ -317,8 +317,8 @@ impl LightmapResult {
 /// visibility rays), `gather` and `gather_lights` (the final gather's
 /// rays and light samples per texel, default 64 each, the lights
 /// defaulting to the rays; 0 and 0: no gather, the density estimate
-/// alone, the paper's method; with a gather the default particles are
-/// 250 k), `time` (seconds) and `rays` limits; `output`, if
+/// alone, the paper's method), `time` (seconds) and `rays` limits;
+/// `output`, if
 /// given, is where the atlas is saved (.exr). Returns a
 /// `kalos.LightmapResult` whose `atlas` and `error` are numpy arrays.
 #[pyfunction]
@@ -357,10 +357,6 @@ pub fn bake(
             "texel_density, lightmap_size, neighbours, sectors, gather, gather_lights and output need lightmap=True",
         ));
     }
-    let particles_given = match settings {
-        Some(d) => d.contains("particles")?,
-        None => false,
-    };
     let MethodConfig::Density(s) = method_config("density", settings)? else {
         unreachable!("the density row builds density settings")
     };
@@ -395,10 +391,6 @@ pub fn bake(
                 seed: 0,
             },
         });
-        let gathers = job.lightmap.as_ref().is_some_and(|l| l.gather.is_on());
-        if gathers && !particles_given {
-            job.settings.particles = lmbake::LIGHTMAP_PARTICLES;
-        }
     }
     let checked = job.check().map_err(bake_error)?;
 

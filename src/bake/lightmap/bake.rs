@@ -39,13 +39,6 @@ pub const MAX_SIZE: u32 = 16384;
 /// The k-nearest query of a texel costs about as much as this many rays
 /// (measured on the Cornell box, k = 256).
 pub const KNN_RAYS: u64 = 8;
-/// The particles of a lightmap bake with a final gather when none are
-/// asked for: on the Cornell box at 512² (64 gather rays and 64 light
-/// samples per texel), 100 k, 250 k, 1 M and 4 M particles gave 4.2, 4.1,
-/// 4.0 and 4.0 % error (luminance over the mean, against Cycles at 3072
-/// samples) for 9.0, 9.4, 13.2 and 25.5 CPU seconds (docs/notebook/
-/// lightmap-estimator.md): the gather's own rays set the error.
-pub const LIGHTMAP_PARTICLES: u64 = 250_000;
 /// Hits a particle leaves on average, to size the hits before the bake
 /// (as the density bake's hit file assumes).
 pub const HITS_PER_PARTICLE: u64 = 4;

@@ -9,9 +9,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use kalos::bake::job::{BakeError, BakeEvent, BakeJob, BakeOutcome, Baked};
-use kalos::bake::lightmap::bake::{
-    LightmapBake, LightmapError, LightmapSettings, LIGHTMAP_PARTICLES,
-};
+use kalos::bake::lightmap::bake::{LightmapBake, LightmapError, LightmapSettings};
 use kalos::bake::lightmap::{estimate, gather};
 use kalos::job::SceneInput;
 use kalos::methods::density;
@@ -122,8 +120,7 @@ struct LightmapArgs {
     /// indirect light by rays reading the atlas one bounce away, combined
     /// with the density estimate by inverse variance (docs/lightmaps.md).
     /// `--gather 0 --gather-lights 0`: no gather, the atlas is the density
-    /// estimate (the paper's method). With a gather the bake traces 250 k
-    /// particles unless --particles is given.
+    /// estimate (the paper's method).
     #[arg(long, value_name = "N", num_args = 0..=1, default_value_t = gather::DEFAULT_RAYS,
           default_missing_value = "64", requires = "lightmap")]
     gather: u32,
@@ -193,8 +190,8 @@ fn peak_memory() -> Option<u64> {
 
 /// Runs `kalos bake`: the library's [`BakeJob`] does the work; this shows
 /// its progress and prints its figures.
-pub fn run(a: BakeArgs, particles_given: bool) -> Result<()> {
-    let checked = job(&a, particles_given)?.check()?;
+pub fn run(a: BakeArgs) -> Result<()> {
+    let checked = job(&a)?.check()?;
     let layout = a.dataflow.layout()?;
     if layout.is_some() && a.lightmap.lightmap {
         bail!("--lightmap bakes in one process: drop --workers, --process and --processes");
@@ -281,11 +278,8 @@ pub fn run(a: BakeArgs, particles_given: bool) -> Result<()> {
     Ok(())
 }
 
-/// The bake the arguments ask for. A lightmap bake with a final gather
-/// traces [`LIGHTMAP_PARTICLES`] unless `--particles` was given
-/// (`particles_given`): the gather reads the density atlas one bounce
-/// away, where more particles barely lower the error.
-fn job(a: &BakeArgs, particles_given: bool) -> Result<BakeJob> {
+/// The bake the arguments ask for.
+fn job(a: &BakeArgs) -> Result<BakeJob> {
     let l = &a.lightmap;
     let lightmap = if l.lightmap {
         Some(LightmapSettings {
@@ -319,10 +313,6 @@ fn job(a: &BakeArgs, particles_given: bool) -> Result<BakeJob> {
         settings: density::Settings {
             seed: a.seed,
             max_depth: a.max_depth,
-            particles: match &lightmap {
-                Some(l) if l.gather.is_on() && !particles_given => LIGHTMAP_PARTICLES,
-                _ => a.density.particles,
-            },
             ..a.density.clone()
         },
         glb: Some(a.output.clone()),

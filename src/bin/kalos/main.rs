@@ -16,7 +16,6 @@ use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
-use clap::parser::ValueSource;
 use clap::{Args, CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 
 use kalos::image_io::{self, PngOptions, Tonemap};
@@ -267,18 +266,13 @@ fn load_scene(path: Option<&Path>, defines: &Defines) -> Result<Scene> {
 fn main() {
     let matches = Cli::command().get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
-    // Whether `kalos bake` was given --particles (a lightmap bake with a
-    // final gather defaults to fewer)
-    let particles_given = matches
-        .subcommand_matches("bake")
-        .is_some_and(|m| m.value_source("particles") == Some(ValueSource::CommandLine));
     let r = match cli.command {
         Command::Render { args } => render::parse(args).and_then(|(a, m)| render::run(a, m)),
         Command::Compare(a) => compare(a),
         Command::Info { scene, defines } => info(scene.as_deref(), &defines),
         Command::Plot(a) => plot_cmd(a),
         Command::Bench(a) => bench::run(a),
-        Command::Bake(a) => bake::run(*a, particles_given),
+        Command::Bake(a) => bake::run(*a),
         Command::Merge(a) => merge::run(a),
         Command::Gen { name, output, seed } => gen_cmd(&name, &output, seed),
         Command::View(a) => view::run(a),

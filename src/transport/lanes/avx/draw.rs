@@ -1,0 +1,326 @@
+//! The samplers of the AVX lanes ([`super::radiance_row`]): eight
+//! [`Pcg32`] streams or eight [`SobolSampler`]s, each lane drawing what the
+//! scalar step would draw, in registers. Every `unsafe` block calls an
+//! intrinsic on register values or on arrays it names; the functions run
+//! only inlined into `radiance_row`, which is compiled for AVX2 and called
+//! where the CPU has it.
+
+use std::arch::x86_64::*;
+
+use super::super::LANES;
+use super::{lanes, V};
+use crate::sampling::{Pcg32, Sampler, SobolSampler, PCG_MULT};
+
+/// The samplers of eight lanes: a lane that takes the scalar step takes
+/// its sampler out ([`Lanes::get`]) and puts it back ([`Lanes::set`]); the
+/// lanes shaded together draw their vertex's numbers together. Each lane
+/// draws what the scalar step would draw ([`crate::transport::CameraPath::scatter`]),
+/// in its order and at its dimensions, so that lanes and scalar steps give
+/// the same bits.
+pub trait Lanes<S: Sampler> {
+    /// Eight lanes holding placeholder samplers.
+    fn new() -> Self;
+    /// A placeholder sampler, for slots not yet given a pixel's.
+    fn blank() -> S;
+    /// Lane `i`'s sampler.
+    fn get(&self, i: usize) -> S;
+    /// Sets lane `i`'s sampler to `s`.
+    fn set(&mut self, i: usize, s: &S);
+    /// The numbers of the vertex at `depth[i]` of each lane `i` of `mask`,
+    /// as `scatter` draws them after [`Sampler::start_vertex`]: the light's
+    /// choice and point, the BSDF's lobe and direction (lanes outside
+    /// `mask` hold meaningless numbers and keep their samplers), in
+    /// registers of eight lanes.
+    fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6];
+    /// Russian roulette's number of each lane of `mask`, the draw after
+    /// [`Lanes::vertex`]'s.
+    fn roulette(&mut self, mask: u32) -> __m256;
+}
+
+/// The [`Pcg32`] of each lane, by field, so that the lanes that all draw
+/// advance together ([`Rngs::draw`]).
+#[repr(C, align(32))]
+pub struct Rngs {
+    state: [u64; LANES],
+    inc: [u64; LANES],
+}
+
+impl Lanes<Pcg32> for Rngs {
+    #[inline(always)]
+    fn new() -> Self {
+        Rngs {
+            state: [0; LANES],
+            inc: [0; LANES],
+        }
+    }
+
+    #[inline(always)]
+    fn blank() -> Pcg32 {
+        Pcg32::new(0, 0)
+    }
+
+    #[inline(always)]
+    fn get(&self, i: usize) -> Pcg32 {
+        Pcg32::from_parts(self.state[i], self.inc[i])
+    }
+
+    #[inline(always)]
+    fn set(&mut self, i: usize, r: &Pcg32) {
+        (self.state[i], self.inc[i]) = r.parts();
+    }
+
+    /// Independent numbers ignore the depth: the eight generators advance
+    /// together.
+    #[inline(always)]
+    fn vertex(&mut self, mask: u32, _depth: &[u32; LANES]) -> [__m256; 6] {
+        self.draw::<6>(mask).map(|u| u.0)
+    }
+
+    #[inline(always)]
+    fn roulette(&mut self, mask: u32) -> __m256 {
+        let [u] = self.draw::<1>(mask);
+        u.0
+    }
+}
+
+/// The [`SobolSampler`] of each lane. A lane's numbers are coordinates of
+/// its own pixel's Sobol point, at dimensions that depend on its depth.
+pub struct SobolLanes([SobolSampler; LANES]);
+
+impl Lanes<SobolSampler> for SobolLanes {
+    #[inline(always)]
+    fn new() -> Self {
+        SobolLanes(std::array::from_fn(|_| Self::blank()))
+    }
+
+    #[inline(always)]
+    fn blank() -> SobolSampler {
+        SobolSampler::new(0, 0, 0)
+    }
+
+    #[inline(always)]
+    fn get(&self, i: usize) -> SobolSampler {
+        self.0[i].clone()
+    }
+
+    #[inline(always)]
+    fn set(&mut self, i: usize, s: &SobolSampler) {
+        self.0[i] = s.clone();
+    }
+
+    #[inline(always)]
+    fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6] {
+        for i in lanes(mask) {
+            self.0[i].start_vertex(depth[i]);
+        }
+        self.draw::<6>(mask)
+    }
+
+    #[inline(always)]
+    fn roulette(&mut self, mask: u32) -> __m256 {
+        let [u] = self.draw::<1>(mask);
+        u
+    }
+}
+
+impl SobolLanes {
+    /// The next `N` draws of each lane of `mask`: the Sobol coordinates
+    /// and their seeds lane by lane, the Owen scramble
+    /// ([`crate::sampling::sobol::owen_scramble`]) of all eight lanes at
+    /// once, then the hashed numbers of draws past the table put back.
+    #[inline(always)]
+    fn draw<const N: usize>(&mut self, mask: u32) -> [__m256; N] {
+        let mut x = [[0u32; LANES]; N];
+        let mut seed = [[0u32; LANES]; N];
+        let mut hashed = [0u32; N];
+        for i in lanes(mask) {
+            let s = &mut self.0[i];
+            for k in 0..N {
+                match s.next_unscrambled() {
+                    (xk, Some(sk)) => (x[k][i], seed[k][i]) = (xk, sk),
+                    (xk, None) => {
+                        x[k][i] = xk;
+                        hashed[k] |= 1 << i;
+                    }
+                }
+            }
+        }
+        // A loop, not `array::from_fn` (see `Rngs::draw`)
+        // SAFETY: loads of eight u32 from arrays of eight, register
+        // operations; only inlined into `radiance_row`, which runs where
+        // the CPU has AVX2
+        unsafe {
+            let mut out = [_mm256_setzero_ps(); N];
+            for (k, o) in out.iter_mut().enumerate() {
+                let xk = _mm256_loadu_si256(x[k].as_ptr().cast());
+                let sk = _mm256_loadu_si256(seed[k].as_ptr().cast());
+                let m = V::mask(hashed[k]).0;
+                let y = _mm256_castps_si256(_mm256_blendv_ps(
+                    _mm256_castsi256_ps(owen_scramble8(xk, sk)),
+                    _mm256_castsi256_ps(xk),
+                    m,
+                ));
+                // (x >> 8) as f32 * 2^-24, as the scalar `to_unit`
+                *o = _mm256_mul_ps(
+                    _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(y)),
+                    _mm256_set1_ps(1.0 / 16_777_216.0),
+                );
+            }
+            out
+        }
+    }
+}
+
+/// The bits of eight u32 reversed: the bytes of each swapped, then each
+/// byte's nibbles looked up reversed and swapped.
+#[inline(always)]
+fn reverse_bits8(x: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        #[rustfmt::skip]
+        let bswap = _mm256_setr_epi8(
+            3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12,
+            3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12,
+        );
+        // rev4[n] and rev4[n] << 4, for the low and the high nibble
+        #[rustfmt::skip]
+        let (lo_tbl, hi_tbl) = (
+            _mm256_setr_epi8(
+                0, 8, 4, 12, 2, 10, 6, 14, 1, 9, 5, 13, 3, 11, 7, 15,
+                0, 8, 4, 12, 2, 10, 6, 14, 1, 9, 5, 13, 3, 11, 7, 15,
+            ),
+            _mm256_setr_epi8(
+                0x00, -0x80, 0x40, -0x40, 0x20, -0x60, 0x60, -0x20,
+                0x10, -0x70, 0x50, -0x30, 0x30, -0x50, 0x70, -0x10,
+                0x00, -0x80, 0x40, -0x40, 0x20, -0x60, 0x60, -0x20,
+                0x10, -0x70, 0x50, -0x30, 0x30, -0x50, 0x70, -0x10,
+            ),
+        );
+        let x = _mm256_shuffle_epi8(x, bswap);
+        let nib = _mm256_set1_epi8(0x0f);
+        let lo = _mm256_and_si256(x, nib);
+        let hi = _mm256_and_si256(_mm256_srli_epi16::<4>(x), nib);
+        _mm256_or_si256(
+            _mm256_shuffle_epi8(hi_tbl, lo),
+            _mm256_shuffle_epi8(lo_tbl, hi),
+        )
+    }
+}
+
+/// [`crate::sampling::sobol::owen_scramble`] of eight u32 `x` with their
+/// seeds, the same operations on 32-bit lanes.
+#[inline(always)]
+fn owen_scramble8(x: __m256i, seed: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let mut x = reverse_bits8(x);
+        x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x3d20_adea)));
+        x = _mm256_add_epi32(x, seed);
+        let odd = _mm256_or_si256(_mm256_srli_epi32::<16>(seed), _mm256_set1_epi32(1));
+        x = _mm256_mullo_epi32(x, odd);
+        x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x0552_6c56)));
+        x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x53a2_2864)));
+        reverse_bits8(x)
+    }
+}
+
+impl Rngs {
+    /// `N` numbers of each lane of `mask`, each drawn as
+    /// [`Pcg32::next_f32`] draws it (in lanes outside `mask` the numbers
+    /// are meaningless and the generators stay as they were).
+    #[inline(always)]
+    fn draw<const N: usize>(&mut self, mask: u32) -> [V; N] {
+        // SAFETY: the arrays hold eight u64 each, 32-byte aligned (the
+        // struct's repr), read and written as two 256-bit halves; only
+        // inlined into `radiance_row`, which runs where the CPU has AVX2
+        unsafe {
+            let sp = self.state.as_mut_ptr().cast::<__m256i>();
+            let ip = self.inc.as_ptr().cast::<__m256i>();
+            let old = [_mm256_load_si256(sp), _mm256_load_si256(sp.add(1))];
+            let inc = [_mm256_load_si256(ip), _mm256_load_si256(ip.add(1))];
+            let mut s = old;
+            // A loop, not `array::from_fn`: a closure does not inherit the
+            // caller's AVX2, and out of line its intrinsics become calls
+            // (as `main`'s binary had it, at twice the time per sample)
+            let mut out = [V(_mm256_setzero_ps()); N];
+            for o in &mut out {
+                let x = pack32(xsh_rr(s[0]), xsh_rr(s[1]));
+                s = [step(s[0], inc[0]), step(s[1], inc[1])];
+                // (x >> 8) as f32 * 2^-24
+                *o = V(_mm256_mul_ps(
+                    _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(x)),
+                    _mm256_set1_ps(1.0 / 16_777_216.0),
+                ));
+            }
+            _mm256_store_si256(sp, _mm256_blendv_epi8(old[0], s[0], mask64(mask, 1)));
+            _mm256_store_si256(
+                sp.add(1),
+                _mm256_blendv_epi8(old[1], s[1], mask64(mask, 16)),
+            );
+            out
+        }
+    }
+}
+
+/// The u64 lanes of `mask` whose bits start at `bits` (1 for lanes 0–3,
+/// 16 for lanes 4–7), as all-ones lanes.
+#[inline(always)]
+fn mask64(mask: u32, bits: i64) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let lane = _mm256_setr_epi64x(bits, bits << 1, bits << 2, bits << 3);
+        let set = _mm256_set1_epi64x(i64::from(mask));
+        _mm256_cmpeq_epi64(_mm256_and_si256(set, lane), lane)
+    }
+}
+
+/// PCG32's state transition, `state · PCG_MULT + inc` mod 2⁶⁴, in four u64
+/// lanes: the product from three 32 × 32-bit ones (the high × high one
+/// falls outside 64 bits).
+#[inline(always)]
+fn step(state: __m256i, inc: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let lo = _mm256_set1_epi64x((PCG_MULT & 0xFFFF_FFFF) as i64);
+        let hi = _mm256_set1_epi64x((PCG_MULT >> 32) as i64);
+        let ll = _mm256_mul_epu32(state, lo);
+        let hl = _mm256_mul_epu32(_mm256_srli_epi64::<32>(state), lo);
+        let lh = _mm256_mul_epu32(state, hi);
+        let cross = _mm256_slli_epi64::<32>(_mm256_add_epi64(hl, lh));
+        _mm256_add_epi64(_mm256_add_epi64(ll, cross), inc)
+    }
+}
+
+/// PCG32's output (XSH RR) of four u64 states, in the low 32 bits of each
+/// lane.
+#[inline(always)]
+fn xsh_rr(old: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let x = _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old));
+        let rot = _mm256_srli_epi64::<59>(old);
+        // rotate right; a left shift by 32 gives 0, as rotate_right(0) needs
+        let left = _mm256_sub_epi32(_mm256_set1_epi32(32), rot);
+        _mm256_or_si256(_mm256_srlv_epi32(x, rot), _mm256_sllv_epi32(x, left))
+    }
+}
+
+/// The low 32 bits of the u64 lanes of `a` (lanes 0–3) and `b` (lanes 4–7),
+/// as eight u32 in lane order.
+#[inline(always)]
+fn pack32(a: __m256i, b: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let a = _mm256_shuffle_epi32::<0b10_00_10_00>(a);
+        let b = _mm256_shuffle_epi32::<0b10_00_10_00>(b);
+        // per 128 bits: a's two, b's two; then the 64-bit pieces reordered
+        let ab = _mm256_blend_epi32::<0b1100_1100>(a, b);
+        _mm256_permute4x64_epi64::<0b11_01_10_00>(ab)
+    }
+}
