@@ -263,8 +263,11 @@ fn a_host_killed_mid_bake_stops_the_others_naming_it() {
     let dir = tempfile::tempdir().expect("temp dir");
     let hosts = Hosts::new("kill");
     let file = hostfile(dir.path());
-    // Long enough that the kill lands while tracing
-    let args = ["--particles", "50M"];
+    // Long enough that the kill lands while tracing; the scratch folders
+    // inside the test's own, so that the killed process's hit files go
+    // with it
+    let scratch = dir.path().display().to_string();
+    let args = ["--particles", "50M", "--scratch", &scratch];
     let outs: Vec<PathBuf> = (0..HOSTS)
         .map(|i| dir.path().join(format!("p{i}.glb")))
         .collect();
