@@ -391,7 +391,7 @@ pub fn bake_lightmap_watched(
         ctl.check()?;
         stats.gather_rays = rays;
         stats.gather_hidden = hidden;
-        let chart = gather::texel_charts(&texels, &uv, uv.width, uv.height);
+        let chart = gather::texel_charts(&texels, &uv);
         gather::combine_with_density(&mut gathered, &lightmap, &chart);
         dilate(&mut gathered, 2);
         lightmap = gathered;

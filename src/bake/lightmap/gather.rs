@@ -591,11 +591,10 @@ pub fn combine_with_density(gathered: &mut Lightmap, density: &Lightmap, chart: 
     }
 }
 
-/// Per texel of a `width` × `height` atlas, the chart its texel of
-/// `texels` lies on (`u32::MAX` where none does), for
-/// [`combine_with_density`].
-pub fn texel_charts(texels: &[Texel], uv: &LightmapUv, width: u32, height: u32) -> Vec<u32> {
-    let (w, h) = (width as usize, height as usize);
+/// Per texel of `uv`'s atlas, the chart its texel of `texels` lies on
+/// (`u32::MAX` where none does), for [`combine_with_density`].
+pub fn texel_charts(texels: &[Texel], uv: &LightmapUv) -> Vec<u32> {
+    let (w, h) = (uv.width as usize, uv.height as usize);
     let mut chart = vec![u32::MAX; w * h];
     for t in texels {
         if (t.x as usize) < w && (t.y as usize) < h {

@@ -123,6 +123,17 @@ impl Hosts {
         h
     }
 
+    /// `kalos bake ARGS` as every process, process i writing `dir`/pI.glb,
+    /// with the host file in `dir`: the outputs and the running children.
+    fn bake_all(&self, args: &[&str], dir: &Path) -> (Vec<PathBuf>, Children) {
+        let file = hostfile(dir);
+        let outs: Vec<PathBuf> = (0..HOSTS).map(|i| dir.join(format!("p{i}.glb"))).collect();
+        let kids = (0..HOSTS)
+            .map(|i| self.bake(i, args, &file, &outs[i]))
+            .collect();
+        (outs, Children(kids))
+    }
+
     /// `kalos bake ARGS` as process `i`, in namespace `i`.
     fn bake(&self, i: usize, args: &[&str], hostfile: &Path, out: &Path) -> Child {
         Command::new("ip")
@@ -227,15 +238,7 @@ fn three_namespaced_hosts_give_the_single_process_bytes() {
     let o = single(&args, &one);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let hosts = Hosts::new("same");
-    let file = hostfile(dir.path());
-    let outs: Vec<PathBuf> = (0..HOSTS)
-        .map(|i| dir.path().join(format!("p{i}.glb")))
-        .collect();
-    let mut kids = Children(
-        (0..HOSTS)
-            .map(|i| hosts.bake(i, &args, &file, &outs[i]))
-            .collect(),
-    );
+    let (outs, mut kids) = hosts.bake_all(&args, dir.path());
     let deadline = Instant::now() + Duration::from_secs(180);
     for (i, c) in kids.0.iter_mut().enumerate() {
         let s = wait_until(c, deadline);
@@ -262,20 +265,12 @@ fn a_host_killed_mid_bake_stops_the_others_naming_it() {
     }
     let dir = tempfile::tempdir().expect("temp dir");
     let hosts = Hosts::new("kill");
-    let file = hostfile(dir.path());
     // Long enough that the kill lands while tracing; the scratch folders
     // inside the test's own, so that the killed process's hit files go
     // with it
     let scratch = dir.path().display().to_string();
     let args = ["--particles", "50M", "--scratch", &scratch];
-    let outs: Vec<PathBuf> = (0..HOSTS)
-        .map(|i| dir.path().join(format!("p{i}.glb")))
-        .collect();
-    let mut kids = Children(
-        (0..HOSTS)
-            .map(|i| hosts.bake(i, &args, &file, &outs[i]))
-            .collect(),
-    );
+    let (outs, mut kids) = hosts.bake_all(&args, dir.path());
     std::thread::sleep(Duration::from_secs(4));
     for (i, c) in kids.0.iter_mut().enumerate() {
         assert!(
