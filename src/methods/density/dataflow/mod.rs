@@ -103,13 +103,13 @@ pub fn owner(surfaces: &Surfaces, id: SurfaceId, peers: usize) -> usize {
 
 /// A worker's status in a round: 0 ok, 1 cancelled, 2 failed (with the
 /// reason).
-type Status = (u8, String);
+pub(crate) type Status = (u8, String);
 
-const OK: u8 = 0;
-const CANCELLED: u8 = 1;
+pub(crate) const OK: u8 = 0;
+pub(crate) const CANCELLED: u8 = 1;
 const FAILED: u8 = 2;
 
-fn status_of<T, E: std::error::Error + 'static>(r: &Result<T, E>) -> Status {
+pub(crate) fn status_of<T, E: std::error::Error + 'static>(r: &Result<T, E>) -> Status {
     let Err(e) = r else {
         return (OK, String::new());
     };
@@ -130,7 +130,7 @@ fn status_of<T, E: std::error::Error + 'static>(r: &Result<T, E>) -> Status {
 
 /// After a round that carried every worker's status: this worker's own
 /// error, else the first peer's (a cancel before a failure), else `local`.
-fn first_failure<'a, T, E: Into<DataflowError>>(
+pub(crate) fn first_failure<'a, T, E: Into<DataflowError>>(
     statuses: impl Iterator<Item = (usize, &'a Status)>,
     local: Result<T, E>,
 ) -> Result<T, DataflowError> {
@@ -164,6 +164,52 @@ pub fn bake_dataflow(
     workers: &Workers,
     ctl: &mut Control,
 ) -> Result<DataflowBake, DataflowError> {
+    let done = run_dataflow(world, s, workers, ctl, run_worker)?;
+    Ok(DataflowBake {
+        bake: done.out,
+        hits_sent: done.hits_sent,
+        bytes_sent: done.bytes_sent,
+    })
+}
+
+/// A job every worker of a dataflow runs ([`run_dataflow`]): given its
+/// worker, the world, its surfaces, the settings and its control, it
+/// returns its [`Part`].
+pub trait WorkerJob<P>:
+    Fn(&mut Worker, &World, &Surfaces, &Settings, &mut Control) -> Result<Part<P>, DataflowError>
+    + Send
+    + Sync
+    + 'static
+{
+}
+
+impl<P, F> WorkerJob<P> for F where
+    F: Fn(
+            &mut Worker,
+            &World,
+            &Surfaces,
+            &Settings,
+            &mut Control,
+        ) -> Result<Part<P>, DataflowError>
+        + Send
+        + Sync
+        + 'static
+{
+}
+
+/// Runs `job` on every worker of the dataflow laid out by `workers`, the
+/// progress of this process's first worker relayed to `ctl` and its
+/// cancel flag to every worker; returns what this process's workers
+/// made: the output at the process of worker 0 (the display-mesh bake,
+/// [`bake_dataflow`]; the lightmap bake,
+/// [`crate::bake::lightmap::dataflow`]).
+pub fn run_dataflow<P: Send + 'static>(
+    world: Arc<World>,
+    s: &Settings,
+    workers: &Workers,
+    ctl: &mut Control,
+    job: impl WorkerJob<P>,
+) -> Result<Part<P>, DataflowError> {
     s.check().map_err(DensityError::from)?;
     if let Some(p) = &s.keep_hits {
         return Err(DensityError::from(MethodError(format!(
@@ -204,7 +250,7 @@ pub fn bake_dataflow(
             if worker.index() == first_local {
                 c = c.on_tick(&mut forward);
             }
-            let r = run_worker(worker, &world, &surfaces, &settings, &mut c);
+            let r = job(worker, &world, &surfaces, &settings, &mut c);
             sink.lock().unwrap_or_else(|e| e.into_inner()).push(r);
         })
         .map_err(DataflowError::Network)?;
@@ -241,8 +287,8 @@ pub fn bake_dataflow(
     }
 
     // This process's outcome: its own failures first, then a bake
-    let mut done = DataflowBake {
-        bake: None,
+    let mut done = Part {
+        out: None,
         hits_sent: 0,
         bytes_sent: 0,
     };
@@ -252,8 +298,8 @@ pub fn bake_dataflow(
             Ok(p) => {
                 done.hits_sent += p.hits_sent;
                 done.bytes_sent += p.bytes_sent;
-                if p.bake.is_some() {
-                    done.bake = p.bake;
+                if p.out.is_some() {
+                    done.out = p.out;
                 }
             }
             Err(e) => {
@@ -271,11 +317,15 @@ pub fn bake_dataflow(
     }
 }
 
-/// What one worker returns.
-struct Part {
-    bake: Option<Bake>,
-    hits_sent: u64,
-    bytes_sent: u64,
+/// What one worker returns: its output (at worker 0), and the hit
+/// records it sent to other workers with their bytes.
+pub struct Part<P> {
+    /// The output (worker 0's; None elsewhere).
+    pub out: Option<P>,
+    /// Hit records sent to other workers.
+    pub hits_sent: u64,
+    /// Their bytes as serialized.
+    pub bytes_sent: u64,
 }
 
 /// A packet of hits for one owner: (owner, channel run, chunk, the records
@@ -370,41 +420,22 @@ fn run_worker(
     surfaces: &Surfaces,
     s: &Settings,
     ctl: &mut Control,
-) -> Result<Part, DataflowError> {
+) -> Result<Part<Bake>, DataflowError> {
     let me = worker.index();
     let peers = worker.peers();
     let scene = &world.scene;
 
-    // Phase 1: the pilot deals the tiles; trace and exchange into this
-    // worker's hit file (the exchange runs even when the scratch directory
-    // failed, so that the peers hear of it)
+    // Phase 1: the pilot deals the tiles; trace, exchange and group
     let t = Instant::now();
-    let tiling = Tiling::new(surfaces, peers, &tiles::pilot_hits(world, surfaces, s));
-    let made = ScratchDir::new(s).and_then(|dir| {
-        let sink = pipeline::file_sink(surfaces, s, &dir)?;
-        Ok((dir, sink))
-    });
-    let (scratch, traced) = match made {
-        Ok((dir, sink)) => (
-            Some(dir),
-            trace_exchange(worker, world, (surfaces, &tiling), s, Some(sink), ctl),
-        ),
-        Err(e) => {
-            let _ = trace_exchange(worker, world, (surfaces, &tiling), s, None, ctl);
-            (None, Err(e.into()))
-        }
-    };
+    let Phase1 {
+        tiling,
+        scratch,
+        grouped,
+    } = trace_and_group(worker, world, surfaces, s, ctl);
     let t_trace = t.elapsed().as_secs_f64();
     let t = Instant::now();
 
     // Phase 2: this worker's surfaces, then its tiles
-    let grouped = traced.and_then(|mut tr| {
-        ctl.tick(Phase::Group, 0, 1);
-        let sink = tr.sink.take();
-        let sink = sink.ok_or(DataflowError::Worker("no hit sink".into()))?;
-        let hits = pipeline::group(sink)?;
-        Ok((tr, hits))
-    });
     let owns = |id: SurfaceId| owner(surfaces, id, peers) == me && !tiling.is_split(id);
     let (grouped, est) = match grouped {
         Ok((tr, hits)) => {
@@ -480,7 +511,7 @@ fn run_worker(
     if me != 0 {
         first_failure(std::iter::once((me, &st)), Ok::<(), DataflowError>(()))?;
         return Ok(Part {
-            bake: None,
+            out: None,
             hits_sent,
             bytes_sent,
         });
@@ -496,27 +527,87 @@ fn run_worker(
     bake.stats.t_estimate = t_estimate;
     bake.stats.t_decimate = t_decimate;
     Ok(Part {
-        bake: Some(bake),
+        out: Some(bake),
         hits_sent,
         bytes_sent,
     })
 }
 
+/// A worker's hits after phase 1, grouped by surface side.
+pub type Grouped = <super::hitfile::HitWriter as HitSink>::Source;
+
+/// What phase 1 leaves a worker ([`trace_and_group`]).
+pub struct Phase1 {
+    /// The tiles of the large planar surfaces, dealt.
+    pub tiling: Tiling,
+    /// The worker's scratch directory (its hit file is in it), unless it
+    /// could not be made.
+    pub scratch: Option<ScratchDir>,
+    /// What it traced and its hits, or why it failed.
+    pub grouped: Result<(Traced, Grouped), DataflowError>,
+}
+
+/// Phase 1 at one worker: the pilot deals the tiles ([`Tiling`]); the
+/// worker traces its share of the particles and exchanges them, each hit
+/// to the owner of its tile or surface, into its own hit file; then
+/// groups them. The exchange runs even when the scratch directory
+/// failed, so that the peers hear of it.
+pub fn trace_and_group(
+    worker: &mut Worker,
+    world: &World,
+    surfaces: &Surfaces,
+    s: &Settings,
+    ctl: &mut Control,
+) -> Phase1 {
+    let tiling = Tiling::new(
+        surfaces,
+        worker.peers(),
+        &tiles::pilot_hits(world, surfaces, s),
+    );
+    let made = ScratchDir::new(s).and_then(|dir| {
+        let sink = pipeline::file_sink(surfaces, s, &dir)?;
+        Ok((dir, sink))
+    });
+    let (scratch, traced) = match made {
+        Ok((dir, sink)) => (
+            Some(dir),
+            trace_exchange(worker, world, (surfaces, &tiling), s, Some(sink), ctl),
+        ),
+        Err(e) => {
+            let _ = trace_exchange(worker, world, (surfaces, &tiling), s, None, ctl);
+            (None, Err(e.into()))
+        }
+    };
+    let grouped = traced.and_then(|mut tr| {
+        ctl.tick(Phase::Group, 0, 1);
+        let sink = tr.sink.take();
+        let sink = sink.ok_or(DataflowError::Worker("no hit sink".into()))?;
+        let hits = pipeline::group(sink)?;
+        Ok((tr, hits))
+    });
+    Phase1 {
+        tiling,
+        scratch,
+        grouped,
+    }
+}
+
 /// What a worker's phase 1 did.
-struct Traced {
+pub struct Traced {
     /// Its hit file, unless it could not be made.
     sink: Option<super::hitfile::HitWriter>,
     /// φ = Φ/n.
-    phi: f64,
+    pub phi: f64,
     /// Particles of all channel runs (every worker counts them all).
-    particles: u64,
+    pub particles: u64,
     /// Rays this worker traced.
-    rays: u64,
+    pub rays: u64,
     /// Hit records it received (its surfaces' hits).
-    hits_received: u64,
-    /// Hit records it sent to other workers, and their bytes.
-    hits_sent: u64,
-    bytes_sent: u64,
+    pub hits_received: u64,
+    /// Hit records it sent to other workers.
+    pub hits_sent: u64,
+    /// Their bytes.
+    pub bytes_sent: u64,
 }
 
 impl Traced {
@@ -835,7 +926,7 @@ fn peer_error(worker: usize, st: &Status) -> DataflowError {
 /// One all-to-some round: each item goes to the worker it names; returns
 /// what this worker received (in no particular order) once every worker's
 /// items have arrived.
-fn round<T>(worker: &mut Worker, items: Vec<(u64, T)>) -> Vec<T>
+pub(crate) fn round<T>(worker: &mut Worker, items: Vec<(u64, T)>) -> Vec<T>
 where
     T: timely::ExchangeData + Clone,
 {

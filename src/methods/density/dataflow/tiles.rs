@@ -117,7 +117,8 @@ pub struct Split {
     pub tx: u32,
     /// Tiles along v.
     pub ty: u32,
-    size: Vec2,
+    /// The chart's size.
+    pub size: Vec2,
     /// Each tile's worker.
     owner: Vec<u32>,
 }
@@ -138,7 +139,7 @@ impl Split {
     }
 
     /// The tiles whose rectangles meet the square of half-side `r` about `q`.
-    fn tiles_near(&self, q: Vec2, r: f32) -> impl Iterator<Item = u32> + '_ {
+    pub(crate) fn tiles_near(&self, q: Vec2, r: f32) -> impl Iterator<Item = u32> + '_ {
         let (x0, x1) = (
             Self::axis(q.x - r, self.size.x, self.tx),
             Self::axis(q.x + r, self.size.x, self.tx),
@@ -151,7 +152,7 @@ impl Split {
     }
 
     /// A hit's chart position, as the estimator computes it.
-    fn chart(&self, h: &Hit) -> Vec2 {
+    pub(crate) fn chart(&self, h: &Hit) -> Vec2 {
         Vec2::new(from_fixed(h.u), from_fixed(h.v)) * self.size
     }
 }
@@ -237,7 +238,7 @@ impl Tiling {
     }
 
     /// The worker that owns tile `tile` of a tiled surface.
-    fn tile_owner(&self, sp: &Split, tile: u32) -> usize {
+    pub(crate) fn tile_owner(&self, sp: &Split, tile: u32) -> usize {
         sp.owner.get(tile as usize).map_or(0, |&w| w as usize)
     }
 
@@ -248,6 +249,13 @@ impl Tiling {
             Some(sp) => self.tile_owner(sp, sp.tile_of(sp.chart(h))),
             None => super::owner(surfaces, h.surface, self.peers),
         }
+    }
+
+    /// Every tiled surface, in order.
+    pub(crate) fn tiled(&self) -> Vec<u32> {
+        let mut v: Vec<u32> = self.split.keys().copied().collect();
+        v.sort_unstable();
+        v
     }
 
     /// Every tiled surface side, in order (the sides a worker counts).
