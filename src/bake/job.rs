@@ -20,6 +20,7 @@ use std::time::Instant;
 use crate::bake::lightmap::bake::{
     self as lightmap, LightmapBake, LightmapError, LightmapSettings,
 };
+use crate::bake::lightmap::dataflow as lm_dataflow;
 use crate::bake::lightmap::glb as lightmap_glb;
 use crate::bake::lightmap::live::{Cadence, Watch};
 use crate::bake::lightmap::{Lightmap, LightmapUv};
@@ -297,7 +298,8 @@ impl CheckedBake {
             });
         }
         if let Some(lm) = &j.lightmap {
-            return self.run_lightmap(lm, &world, t0, load_seconds, cancel, on_event);
+            let at = (t0, load_seconds);
+            return self.run_lightmap(lm, &world, at, workers, cancel, on_event);
         }
         on_event(BakeEvent::Started);
         let Some(bake) = self.bake(&world, t0, workers, cancel, on_event)? else {
@@ -333,13 +335,23 @@ impl CheckedBake {
     fn run_lightmap(
         &self,
         lm: &LightmapSettings,
-        world: &World,
-        start: Instant,
-        load_seconds: f64,
+        world: &Arc<World>,
+        (start, load_seconds): (Instant, f64),
+        workers: Option<&Workers>,
         cancel: Option<&AtomicBool>,
         on_event: &mut dyn FnMut(BakeEvent),
     ) -> Result<BakeOutcome, BakeError> {
         let j = &self.job;
+        if let Some(w) = workers {
+            return self.run_lightmap_dataflow(
+                lm,
+                world,
+                (start, load_seconds),
+                w,
+                cancel,
+                on_event,
+            );
+        }
         let side = lightmap::atlas_side(&world.scene, lm)?;
         if let Some((limit, source)) = job::memory_limit(j.max_memory, j.max_memory_flag) {
             let items = j.lightmap_memory(lm, side);
@@ -389,11 +401,112 @@ impl CheckedBake {
         let on_event = &mut *events.borrow_mut();
         on_event(BakeEvent::Writing);
         let t1 = Instant::now();
-        lightmap::write_images(&baked, lm)?;
+        self.write_lightmap(&baked, lm, &world.scene)?;
+        Ok(BakeOutcome {
+            baked: None,
+            lightmap: Some(baked),
+            load_seconds,
+            write_seconds: t1.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The lightmap bake on a dataflow of threads or processes
+    /// ([`crate::bake::lightmap::dataflow`]): the same atlas as in one
+    /// process; the process of worker 0 writes the outputs, the others
+    /// nothing. Not shown live.
+    fn run_lightmap_dataflow(
+        &self,
+        lm: &LightmapSettings,
+        world: &Arc<World>,
+        (start, load_seconds): (Instant, f64),
+        workers: &Workers,
+        cancel: Option<&AtomicBool>,
+        on_event: &mut dyn FnMut(BakeEvent),
+    ) -> Result<BakeOutcome, BakeError> {
+        let j = &self.job;
+        if j.watch_every.is_some() {
+            return Err(BakeError::Lightmap(LightmapError::Settings(
+                "a lightmap bake across workers is not shown live: drop --view or the workers"
+                    .into(),
+            )));
+        }
+        let side = lightmap::atlas_side(&world.scene, lm)?;
+        if let Some((limit, source)) = job::memory_limit(j.max_memory, j.max_memory_flag) {
+            let items = j.lightmap_memory(lm, side);
+            render::check_memory(&items, limit, &source)?;
+        }
+        on_event(BakeEvent::Started);
+        let limits = Limits {
+            time: j.time,
+            rays: j.rays,
+            view_rays: 0,
+        };
+        let done = {
+            let mut on_tick = |t: &Tick| match t.phase {
+                Phase::Estimate => on_event(BakeEvent::Texels {
+                    done: t.done,
+                    total: t.total,
+                }),
+                _ => on_event(BakeEvent::Tick(t)),
+            };
+            let mut ctl = Control::new(start, limits, cancel).on_tick(&mut on_tick);
+            let s = &j.settings;
+            match lm_dataflow::bake_lightmap_dataflow(world.clone(), s, lm, workers, &mut ctl) {
+                Ok(d) => d,
+                Err(LightmapError::Dataflow(DataflowError::Density(e))) => return Err(e.into()),
+                Err(LightmapError::Dataflow(e)) => return Err(BakeError::Dataflow(e)),
+                Err(e) => return Err(e.into()),
+            }
+        };
+        on_event(BakeEvent::Exchanged {
+            hits: done.hits_sent,
+            bytes: done.bytes_sent,
+        });
+        let Some(baked) = done.out else {
+            return Ok(BakeOutcome {
+                baked: None,
+                lightmap: None,
+                load_seconds,
+                write_seconds: 0.0,
+            });
+        };
+        on_event(BakeEvent::Writing);
+        let t1 = Instant::now();
+        self.write_lightmap(&baked, lm, &world.scene)?;
+        Ok(BakeOutcome {
+            baked: None,
+            lightmap: Some(baked),
+            load_seconds,
+            write_seconds: t1.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// Writes a baked lightmap's images and .glb where the job asks.
+    fn write_lightmap(
+        &self,
+        baked: &LightmapBake,
+        lm: &LightmapSettings,
+        scene: &Scene,
+    ) -> Result<(), BakeError> {
+        let j = &self.job;
+        let (source, allow_read) = match &j.scene {
+            SceneInput::File {
+                path, allow_read, ..
+            } => (
+                path.as_deref().filter(|p| !job::is_builtin(Some(p))),
+                &allow_read[..],
+            ),
+            SceneInput::World(_) => (None, &[][..]),
+        };
+        let read = ReadPolicy {
+            allow_read: allow_read.to_vec(),
+            memory_limit: None,
+        };
+        lightmap::write_images(baked, lm)?;
         if let Some(glb) = &j.glb {
             lightmap_glb::write_lightmapped_with(
                 glb,
-                &world.scene,
+                scene,
                 source,
                 &read,
                 &baked.uv,
@@ -401,12 +514,7 @@ impl CheckedBake {
             )
             .map_err(LightmapError::from)?;
         }
-        Ok(BakeOutcome {
-            baked: None,
-            lightmap: Some(baked),
-            load_seconds,
-            write_seconds: t1.elapsed().as_secs_f64(),
-        })
+        Ok(())
     }
 
     /// The bake itself, here or on a dataflow; None in a process other

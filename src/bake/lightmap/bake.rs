@@ -22,7 +22,7 @@ use super::gather::{self, Atlas, Gather, GatherOptions};
 use super::glb::GlbError;
 use super::live::{Previews, SharedHits, Watch};
 use super::uv::{self, UvError, UvOptions};
-use super::{raster, Lightmap, LightmapUv, Texel};
+use super::{raster, DensityAtlas, Lightmap, LightmapUv, Texel};
 use crate::color::Rgb;
 use crate::film::Image;
 use crate::image_io::{self, ImageIoError, PngOptions};
@@ -153,6 +153,9 @@ pub enum LightmapError {
     /// The lightmapped .glb could not be written.
     #[error(transparent)]
     Glb(#[from] GlbError),
+    /// A bake across workers failed (its layout, its network, a peer).
+    #[error(transparent)]
+    Dataflow(#[from] crate::methods::density::dataflow::DataflowError),
 }
 
 /// Figures of a lightmap bake.
@@ -177,6 +180,41 @@ pub struct LightmapStats {
     /// Texels the final gather found hidden (their rays met back faces),
     /// left for the padding to fill.
     pub gather_hidden: u64,
+    /// In a bake across workers, each worker's share (empty in one
+    /// process).
+    pub workers: Vec<LightmapWorker>,
+}
+
+/// One worker's share of a lightmap bake across workers
+/// ([`super::dataflow`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LightmapWorker {
+    /// Texels it owns (estimated, and gathered).
+    pub texels: u64,
+    /// Texel estimates it made: its texels, and again those whose reach
+    /// its halo did not hold yet.
+    pub estimates: u64,
+    /// Hits of its tiles and surfaces.
+    pub hits: u64,
+    /// Halo hits it received.
+    pub halo: u64,
+    /// Rounds of the halo.
+    pub rounds: u64,
+}
+
+impl LightmapStats {
+    /// The most loaded worker's texel estimates over the mean (1 when
+    /// even; None in one process).
+    pub fn balance(&self) -> Option<f64> {
+        let n = self.workers.len() as f64;
+        let total: u64 = self.workers.iter().map(|w| w.estimates).sum();
+        let max = self.workers.iter().map(|w| w.estimates).max()?;
+        Some(if total == 0 {
+            1.0
+        } else {
+            max as f64 * n / total as f64
+        })
+    }
 }
 
 /// A baked lightmap: its uv set and its atlas.
@@ -269,6 +307,36 @@ impl<'a> Steering<'a> {
     }
 }
 
+/// The stages before the particles: the uv set (the asset's own
+/// TEXCOORD_1 when valid, else generated), the texels, and the settings
+/// with the estimator's texel area filled in for the adaptive k (the same
+/// for the previews and the final estimate).
+pub fn prepare(
+    scene: &Scene,
+    lm: &LightmapSettings,
+) -> Result<(LightmapUv, Vec<Texel>, LightmapSettings), LightmapError> {
+    let asset_uv1 = (!scene.uv1.is_empty()).then_some(&scene.uv1[..]);
+    let opts = UvOptions {
+        texel_density: lm.texel_density,
+        size: lm
+            .texel_density
+            .is_none()
+            .then(|| lm.size.unwrap_or(DEFAULT_SIZE)),
+        ..Default::default()
+    };
+    let uv = uv::lightmap_uv(scene, asset_uv1, &opts)?;
+    let texels = raster::texels(scene, &uv);
+    let estimator = Options {
+        texel_area: lm.estimator.texel_area.or(texel_area(scene, &uv)),
+        ..lm.estimator
+    };
+    let lm = LightmapSettings {
+        estimator,
+        ..lm.clone()
+    };
+    Ok((uv, texels, lm))
+}
+
 /// Bakes a lightmap of `world`: the uv set, the texels, the particles of
 /// `s` (as many as `steer`'s limits allow), the estimate of each texel, the
 /// padding. Writes nothing.
@@ -294,28 +362,8 @@ pub fn bake_lightmap_watched(
     lm.check()?;
     s.check().map_err(DensityError::from)?;
     let scene = &world.scene;
-    // the asset's own TEXCOORD_1 when valid, else generated
-    let asset_uv1 = (!scene.uv1.is_empty()).then_some(&scene.uv1[..]);
-    let opts = UvOptions {
-        texel_density: lm.texel_density,
-        size: lm
-            .texel_density
-            .is_none()
-            .then(|| lm.size.unwrap_or(DEFAULT_SIZE)),
-        ..Default::default()
-    };
-    let uv = uv::lightmap_uv(scene, asset_uv1, &opts)?;
-    let texels = raster::texels(scene, &uv);
-    // the estimator's settings, the texel's world area filled in for the
-    // adaptive k: the same for the previews and the final estimate
-    let opts = Options {
-        texel_area: lm.estimator.texel_area.or(texel_area(scene, &uv)),
-        ..lm.estimator
-    };
-    let lm = &LightmapSettings {
-        estimator: opts,
-        ..lm.clone()
-    };
+    let (uv, texels, lm) = prepare(scene, lm)?;
+    let (lm, opts) = (&lm, lm.estimator);
 
     let sectors = lm.estimator.sectors.min(estimate::MAX_SECTORS) as u64;
     let limits = Limits {
@@ -364,44 +412,67 @@ pub fn bake_lightmap_watched(
     let t = Instant::now();
     let est = Estimator::new(world, &surfaces, &index, traced.phi, opts);
     let cancel = ctl.cancel_flag();
-    let mut lightmap = {
+    let mut density = {
         let mut progress = |done, total| ctl.tick(Phase::Estimate, done, total);
-        estimate::estimate_texels(&est, &texels, uv.width, uv.height, cancel, &mut progress)
+        let size = (uv.width, uv.height);
+        let both = lm.gather.is_on();
+        estimate::estimate_density(&est, &texels, size, both, cancel, &mut progress)
     };
     ctl.check()?;
-    dilate(&mut lightmap, 2);
+    density.dilate(2);
 
     // The final gather, reading the density atlas
-    if lm.gather.is_on() {
-        let g = GatherOptions {
-            seed: s.seed,
-            ..lm.gather
-        };
-        let gather = Gather::new(
-            world,
-            &est,
-            Atlas::new(&lightmap, &uv, scene),
-            g,
-            s.max_depth,
-        );
-        let (mut gathered, rays, hidden) = {
+    let lightmap = if lm.gather.is_on() {
+        let gather = gather_with(world, &est, &density, &uv, s, lm);
+        let (gathered, rays, hidden) = {
             let mut progress = |done, total| ctl.tick(Phase::Gather, done, total);
-            gather::gather_texels(&gather, &texels, &lightmap, cancel, &mut progress)
+            gather::gather_texels(&gather, &texels, &density.held, cancel, &mut progress)
         };
         ctl.check()?;
         stats.gather_rays = rays;
         stats.gather_hidden = hidden;
-        let chart = gather::texel_charts(&texels, &uv);
-        gather::combine_with_density(&mut gathered, &lightmap, &chart);
-        dilate(&mut gathered, 2);
-        lightmap = gathered;
-    }
+        combined(gathered, &density.held, &texels, &uv)
+    } else {
+        density.held
+    };
     stats.t_estimate = t.elapsed().as_secs_f64();
     Ok(LightmapBake {
         uv,
         lightmap,
         stats,
     })
+}
+
+/// The final gather of a bake, reading the padded density atlases.
+pub fn gather_with<'a>(
+    world: &'a World,
+    est: &'a Estimator<'a>,
+    density: &'a DensityAtlas,
+    uv: &LightmapUv,
+    s: &density::Settings,
+    lm: &LightmapSettings,
+) -> Gather<'a> {
+    let g = GatherOptions {
+        seed: s.seed,
+        ..lm.gather
+    };
+    let atlas = Atlas::new(density, uv, &world.scene);
+    Gather::new(world, est, atlas, g, s.max_depth)
+}
+
+/// The gathered atlas combined with the density estimate
+/// ([`gather::combine_with_density`]) and padded: the atlas a bake with a
+/// final gather writes.
+pub fn combined(
+    mut gathered: Lightmap,
+    density: &Lightmap,
+    texels: &[Texel],
+    uv: &LightmapUv,
+) -> Lightmap {
+    let chart = gather::texel_charts(texels, uv);
+    gather::combine_with_density(&mut gathered, density, &chart);
+    dilate(&mut gathered, 2);
+    gathered
 }
 
 /// The atlas's irradiance as an image.

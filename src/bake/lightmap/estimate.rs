@@ -57,14 +57,15 @@ use std::num::NonZeroUsize;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::{Vec2, Vec3};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
-use super::{Lightmap, Texel};
+use super::index::Group;
+pub use super::index::HitIndex;
+use super::{DensityAtlas, Lightmap, Texel};
 use crate::color::Rgb;
 use crate::geometry::{offset_point, Frame, Ray};
-use crate::methods::density::hitfile::HitFileError;
-use crate::methods::density::hits::{decode_rgb9e5, from_fixed, HitSource};
+use crate::methods::density::hits::decode_rgb9e5;
 use crate::methods::density::kernel::{k2, TriGrid, NORMAL_COS};
 use crate::methods::density::surfaces::{Kind, Surface, Surfaces};
 use crate::world::World;
@@ -157,176 +158,6 @@ pub fn grown_k(k0: usize, r2: f32, texel_area: f32, growth: f32) -> usize {
     (k as usize).clamp(K_MIN, K_MAX)
 }
 
-/// Which hits a texel may use: a planar surface side, or one side of a
-/// curved shape.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-enum Key {
-    Planar(u32, bool),
-    Curved(u32, bool),
-}
-
-/// A group's decoded hits: points, normals (curved shapes only), powers.
-type Decoded = (Vec<Vec3>, Vec<Vec3>, Vec<u32>);
-
-/// The hits of one group, in a kd-tree.
-struct Group {
-    tree: ImmutableKdTree<f32, 3>,
-    pos: Vec<Vec3>,
-    /// The geometric normal at each hit (curved shapes only), on the side
-    /// the hits are for.
-    normal: Vec<Vec3>,
-    rgb: Vec<u32>,
-}
-
-/// Every hit of a bake, decoded to world points and grouped for the
-/// texels' queries.
-pub struct HitIndex {
-    keys: std::collections::HashMap<Key, usize>,
-    groups: Vec<Group>,
-    hits: u64,
-}
-
-impl HitIndex {
-    /// Reads every hit of `source` (at most `chunk` records at a time) and
-    /// builds a kd-tree per group.
-    pub fn build(
-        world: &World,
-        surfaces: &Surfaces,
-        source: &impl HitSource,
-        chunk: u64,
-    ) -> Result<HitIndex, HitFileError> {
-        let scene = &world.scene;
-        let mut parts: std::collections::BTreeMap<Key, Decoded> = Default::default();
-        for run in source.runs() {
-            let Some(surf) = surfaces.get(run.surface) else {
-                continue;
-            };
-            let back = run.surface.back;
-            let key = match surf.kind {
-                Kind::Planar => Key::Planar(run.surface.index, back),
-                Kind::Curved => Key::Curved(surf.shape, back),
-            };
-            let e = parts.entry(key).or_default();
-            let mut done = 0;
-            while done < run.count {
-                let m = (run.count - done).min(chunk.max(1));
-                let hits = source.read(run.start + done, m)?;
-                for h in hits.iter() {
-                    let (u, v) = (from_fixed(h.u), from_fixed(h.v));
-                    match surf.kind {
-                        Kind::Planar => e.0.push(surf.to_world(Vec2::new(u, v) * surf.size)),
-                        Kind::Curved => {
-                            let sp = scene.surface_point(surf.tris[0], u, v);
-                            e.0.push(sp.p);
-                            e.1.push(if back { -sp.ng } else { sp.ng });
-                        }
-                    }
-                    e.2.push(h.rgb);
-                }
-                done += m;
-            }
-        }
-        let mut keys = std::collections::HashMap::new();
-        let mut groups = Vec::with_capacity(parts.len());
-        let mut hits = 0;
-        for (key, (pos, normal, rgb)) in parts {
-            if pos.is_empty() {
-                continue;
-            }
-            let (pos, normal, rgb) = morton_order(pos, normal, rgb);
-            let pts: Vec<[f32; 3]> = pos.iter().map(|p| p.to_array()).collect();
-            let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&pts);
-            drop(pts);
-            let Ok(tree) = tree else {
-                continue;
-            };
-            hits += pos.len() as u64;
-            keys.insert(key, groups.len());
-            groups.push(Group {
-                tree,
-                pos,
-                normal,
-                rgb,
-            });
-        }
-        Ok(HitIndex { keys, groups, hits })
-    }
-
-    /// Hits held.
-    pub fn hit_count(&self) -> u64 {
-        self.hits
-    }
-
-    fn count(&self, key: Key) -> usize {
-        self.keys.get(&key).map_or(0, |&g| self.groups[g].pos.len())
-    }
-
-    /// The group a texel on surface `sid` reads, and whether it is the back
-    /// side: the front (the triangles' winding), unless only the back side
-    /// is lit (a two-sided material seen from behind): a texel holds one
-    /// value, that of the side with more hits.
-    fn group_of(&self, surf: &Surface, sid: u32) -> Option<(usize, bool)> {
-        let key = |back| match surf.kind {
-            Kind::Planar => Key::Planar(sid, back),
-            Kind::Curved => Key::Curved(surf.shape, back),
-        };
-        let back = self.count(key(true)) > self.count(key(false));
-        self.keys.get(&key(back)).map(|&g| (g, back))
-    }
-
-    /// The group of one given side of surface `sid` (None: no hits there).
-    fn group_on(&self, surf: &Surface, sid: u32, back: bool) -> Option<usize> {
-        let key = match surf.kind {
-            Kind::Planar => Key::Planar(sid, back),
-            Kind::Curved => Key::Curved(surf.shape, back),
-        };
-        self.keys.get(&key).copied()
-    }
-}
-
-/// The hits of a group in Morton order of their points, so that the hits
-/// a texel gathers lie together in memory (the kd-tree's items index
-/// these arrays; in the order of tracing, every gathered hit was a cache
-/// miss).
-fn morton_order(
-    pos: Vec<Vec3>,
-    normal: Vec<Vec3>,
-    rgb: Vec<u32>,
-) -> (Vec<Vec3>, Vec<Vec3>, Vec<u32>) {
-    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for p in &pos {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
-    }
-    let scale = 1023.0 / (hi - lo).max_element().max(1e-30);
-    let spread = |v: u32| {
-        // 10 bits to every third of 30
-        let mut x = v & 0x3ff;
-        x = (x | (x << 16)) & 0x030000ff;
-        x = (x | (x << 8)) & 0x0300f00f;
-        x = (x | (x << 4)) & 0x030c30c3;
-        (x | (x << 2)) & 0x09249249
-    };
-    let mut order: Vec<(u32, u32)> = pos
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let q = ((*p - lo) * scale).max(Vec3::ZERO);
-            let code = spread(q.x as u32) | (spread(q.y as u32) << 1) | (spread(q.z as u32) << 2);
-            (code, i as u32)
-        })
-        .collect();
-    order.sort_unstable();
-    let pos2 = order.iter().map(|&(_, i)| pos[i as usize]).collect();
-    let normal2 = if normal.is_empty() {
-        normal
-    } else {
-        order.iter().map(|&(_, i)| normal[i as usize]).collect()
-    };
-    let rgb2 = order.iter().map(|&(_, i)| rgb[i as usize]).collect();
-    (pos2, normal2, rgb2)
-}
-
 /// atan2(y, x) to about 0.01 rad (a rational approximation on each
 /// octant), enough to pick a sector: libm's is a tenth of a texel's time.
 #[inline]
@@ -417,6 +248,62 @@ pub struct TexelEstimate {
     /// The kernel was cut: by a face some sector ray met within h, or by
     /// the border of the surface (its mass inside the free region < 1).
     pub cut: bool,
+    /// How far from the texel's point the hits the estimate depends on
+    /// lie: the pilot's farthest neighbour and the bandwidth h. 0 when the
+    /// index holds the texel's group whole; infinite when it holds too
+    /// little of it to tell (a dataflow worker's part of the hits: the
+    /// estimate is exact when the worker holds every hit within `reach`,
+    /// see [`super::dataflow`]).
+    pub reach: f32,
+}
+
+/// A texel's h², its hits within h (index, squared distance), and its
+/// reach ([`TexelEstimate::reach`]).
+type Gathered = (f32, Vec<(u32, f32)>, f32);
+
+/// The sums of eq. (2) over a texel's hits, in the fixed point of
+/// [`FIXED_BITS`] fractional bits: exact, so that the estimate does not
+/// depend on the order the kd-tree returns its hits in (a dataflow
+/// worker's tree holds some of them, in another order).
+#[derive(Default)]
+struct FixedSums {
+    sum: [i128; 3],
+    sum2: [i128; 3],
+}
+
+/// Fractional bits of [`FixedSums`]' sum of c·K2 (a term is at most
+/// 65408·3/π < 2^16, so it fits an i64 with 40 bits, and an `i128` sum
+/// holds 2^71 of them).
+pub const FIXED_BITS: i32 = 40;
+
+/// Fractional bits of the sum of c²·K2², for the standard error (a term
+/// is below 2^32: an i64 holds it with 30 bits).
+const FIXED_BITS2: i32 = 30;
+
+impl FixedSums {
+    /// `x` in a fixed point of `bits` fractional bits (truncated; the
+    /// terms are never negative). Times a power of two is exact in f32
+    /// (no term comes near its range), and the conversion to i64 is the
+    /// processor's (to i128 it is a library call, which took most of a
+    /// texel's time).
+    #[inline]
+    fn fixed(x: f32, bits: i32) -> i128 {
+        (x * (1u64 << bits) as f32) as i64 as i128
+    }
+
+    #[inline]
+    fn add(&mut self, c: Vec3, w: f32) {
+        let (a, b) = (c * w, c * c * (w * w));
+        for i in 0..3 {
+            self.sum[i] += Self::fixed(a[i], FIXED_BITS);
+            self.sum2[i] += Self::fixed(b[i], FIXED_BITS2);
+        }
+    }
+
+    fn get(s: &[i128; 3], bits: i32) -> Vec3 {
+        let f = |x: i128| (x as f64 / (1u64 << bits) as f64) as f32;
+        Vec3::new(f(s[0]), f(s[1]), f(s[2]))
+    }
 }
 
 /// What every texel's estimate reads.
@@ -492,6 +379,25 @@ impl<'a> Estimator<'a> {
         self.index.group_of(surf, sid).map(|(_, back)| back)
     }
 
+    /// The estimates of a texel on both sides of its surface: the side
+    /// its atlas holds ([`Estimator::texel`]), and the other side when
+    /// that is lit too (a final gather's ray may meet it there:
+    /// [`super::gather`] reads it from a second atlas).
+    pub fn texel_sides(&self, t: &Texel) -> (TexelEstimate, Option<TexelEstimate>) {
+        let held = self.texel(t);
+        let Some(&sid) = self.surfaces.tri_surface.get(t.tri as usize) else {
+            return (held, None);
+        };
+        let surf = &self.surfaces.list[sid as usize];
+        let Some((_, back)) = self.index.group_of(surf, sid).filter(|_| surf.diffuse) else {
+            return (held, None);
+        };
+        if self.index.group_on(surf, sid, !back).is_none() {
+            return (held, None);
+        }
+        (held, Some(self.texel_on(t, Some(!back))))
+    }
+
     /// The estimate at a texel's point.
     pub fn texel(&self, t: &Texel) -> TexelEstimate {
         self.texel_on(t, None)
@@ -511,9 +417,9 @@ impl<'a> Estimator<'a> {
         // narrower.
         if self.opts.neighbours.is_none() && self.opts.bandwidth.is_none() && e.cut {
             let edge = self.texel_with(t, Some(EDGE_K), side);
-            if edge.h < e.h {
-                return edge;
-            }
+            let reach = e.reach.max(edge.reach);
+            let pick = if edge.h < e.h { edge } else { e };
+            return TexelEstimate { reach, ..pick };
         }
         e
     }
@@ -532,16 +438,28 @@ impl<'a> Estimator<'a> {
             None => self.index.group_of(surf, sid),
             Some(back) => self.index.group_on(surf, sid, back).map(|g| (g, back)),
         };
-        let Some((gi, back)) = found else {
+        let Some((held, back)) = found else {
             return TexelEstimate::default();
+        };
+        // lit, but none of its hits held here: the halo must grow
+        let unknown = TexelEstimate {
+            reach: f32::INFINITY,
+            ..Default::default()
+        };
+        let Some(gi) = held else {
+            return unknown;
         };
         let g = &self.index.groups[gi];
         let n = if back { -t.n } else { t.n };
         let p = t.p;
-        let Some((h2, found)) = self.gather(g, p, fixed) else {
-            return TexelEstimate::default();
+        let Some((h2, found, reach)) = self.gather(g, p, fixed) else {
+            return TexelEstimate {
+                reach: if g.whole() { 0.0 } else { f32::INFINITY },
+                ..Default::default()
+            };
         };
         let h = h2.sqrt();
+        let reach = if g.whole() { 0.0 } else { reach };
 
         // What the sector rays met, in units of h (1: nothing within h)
         let frame = Frame::from_normal(n);
@@ -555,14 +473,13 @@ impl<'a> Estimator<'a> {
             return TexelEstimate {
                 h,
                 hidden: true,
+                reach,
                 ..Default::default()
             };
         }
-        let sector_of = |x: f32, y: f32| sector(x, y, sectors);
-
         // Only a texel whose kernel some ray was cut in tests the sectors
         let open = free[..sectors].iter().all(|&f| f >= 1.0);
-        let (mut sum, mut sum2, mut used) = (Vec3::ZERO, Vec3::ZERO, 0u32);
+        let (mut sums, mut used) = (FixedSums::default(), 0u32);
         for &(j, d2) in &found {
             let j = j as usize;
             if !g.normal.is_empty() && g.normal[j].dot(n) < NORMAL_COS {
@@ -575,13 +492,45 @@ impl<'a> Estimator<'a> {
             if !open && !self.reachable(p, n, g, j, d2.sqrt(), &free[..sectors], &frame, h) {
                 continue;
             }
-            let c = decode_rgb9e5(g.rgb[j]);
-            sum += c * w;
-            sum2 += c * c * (w * w);
+            sums.add(decode_rgb9e5(g.rgb[j]), w);
             used += 1;
         }
 
         // The kernel mass of the region the hits may come from
+        let mass = self.kernel_mass(surf, sid, (p, h, &frame), &free, open);
+        let scale = self.phi / (h2 * mass.max(self.opts.min_mass));
+        let sum = FixedSums::get(&sums.sum, FIXED_BITS);
+        let sum2 = FixedSums::get(&sums.sum2, FIXED_BITS2);
+        TexelEstimate {
+            e: sum * scale,
+            se: Vec3::new(sum2.x.sqrt(), sum2.y.sqrt(), sum2.z.sqrt()) * scale,
+            h,
+            used,
+            // No hit reachable, and the rays met the back of a face and no
+            // front: inside a solid too, nearer one of its walls than the
+            // test above can tell (a texel under a box, a texel from its
+            // side: the rays away from that side meet nothing within h)
+            hidden: used == 0 && backs > 0 && fronts == 0,
+            cut: !open || mass < 1.0,
+            reach,
+        }
+    }
+
+    /// The kernel mass (in units of the whole kernel's) of the region a
+    /// texel's hits may come from: the part of the disk of radius h about
+    /// `p` that the sector rays left free (`free`, in units of h, one per
+    /// sector; none met anything when `open`) and, for a planar surface, inside its
+    /// polygon (an 8×8 quadrature, as the density bake's renormalisation).
+    fn kernel_mass(
+        &self,
+        surf: &Surface,
+        sid: u32,
+        (p, h, frame): (Vec3, f32, &Frame),
+        free: &[f32; MAX_SECTORS],
+        open: bool,
+    ) -> f32 {
+        let sectors = self.opts.sectors;
+        let sector_of = |x: f32, y: f32| sector(x, y, sectors);
         let inner = |c: Vec2| {
             surf.rectangle
                 && c.x >= h
@@ -589,7 +538,7 @@ impl<'a> Estimator<'a> {
                 && c.x <= surf.size.x - h
                 && c.y <= surf.size.y - h
         };
-        let mass = match (surf.kind, &self.polygons[sid as usize]) {
+        match (surf.kind, &self.polygons[sid as usize]) {
             (Kind::Planar, _) if open && inner(surf.to_chart(p)) => 1.0,
             (Kind::Curved, _) if open => 1.0,
             (Kind::Planar, poly) => {
@@ -647,19 +596,6 @@ impl<'a> Estimator<'a> {
                     .sum::<f32>()
                     / s as f32
             }
-        };
-        let scale = self.phi / (h2 * mass.max(self.opts.min_mass));
-        TexelEstimate {
-            e: sum * scale,
-            se: Vec3::new(sum2.x.sqrt(), sum2.y.sqrt(), sum2.z.sqrt()) * scale,
-            h,
-            used,
-            // No hit reachable, and the rays met the back of a face and no
-            // front: inside a solid too, nearer one of its walls than the
-            // test above can tell (a texel under a box, a texel from its
-            // side: the rays away from that side meet nothing within h)
-            hidden: used == 0 && backs > 0 && fronts == 0,
-            cut: !open || mass < 1.0,
         }
     }
 
@@ -704,10 +640,10 @@ impl<'a> Estimator<'a> {
     /// more). k is fixed, or grown from the density the pilot saw
     /// ([`grown_k`]). Groups of at most k hits use them all, h just past
     /// the farthest. A fixed [`Options::bandwidth`] skips the pilot.
-    fn gather(&self, g: &Group, p: Vec3, fixed: Option<usize>) -> Option<(f32, Vec<(u32, f32)>)> {
+    fn gather(&self, g: &Group, p: Vec3, fixed: Option<usize>) -> Option<Gathered> {
         let q = p.to_array();
-        let h2 = match self.opts.bandwidth {
-            Some(h) => h * h,
+        let (h2, pilot) = match self.opts.bandwidth {
+            Some(h) => (h * h, 0.0),
             None => self.bandwidth2(g, &q, p, fixed)?,
         };
         if !(h2 > 0.0 && h2.is_finite()) {
@@ -722,21 +658,29 @@ impl<'a> Estimator<'a> {
             .into_iter()
             .map(|r| (r.item, r.distance))
             .collect();
-        Some((h2, found))
+        Some((h2, found, pilot.max(h2.sqrt())))
     }
 
-    /// h² at `p` (see [`Estimator::gather`]).
-    fn bandwidth2(&self, g: &Group, q: &[f32; 3], p: Vec3, fixed: Option<usize>) -> Option<f32> {
+    /// h² at `p` (see [`Estimator::gather`]), and the distance to the
+    /// pilot's farthest neighbour (infinite when the group's hits decide
+    /// h as a whole and are not all held).
+    fn bandwidth2(
+        &self,
+        g: &Group,
+        q: &[f32; 3],
+        p: Vec3,
+        fixed: Option<usize>,
+    ) -> Option<(f32, f32)> {
         let all = || {
             let far = g
                 .pos
                 .iter()
                 .map(|x| x.distance_squared(p))
                 .fold(0.0f32, f32::max);
-            far * 1.0001
+            (far * 1.0001, if g.whole() { 0.0 } else { f32::INFINITY })
         };
         let k0 = fixed.map_or(PILOT, |k| k.min(PILOT));
-        if g.pos.len() <= k0 {
+        if g.total <= k0 as u64 {
             return Some(all());
         }
         let near = g
@@ -744,15 +688,19 @@ impl<'a> Estimator<'a> {
             .query(q)
             .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k0)?)
             .execute();
+        if near.len() < k0 {
+            // a worker holding fewer than k0 of the group's hits
+            return Some((near.last().map_or(0.0, |n| n.distance), f32::INFINITY));
+        }
         let r2 = near.last()?.distance;
         let k = match fixed {
             Some(k) => k,
             None => grown_k(k0, r2, self.texel_area, self.opts.growth),
         };
-        if g.pos.len() <= k {
+        if g.total <= k as u64 {
             return Some(all());
         }
-        Some(r2 * (k as f32 / k0 as f32))
+        Some((r2 * (k as f32 / k0 as f32), r2.sqrt()))
     }
 
     /// Whether hit `j` of `g`, at distance `d` from `p`, is reachable from
@@ -822,7 +770,7 @@ impl<'a> Estimator<'a> {
 /// Estimates every texel of `texels` into a `width` × `height` atlas (in
 /// parallel; the same bytes whatever the thread count). A texel found
 /// inside a closed solid ([`TexelEstimate::hidden`]) is left uncovered,
-/// at 0, for the padding to fill. Stops early, with
+/// at 0, for the padding to fill ([`Lightmap::set`]). Stops early, with
 /// the atlas as far as it got, once `cancel` is set; `progress` hears the
 /// texels done, from the calling thread.
 pub fn estimate_texels(
@@ -833,14 +781,7 @@ pub fn estimate_texels(
     cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Lightmap {
-    let n = width as usize * height as usize;
-    let mut lm = Lightmap {
-        width,
-        height,
-        irradiance: vec![Rgb::ZERO; n],
-        std_error: vec![Rgb::ZERO; n],
-        covered: vec![false; n],
-    };
+    let mut lm = Lightmap::empty(width, height);
     const SLICE: usize = 1 << 14;
     let total = texels.len() as u64;
     progress(0, total);
@@ -850,23 +791,63 @@ pub fn estimate_texels(
         }
         let out: Vec<TexelEstimate> = slice.par_iter().map(|t| est.texel(t)).collect();
         for (t, e) in slice.iter().zip(out) {
-            if t.x >= width || t.y >= height {
-                continue;
-            }
-            let k = t.y as usize * width as usize + t.x as usize;
-            lm.irradiance[k] = e.e;
-            lm.std_error[k] = e.se;
-            // A hidden texel is no part of the visible surface, but the
-            // bilinear filter of a viewer reads it for the visible points
-            // within a texel of it (a floor texel under a box's foot, next
-            // to the lit floor): left covered at 0, it drew a dark line
-            // along every such edge. Uncovered, the padding fills it from
-            // its visible neighbours, as it fills a chart's gutter.
-            lm.covered[k] = !e.hidden;
+            lm.set(t, &e);
         }
         progress((i * SLICE + slice.len()) as u64, total);
     }
     lm
+}
+
+/// A texel's estimates on both sides ([`Estimator::texel_sides`]).
+pub type Sides = (TexelEstimate, Option<TexelEstimate>);
+
+/// The estimates of the texels `which` (indices into `texels`), on both
+/// sides when `both` (else the held side alone), in parallel, in
+/// `which`'s order. Stops early, with the
+/// estimates as far as they got, once `cancel` is set; `progress` hears
+/// the texels done.
+pub fn estimate_sides(
+    est: &Estimator,
+    texels: &[Texel],
+    which: &[u32],
+    both: bool,
+    cancel: Option<&AtomicBool>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Vec<Sides> {
+    const SLICE: usize = 1 << 14;
+    let total = which.len() as u64;
+    let mut out = Vec::with_capacity(which.len());
+    progress(0, total);
+    for slice in which.chunks(SLICE) {
+        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+            break;
+        }
+        out.par_extend(slice.par_iter().map(|&i| match both {
+            true => est.texel_sides(&texels[i as usize]),
+            false => (est.texel(&texels[i as usize]), None),
+        }));
+        progress(out.len() as u64, total);
+    }
+    out
+}
+
+/// The density atlases of every texel ([`DensityAtlas`], the other sides
+/// when `both`), unpadded.
+pub fn estimate_density(
+    est: &Estimator,
+    texels: &[Texel],
+    (width, height): (u32, u32),
+    both: bool,
+    cancel: Option<&AtomicBool>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> DensityAtlas {
+    let all: Vec<u32> = (0..texels.len() as u32).collect();
+    let sides = estimate_sides(est, texels, &all, both, cancel, progress);
+    let mut atlas = DensityAtlas::empty(width, height);
+    for (t, (held, other)) in texels.iter().zip(&sides) {
+        atlas.set(t, held, other.as_ref());
+    }
+    atlas
 }
 
 #[cfg(test)]

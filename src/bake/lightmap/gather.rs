@@ -31,7 +31,9 @@
 //!   - on a surface with a diffuse part, k T'(cos θ') Ĥ_atlas(q), Ĥ_atlas
 //!     read bilinearly from the density atlas at q's lightmap coordinate,
 //!     or, when the ray meets the side of the surface the atlas does not
-//!     hold, estimated at q on that side from the hits;
+//!     hold, from the atlas of the other sides ([`DensityAtlas::other`],
+//!     estimated alike for surfaces lit on both sides; 0 on a side with
+//!     no hits);
 //!   - on one without (a mirror, glass, metal), the path tracer's radiance
 //!     from there on ([`crate::transport::CameraPath`]), with the emission
 //!     it meets first weighted out.
@@ -59,7 +61,7 @@ use rayon::prelude::*;
 
 use super::estimate::Estimator;
 use super::raster::{self, Corners};
-use super::{Lightmap, LightmapUv, Texel};
+use super::{DensityAtlas, Lightmap, LightmapUv, Texel};
 use crate::accel::Hit;
 use crate::color::{luminance, Rgb};
 use crate::emitter::LightSelection;
@@ -125,16 +127,19 @@ impl GatherOptions {
 /// it.
 pub struct Atlas<'a> {
     lm: &'a Lightmap,
+    /// The other sides of surfaces lit on both ([`DensityAtlas::other`]).
+    other: Option<&'a Lightmap>,
     /// Per scene triangle, its corners on the atlas in texels (texel
     /// (x, y)'s centre is at (x + ½, y + ½)); None without area.
     corners: Vec<Corners>,
 }
 
 impl<'a> Atlas<'a> {
-    /// The atlas `lm`, laid out on `uv`, of `scene`'s triangles.
-    pub fn new(lm: &'a Lightmap, uv: &LightmapUv, scene: &crate::scene::Scene) -> Self {
+    /// The atlases `density`, laid out on `uv`, of `scene`'s triangles.
+    pub fn new(density: &'a DensityAtlas, uv: &LightmapUv, scene: &crate::scene::Scene) -> Self {
         Atlas {
-            lm,
+            lm: &density.held,
+            other: density.other.as_ref(),
             corners: raster::uv_corners(scene, uv),
         }
     }
@@ -144,11 +149,24 @@ impl<'a> Atlas<'a> {
     /// filled the gutters, so a point by a chart's border reads its own
     /// chart's values).
     fn read(&self, tri: u32, b1: f32, b2: f32) -> (Rgb, Rgb) {
-        let Some(Some(c)) = self.corners.get(tri as usize) else {
+        Self::read_in(self.lm, &self.corners, tri, b1, b2)
+    }
+
+    /// [`Atlas::read`] of the other side of a surface lit on both (0 where
+    /// the other side took no hit).
+    fn read_other(&self, tri: u32, b1: f32, b2: f32) -> (Rgb, Rgb) {
+        match self.other {
+            Some(lm) => Self::read_in(lm, &self.corners, tri, b1, b2),
+            None => (Rgb::ZERO, Rgb::ZERO),
+        }
+    }
+
+    fn read_in(lm: &Lightmap, corners: &[Corners], tri: u32, b1: f32, b2: f32) -> (Rgb, Rgb) {
+        let Some(Some(c)) = corners.get(tri as usize) else {
             return (Rgb::ZERO, Rgb::ZERO);
         };
         let q = c[0] * (1.0 - b1 - b2) + c[1] * b1 + c[2] * b2 - Vec2::splat(0.5);
-        let (w, h) = (self.lm.width as i64, self.lm.height as i64);
+        let (w, h) = (lm.width as i64, lm.height as i64);
         let (x0, y0) = (q.x.floor(), q.y.floor());
         let (fx, fy) = (q.x - x0, q.y - y0);
         let (mut e, mut se) = (Rgb::ZERO, Rgb::ZERO);
@@ -161,8 +179,8 @@ impl<'a> Atlas<'a> {
             let x = (x0 as i64 + dx).clamp(0, w - 1) as usize;
             let y = (y0 as i64 + dy).clamp(0, h - 1) as usize;
             let k = y * w as usize + x;
-            e += self.lm.irradiance[k] * wt;
-            se += self.lm.std_error[k] * wt;
+            e += lm.irradiance[k] * wt;
+            se += lm.std_error[k] * wt;
         }
         (e, se)
     }
@@ -193,16 +211,6 @@ impl Strata {
         let cell = Vec2::new((i % s) as f32, (i / s) as f32);
         ((cell + u) / s as f32).min(Vec2::splat(1.0 - f32::EPSILON / 2.0))
     }
-}
-
-/// What one texel's gather found.
-#[derive(Clone, Copy, Debug, Default)]
-struct TexelGather {
-    e: Rgb,
-    se: Rgb,
-    rays: u64,
-    /// More than [`BACKFACE_SHARE`] of the rays met a back face.
-    hidden: bool,
 }
 
 /// The share of a texel's indirect rays that may meet the back of a
@@ -460,19 +468,84 @@ impl<'a> Gather<'a> {
         let (e, se) = if seen_back == held_back {
             self.atlas.read(hit.tri, hit.b1, hit.b2)
         } else {
-            let t = Texel {
-                x: 0,
-                y: 0,
-                tri: sp.tri,
-                p: sp.p,
-                n: sp.ng,
-            };
-            let est = self.est.texel_on(&t, Some(seen_back));
-            (est.e, est.se)
+            self.atlas.read_other(hit.tri, hit.b1, hit.b2)
         };
         let k = dp.k * dp.t(cos_o);
         (k * e, k * se)
     }
+}
+
+/// One texel's gather: irradiance, its standard error, rays traced, and
+/// whether its rays found it hidden.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TexelGather {
+    /// Irradiance.
+    pub e: Rgb,
+    /// Its standard error.
+    pub se: Rgb,
+    /// Rays traced.
+    pub rays: u64,
+    /// More than [`BACKFACE_SHARE`] of the rays met a back face.
+    pub hidden: bool,
+}
+
+/// Gathers the texels `which` (indices into `texels`, which also key their
+/// random numbers) that `density` covers, in parallel, in `which`'s order
+/// (None: not covered, left as the density estimate has it). Stops early
+/// once `cancel` is set, with the gathers as far as they got; `progress`
+/// hears the texels done.
+pub fn gather_some(
+    gather: &Gather,
+    texels: &[Texel],
+    which: &[u32],
+    density: &Lightmap,
+    cancel: Option<&AtomicBool>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Vec<Option<TexelGather>> {
+    let (w, h) = (density.width, density.height);
+    const SLICE: usize = 1 << 12;
+    let total = which.len() as u64;
+    let mut out = Vec::with_capacity(which.len());
+    progress(0, total);
+    for slice in which.chunks(SLICE) {
+        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+            break;
+        }
+        out.par_extend(slice.par_iter().map(|&i| {
+            let t = &texels[i as usize];
+            let k = t.y as usize * w as usize + t.x as usize;
+            (t.x < w && t.y < h && density.covered[k]).then(|| gather.texel(t, i as u64))
+        }));
+        progress(out.len() as u64, total);
+    }
+    out
+}
+
+/// Writes gathers into `lm` (a copy of the density atlas): texel
+/// `which[i]` of `texels` takes `gathered[i]`. Returns the rays traced
+/// and the texels found hidden (left uncovered, for the padding to fill).
+pub fn put_gathered(
+    lm: &mut Lightmap,
+    texels: &[Texel],
+    which: &[u32],
+    gathered: &[Option<TexelGather>],
+) -> (u64, u64) {
+    let (mut rays, mut hidden) = (0, 0);
+    for (&i, g) in which.iter().zip(gathered) {
+        let (Some(g), Some(t)) = (g, texels.get(i as usize)) else {
+            continue;
+        };
+        if t.x >= lm.width || t.y >= lm.height {
+            continue;
+        }
+        let k = t.y as usize * lm.width as usize + t.x as usize;
+        lm.irradiance[k] = g.e;
+        lm.std_error[k] = g.se;
+        lm.covered[k] = !g.hidden;
+        hidden += g.hidden as u64;
+        rays += g.rays;
+    }
+    (rays, hidden)
 }
 
 /// Gathers every covered texel of `density` (the atlas `gather` reads)
@@ -489,36 +562,10 @@ pub fn gather_texels(
     cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(u64, u64),
 ) -> (Lightmap, u64, u64) {
+    let all: Vec<u32> = (0..texels.len() as u32).collect();
+    let got = gather_some(gather, texels, &all, density, cancel, progress);
     let mut lm = density.clone();
-    let (w, h) = (density.width, density.height);
-    const SLICE: usize = 1 << 12;
-    let total = texels.len() as u64;
-    let (mut rays, mut hidden) = (0, 0);
-    progress(0, total);
-    for (i, slice) in texels.chunks(SLICE).enumerate() {
-        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
-            break;
-        }
-        let base = (i * SLICE) as u64;
-        let out: Vec<Option<TexelGather>> = slice
-            .par_iter()
-            .enumerate()
-            .map(|(j, t)| {
-                let k = t.y as usize * w as usize + t.x as usize;
-                (t.x < w && t.y < h && density.covered[k]).then(|| gather.texel(t, base + j as u64))
-            })
-            .collect();
-        for (t, g) in slice.iter().zip(out) {
-            let Some(g) = g else { continue };
-            let k = t.y as usize * w as usize + t.x as usize;
-            lm.irradiance[k] = g.e;
-            lm.std_error[k] = g.se;
-            lm.covered[k] = !g.hidden;
-            hidden += g.hidden as u64;
-            rays += g.rays;
-        }
-        progress(base + slice.len() as u64, total);
-    }
+    let (rays, hidden) = put_gathered(&mut lm, texels, &all[..got.len()], &got);
     (lm, rays, hidden)
 }
 

@@ -122,5 +122,83 @@ pub struct Lightmap {
     pub covered: Vec<bool>,
 }
 pub mod bake;
+pub mod dataflow;
 pub mod estimate;
 pub mod gather;
+pub mod index;
+
+impl Lightmap {
+    /// An atlas of `width` × `height` texels, all 0 and uncovered.
+    pub fn empty(width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize;
+        Lightmap {
+            width,
+            height,
+            irradiance: vec![Rgb::ZERO; n],
+            std_error: vec![Rgb::ZERO; n],
+            covered: vec![false; n],
+        }
+    }
+
+    /// Sets texel `t` to estimate `e`. A hidden texel is no part of the
+    /// visible surface, but the bilinear filter of a viewer reads it for
+    /// the visible points within a texel of it (a floor texel under a
+    /// box's foot, next to the lit floor): left covered at 0, it drew a
+    /// dark line along every such edge. Uncovered, the padding fills it
+    /// from its visible neighbours, as it fills a chart's gutter.
+    pub fn set(&mut self, t: &Texel, e: &estimate::TexelEstimate) {
+        if t.x >= self.width || t.y >= self.height {
+            return;
+        }
+        let k = t.y as usize * self.width as usize + t.x as usize;
+        self.irradiance[k] = e.e;
+        self.std_error[k] = e.se;
+        self.covered[k] = !e.hidden;
+    }
+}
+
+/// The density estimate's atlases: the side of each surface its texels
+/// hold (the side with more hits), and, for surfaces lit on both sides,
+/// the other side, which a final gather's ray may meet
+/// ([`gather::Atlas`]).
+#[derive(Clone, Debug, Default)]
+pub struct DensityAtlas {
+    /// The held sides: the paper's lightmap.
+    pub held: Lightmap,
+    /// The other sides, where lit (None: no surface is lit on both sides).
+    pub other: Option<Lightmap>,
+}
+
+impl DensityAtlas {
+    /// Empty atlases of `width` × `height` texels.
+    pub fn empty(width: u32, height: u32) -> Self {
+        DensityAtlas {
+            held: Lightmap::empty(width, height),
+            other: None,
+        }
+    }
+
+    /// Sets texel `t` to its estimates on both sides.
+    pub fn set(
+        &mut self,
+        t: &Texel,
+        held: &estimate::TexelEstimate,
+        other: Option<&estimate::TexelEstimate>,
+    ) {
+        self.held.set(t, held);
+        if let Some(o) = other {
+            let (w, h) = (self.held.width, self.held.height);
+            self.other
+                .get_or_insert_with(|| Lightmap::empty(w, h))
+                .set(t, o);
+        }
+    }
+
+    /// Pads the charts of both atlases ([`bake::dilate`]).
+    pub fn dilate(&mut self, passes: u32) {
+        bake::dilate(&mut self.held, passes);
+        if let Some(o) = &mut self.other {
+            bake::dilate(o, passes);
+        }
+    }
+}

@@ -193,8 +193,11 @@ fn peak_memory() -> Option<u64> {
 pub fn run(a: BakeArgs) -> Result<()> {
     let checked = job(&a)?.check()?;
     let layout = a.dataflow.layout()?;
-    if layout.is_some() && a.lightmap.lightmap {
-        bail!("--lightmap bakes in one process: drop --workers, --process and --processes");
+    if layout.is_some() && (a.time.is_some() || a.rays.is_some()) {
+        bail!("--time and --rays stop a bake in one process; a bake across workers traces every particle: give --particles instead");
+    }
+    if layout.is_some() && a.lightmap.view {
+        bail!("a lightmap bake across workers is not shown live: drop --view, or --workers, --process and --processes");
     }
     // The viewer's port is taken before the scene loads, so that a port in
     // use fails at once
@@ -354,6 +357,19 @@ fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome, live: Option
                 st.gather_rays,
                 st.gather_hidden
             );
+        }
+        if let Some(b) = st.balance() {
+            say!("balance: {b:.3} (the most loaded worker's texel estimates over the mean)");
+            for (i, w) in st.workers.iter().enumerate() {
+                say!(
+                    "  worker {i:<3} {} texels, {} estimates, {} hits (halo {} in {} rounds)",
+                    w.texels,
+                    w.estimates,
+                    w.hits,
+                    w.halo,
+                    w.rounds
+                );
+            }
         }
         if let Some((n, secs)) = live.map(|l| l.previews()) {
             say!("live previews    {n}, {secs:.2} s (within trace)");

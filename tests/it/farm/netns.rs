@@ -18,6 +18,14 @@ fn kalos_bin() -> &'static str {
     env!("CARGO_BIN_EXE_kalos")
 }
 
+/// One namespaced test at a time: they share the addresses, the port and
+/// the veth names (each in its own namespaces, but one host's bakes at a
+/// time keep the timeouts honest on a 2-core machine).
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// Why the test cannot run here, if it cannot.
 fn unavailable() -> Option<String> {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
@@ -41,7 +49,9 @@ fn unavailable() -> Option<String> {
     }
     // Root in a container may still lack the right to make namespaces
     // (CAP_SYS_ADMIN, CAP_NET_ADMIN): try one
-    let probe = format!("kalos-probe-{}", std::process::id());
+    static PROBES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = PROBES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let probe = format!("kalos-probe-{}-{n}", std::process::id());
     match Command::new("ip").args(["netns", "add", &probe]).output() {
         Ok(o) if o.status.success() => {
             let _ = Command::new("ip").args(["netns", "del", &probe]).output();
@@ -228,6 +238,7 @@ fn single(args: &[&str], out: &Path) -> Output {
 #[test]
 #[ignore = "needs root and iproute2: cargo test --release --test it -- --ignored netns"]
 fn three_namespaced_hosts_give_the_single_process_bytes() {
+    let _one_at_a_time = serial();
     if let Some(why) = unavailable() {
         eprintln!("skipped: {why}");
         return;
@@ -253,12 +264,61 @@ fn three_namespaced_hosts_give_the_single_process_bytes() {
     }
 }
 
+/// Three processes in three namespaces bake a lightmap of the Cornell box
+/// (its walls tiled, the texels dealt with the tiles, each host's halo
+/// grown over the network): process 0 writes the .glb and atlas of the
+/// single-process bake, the others nothing.
+#[test]
+#[ignore = "needs root and iproute2: cargo test --release --test it -- --ignored netns"]
+fn three_namespaced_hosts_bake_the_single_process_lightmap() {
+    let _one_at_a_time = serial();
+    if let Some(why) = unavailable() {
+        eprintln!("skipped: {why}");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("temp dir");
+    let args = [
+        "--lightmap",
+        "--particles",
+        "300k",
+        "--lightmap-size",
+        "128",
+        "--gather",
+        "16",
+    ];
+    let one = dir.path().join("one.glb");
+    let o = single(&args, &one);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let hosts = Hosts::new("lmap");
+    let (outs, mut kids) = hosts.bake_all(&args, dir.path());
+    let deadline = Instant::now() + Duration::from_secs(180);
+    for (i, c) in kids.0.iter_mut().enumerate() {
+        let s = wait_until(c, deadline);
+        let err = stderr_of(c);
+        assert!(s.is_some_and(|s| s.success()), "process {i}: {s:?}: {err}");
+    }
+    let atlas = |p: &Path| p.with_extension("lightmap.exr");
+    for (what, a, b) in [
+        (".glb", one.clone(), outs[0].clone()),
+        ("atlas", atlas(&one), atlas(&outs[0])),
+    ] {
+        let want = std::fs::read(&a).expect("single-process bake");
+        let got = std::fs::read(&b).expect("process 0 wrote the bake");
+        assert!(got == want, "three namespaced hosts changed the {what}");
+    }
+    for o in &outs[1..] {
+        assert!(!o.exists(), "{} was written", o.display());
+        assert!(!atlas(o).exists(), "{} was written", atlas(o).display());
+    }
+}
+
 /// A host killed mid-bake: the other two stop within a bounded time with
 /// an error naming it (its process index and address), and process 0
 /// writes nothing.
 #[test]
 #[ignore = "needs root and iproute2: cargo test --release --test it -- --ignored netns"]
 fn a_host_killed_mid_bake_stops_the_others_naming_it() {
+    let _one_at_a_time = serial();
     if let Some(why) = unavailable() {
         eprintln!("skipped: {why}");
         return;

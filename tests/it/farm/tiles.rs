@@ -1,7 +1,7 @@
 //! The dataflow bake with work split below the surface: a scene whose
 //! floor receives nearly every hit is cut into tiles, and 4 workers share
 //! the estimate evenly (`balance` of `--stats`), with the bytes of one
-//! process for 1 to 4 workers.
+//! process for 1 to 4 workers, for the display mesh and for lightmaps.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -145,4 +145,57 @@ fn chunked_estimates_keep_the_single_process_bytes() {
         std::fs::read(&out).expect("dataflow bake") == want,
         "3 workers with small chunks changed the .glb"
     );
+}
+
+/// The halo hits of `--stats`'s worker lines, summed.
+fn halo_hits(stats: &str) -> u64 {
+    stats
+        .lines()
+        .filter_map(|l| l.split_once("(halo ")?.1.split_whitespace().next())
+        .map(|x| x.parse::<u64>().unwrap_or_else(|_| panic!("bad halo: {x}")))
+        .sum()
+}
+
+/// A lightmap bake across 1 to 4 workers gives the single-process atlas
+/// and .glb, byte for byte, with and without the final gather: the floor's
+/// texels are dealt with its tiles, and each worker's halo grows until it
+/// holds every hit within its texels' reach (which the bytes would betray
+/// otherwise: with the halo test dropped, 4 workers gave another atlas).
+#[test]
+fn lightmaps_keep_the_single_process_bytes() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("floor.xml");
+    std::fs::write(&scene, SCENE).expect("scene");
+    let small = ["--lightmap", "--lightmap-size", "96"];
+    for gather in [["--gather", "16"], ["--gather", "0"]] {
+        let args = |w: &[&'static str]| {
+            let mut a = small.to_vec();
+            a.extend(gather);
+            if gather[1] == "0" {
+                a.extend(["--gather-lights", "0"]);
+            }
+            a.extend(w);
+            a
+        };
+        let one = dir.path().join("one.glb");
+        ok(&bake(&scene, &one, &args(&[])));
+        let want = std::fs::read(&one).expect("single-process bake");
+        let atlas = std::fs::read(dir.path().join("one.lightmap.exr")).expect("atlas");
+        for workers in ["1", "2", "3", "4"] {
+            let out = dir.path().join(format!("w{workers}.glb"));
+            let stats = ok(&bake(&scene, &out, &args(&["--workers", workers])));
+            let got = std::fs::read(&out).expect("dataflow bake");
+            let got_atlas = dir.path().join(format!("w{workers}.lightmap.exr"));
+            let what = format!("--workers {workers} {}", gather.join(" "));
+            assert!(got == want, "{what} changed the .glb");
+            assert!(
+                std::fs::read(got_atlas).expect("atlas") == atlas,
+                "{what} changed the atlas"
+            );
+            if workers != "1" {
+                assert!(halo_hits(&stats) > 0, "{what}: no halo: {stats}");
+                eprintln!("{what}: balance {}", balance(&stats));
+            }
+        }
+    }
 }
