@@ -8,7 +8,9 @@
 //! 1. the particles are traced and their hits exchanged as for the display
 //!    mesh ([`dataflow::trace_and_group`]): a large planar surface is cut
 //!    into tiles, each owned by a worker, and each hit goes to the owner
-//!    of its tile, or of its whole surface;
+//!    of its tile, or of its whole surface. The tiles are dealt by the
+//!    texels they hold (the display mesh deals them by a pilot's hits):
+//!    a texel's estimate and gather are the work;
 //! 2. every worker tells every other its hit count of each surface side
 //!    (a texel's side is the side with more hits, over the whole bake);
 //! 3. a texel belongs to the owner of the tile its point lies in, or of
@@ -44,6 +46,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
+use glam::Vec2;
 use timely::worker::Worker;
 
 use super::bake::{
@@ -76,6 +79,8 @@ struct Shared {
     uv: LightmapUv,
     texels: Vec<Texel>,
     lm: LightmapSettings,
+    /// Each texel's surface and chart position, which deal the tiles.
+    deal: Vec<(SurfaceId, Vec2)>,
 }
 
 /// Bakes a lightmap on the dataflow laid out by `workers`; returns the
@@ -92,7 +97,21 @@ pub fn bake_lightmap_dataflow(
     lm.check()?;
     s.check().map_err(DensityError::from)?;
     let (uv, texels, lm) = lm_bake::prepare(&world.scene, lm)?;
-    let shared = Arc::new(Shared { uv, texels, lm });
+    let surfaces = crate::methods::density::surfaces::build(&world.scene);
+    let deal = texels
+        .iter()
+        .filter_map(|t| {
+            let &sid = surfaces.tri_surface.get(t.tri as usize)?;
+            let surf = surfaces.list.get(sid as usize)?;
+            Some((SurfaceId::front(sid), surf.to_chart(t.p)))
+        })
+        .collect();
+    let shared = Arc::new(Shared {
+        uv,
+        texels,
+        lm,
+        deal,
+    });
     let job =
         move |w: &mut Worker,
               world: &World,
@@ -148,7 +167,7 @@ fn run_worker(
         tiling,
         scratch,
         grouped,
-    } = dataflow::trace_and_group(worker, world, surfaces, s, ctl);
+    } = dataflow::trace_and_group(worker, world, surfaces, s, Some(&sh.deal), ctl);
     let t_trace = t.elapsed().as_secs_f64();
     let t = Instant::now();
 

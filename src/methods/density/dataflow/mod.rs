@@ -431,7 +431,7 @@ fn run_worker(
         tiling,
         scratch,
         grouped,
-    } = trace_and_group(worker, world, surfaces, s, ctl);
+    } = trace_and_group(worker, world, surfaces, s, None, ctl);
     let t_trace = t.elapsed().as_secs_f64();
     let t = Instant::now();
 
@@ -547,7 +547,8 @@ pub struct Phase1 {
     pub grouped: Result<(Traced, Grouped), DataflowError>,
 }
 
-/// Phase 1 at one worker: the pilot deals the tiles ([`Tiling`]); the
+/// Phase 1 at one worker: the pilot (or `deal`'s points, see
+/// [`Tiling::by_points`]) deals the tiles ([`Tiling`]); the
 /// worker traces its share of the particles and exchanges them, each hit
 /// to the owner of its tile or surface, into its own hit file; then
 /// groups them. The exchange runs even when the scratch directory
@@ -557,13 +558,17 @@ pub fn trace_and_group(
     world: &World,
     surfaces: &Surfaces,
     s: &Settings,
+    deal: Option<&[(SurfaceId, glam::Vec2)]>,
     ctl: &mut Control,
 ) -> Phase1 {
-    let tiling = Tiling::new(
-        surfaces,
-        worker.peers(),
-        &tiles::pilot_hits(world, surfaces, s),
-    );
+    let tiling = match deal {
+        Some(points) => Tiling::by_points(surfaces, worker.peers(), points),
+        None => Tiling::new(
+            surfaces,
+            worker.peers(),
+            &tiles::pilot_hits(world, surfaces, s),
+        ),
+    };
     let made = ScratchDir::new(s).and_then(|dir| {
         let sink = pipeline::file_sink(surfaces, s, &dir)?;
         Ok((dir, sink))

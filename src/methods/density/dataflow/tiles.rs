@@ -173,6 +173,24 @@ impl Tiling {
     /// [`super::owner`], and count in its load), so that a bright spot's
     /// tiles land on different workers.
     pub fn new(surfaces: &Surfaces, peers: usize, pilot: &[Hit]) -> Self {
+        let points: Vec<(SurfaceId, Vec2)> = pilot
+            .iter()
+            .map(|h| match surfaces.get(h.surface) {
+                Some(s) => (
+                    h.surface,
+                    Vec2::new(from_fixed(h.u), from_fixed(h.v)) * s.size,
+                ),
+                None => (h.surface, Vec2::ZERO),
+            })
+            .collect();
+        Self::by_points(surfaces, peers, &points)
+    }
+
+    /// [`Tiling::new`] with the loads predicted by `points` (surface side,
+    /// chart position) instead of a pilot's hits: a lightmap bake deals
+    /// the tiles by its texels, whose estimates and gathers are its work
+    /// ([`crate::bake::lightmap::dataflow`]).
+    pub fn by_points(surfaces: &Surfaces, peers: usize, pilot: &[(SurfaceId, Vec2)]) -> Self {
         let mut t = Tiling {
             peers: peers.max(1),
             split: HashMap::new(),
@@ -193,10 +211,10 @@ impl Tiling {
             at.insert(*i, (tiles.len(), sp));
             tiles.extend((0..sp.tx * sp.ty).map(|k| (0.0, *i, k)));
         }
-        for h in pilot {
-            match at.get(&h.surface.index) {
-                Some((first, sp)) => tiles[first + sp.tile_of(sp.chart(h)) as usize].0 += 1.0,
-                None => load[super::owner(surfaces, h.surface, peers)] += 1.0,
+        for (id, c) in pilot {
+            match at.get(&id.index) {
+                Some((first, sp)) => tiles[first + sp.tile_of(*c) as usize].0 += 1.0,
+                None => load[super::owner(surfaces, *id, peers)] += 1.0,
             }
         }
         drop(at);
