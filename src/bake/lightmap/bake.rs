@@ -169,6 +169,9 @@ pub struct LightmapStats {
     pub rays: u64,
     /// Texels estimated.
     pub texels: u64,
+    /// Seconds making the uv set (unwrapping, unless the asset has one)
+    /// and the texels.
+    pub t_uv: f64,
     /// Seconds tracing the particles.
     pub t_trace: f64,
     /// Seconds grouping the hits and building their index.
@@ -362,8 +365,10 @@ pub fn bake_lightmap_watched(
     lm.check()?;
     s.check().map_err(DensityError::from)?;
     let scene = &world.scene;
+    let t = Instant::now();
     let (uv, texels, lm) = prepare(scene, lm)?;
     let (lm, opts) = (&lm, lm.estimator);
+    let t_uv = t.elapsed().as_secs_f64();
 
     let sectors = lm.estimator.sectors.min(estimate::MAX_SECTORS) as u64;
     let limits = Limits {
@@ -387,6 +392,7 @@ pub fn bake_lightmap_watched(
     let mut ctl = Control::new(steer.start, limits, steer.cancel).on_tick(&mut on_tick);
     let mut stats = LightmapStats {
         texels: texels.len() as u64,
+        t_uv,
         ..Default::default()
     };
 

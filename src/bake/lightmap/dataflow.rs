@@ -81,6 +81,8 @@ struct Shared {
     lm: LightmapSettings,
     /// Each texel's surface and chart position, which deal the tiles.
     deal: Vec<(SurfaceId, Vec2)>,
+    /// Seconds making the uv set and the texels.
+    t_uv: f64,
 }
 
 /// Bakes a lightmap on the dataflow laid out by `workers`; returns the
@@ -96,7 +98,9 @@ pub fn bake_lightmap_dataflow(
 ) -> Result<Part<LightmapBake>, LightmapError> {
     lm.check()?;
     s.check().map_err(DensityError::from)?;
+    let t = Instant::now();
     let (uv, texels, lm) = lm_bake::prepare(&world.scene, lm)?;
+    let t_uv = t.elapsed().as_secs_f64();
     let surfaces = crate::methods::density::surfaces::build(&world.scene);
     let deal = texels
         .iter()
@@ -111,6 +115,7 @@ pub fn bake_lightmap_dataflow(
         texels,
         lm,
         deal,
+        t_uv,
     });
     let job =
         move |w: &mut Worker,
@@ -272,6 +277,7 @@ fn run_worker(
     let mut stats = LightmapStats {
         particles: traced.particles,
         texels: sh.texels.len() as u64,
+        t_uv: sh.t_uv,
         t_trace,
         ..Default::default()
     };

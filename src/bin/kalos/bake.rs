@@ -348,6 +348,7 @@ fn print_lightmap(a: &BakeArgs, lm: &LightmapBake, o: &BakeOutcome, live: Option
     );
     if a.stats {
         say!("rays             {}", st.rays);
+        say!("uv + texels      {:.2} s", st.t_uv);
         say!("trace            {:.2} s", st.t_trace);
         say!("group + index    {:.2} s", st.t_index);
         say!("estimate texels  {:.2} s", st.t_estimate);
