@@ -378,6 +378,7 @@ pub fn bake(
         job.lightmap = Some(LightmapSettings {
             texel_density,
             size: lightmap_size,
+            fast_packing: false,
             atlas: output,
             error: None,
             estimator: Options {

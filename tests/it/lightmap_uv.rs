@@ -114,6 +114,30 @@ fn generated_uv_is_in_range_and_charts_keep_their_padding() {
     }
 }
 
+/// The rows packing (`--fast-packing`) keeps the same guarantees: every
+/// triangle on the atlas, no two charts within twice the padding.
+#[test]
+fn fast_packing_keeps_the_charts_apart() {
+    for p in ["scenes/cbox/cbox.xml", "scenes/teapot-room/scene.xml"] {
+        let s = load(p);
+        let opts = UvOptions {
+            fast_packing: true,
+            ..size(512)
+        };
+        let uv = lightmap_uv(&s, None, &opts).unwrap();
+        assert_eq!((uv.width, uv.height), (512, 512));
+        assert!(uv.charts > 0);
+        check_structure(&s, &uv);
+        let (clashes, border) = padding_violations(&s, &uv, 2);
+        assert_eq!(clashes, 0, "{p}: texels claimed by two charts");
+        assert_eq!(
+            border, 0,
+            "{p}: charts closer than the padding to the border"
+        );
+        assert!(padding_violations(&s, &uv, 6).0 > 0, "{p}");
+    }
+}
+
 #[test]
 fn generation_is_deterministic() {
     let s = load("scenes/teapot-room/scene.xml");

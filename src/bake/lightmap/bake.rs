@@ -51,6 +51,9 @@ pub struct LightmapSettings {
     /// The atlas's side in texels; None with no density either:
     /// [`DEFAULT_SIZE`].
     pub size: Option<u32>,
+    /// Pack a generated uv set's charts by rows, not by their shapes
+    /// ([`UvOptions::fast_packing`]).
+    pub fast_packing: bool,
     /// Write the atlas (irradiance, linear RGB) as an EXR here.
     pub atlas: Option<PathBuf>,
     /// Write each texel's standard error as an EXR here.
@@ -325,6 +328,7 @@ pub fn prepare(
             .texel_density
             .is_none()
             .then(|| lm.size.unwrap_or(DEFAULT_SIZE)),
+        fast_packing: lm.fast_packing,
         ..Default::default()
     };
     let uv = uv::lightmap_uv(scene, asset_uv1, &opts)?;
