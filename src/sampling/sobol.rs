@@ -153,11 +153,13 @@ const JOE_KUO: [(u32, u32, &[u32]); SOBOL_DIMENSIONS - 1] = [
 /// Fox (ACM TOMS 14, 1988) in the form Joe and Kuo state it.
 const DIRECTIONS: [[u32; 32]; SOBOL_DIMENSIONS] = directions();
 
-/// The same matrices four index bits at a time, bit-reversed: `NIBBLES[d][k][n]`
-/// is the XOR of the columns 4k..4k+4 that the bits of n select, its bits
-/// reversed, so that a coordinate is one lookup per nibble of the index
-/// (32 KB in all) instead of a loop over the index's bits, and comes
-/// already in the order the Owen scramble works in ([`owen_scramble`]).
+/// The same matrices four index bits at a time, all bit-reversed:
+/// `NIBBLES[d][k][n]` is the XOR of the columns 4k..4k+4 that the bits of
+/// n, read from bit 3 down (n is a nibble of the bit-reversed index), select,
+/// its bits reversed. So a coordinate is one lookup per nibble of the index
+/// (32 KB in all) instead of a loop over the index's bits, its index and
+/// its value both in the order the Owen scramble works in
+/// ([`owen_scramble`], [`sobol_reversed`]).
 static NIBBLES: [[[u32; 16]; 8]; SOBOL_DIMENSIONS] = nibbles();
 
 const fn nibbles() -> [[[u32; 16]; 8]; SOBOL_DIMENSIONS] {
@@ -171,7 +173,7 @@ const fn nibbles() -> [[[u32; 16]; 8]; SOBOL_DIMENSIONS] {
                 let mut x = 0u32;
                 let mut b = 0;
                 while b < 4 {
-                    if (n >> b) & 1 == 1 {
+                    if (n >> (3 - b)) & 1 == 1 {
                         x ^= DIRECTIONS[d][4 * k + b];
                     }
                     b += 1;
@@ -224,20 +226,22 @@ const fn directions() -> [[u32; 32]; SOBOL_DIMENSIONS] {
 /// indices are the same set as in Gray-code order).
 #[inline]
 pub fn sobol(index: u32, dim: usize) -> u32 {
-    sobol_reversed(index, dim).reverse_bits()
+    sobol_reversed(index.reverse_bits(), dim).reverse_bits()
 }
 
-/// [`sobol`] with its bits reversed: one lookup per nibble of the index up
-/// to its highest set bit. A pixel's shuffled indices stay below a power
-/// of two above its sample count ([`SobolSampler`]), so a render of up to
-/// 256 samples per pixel takes two.
+/// [`sobol`] in bit-reversed form: the coordinate's bits reversed, of the
+/// point whose index has its bits reversed in `rindex`. One lookup per
+/// nibble of the index up to its highest set bit: a pixel's shuffled
+/// indices stay below a power of two above its sample count
+/// ([`SobolSampler`]), so a render of up to 256 samples per pixel takes
+/// two.
 #[inline]
-pub fn sobol_reversed(index: u32, dim: usize) -> u32 {
+pub fn sobol_reversed(rindex: u32, dim: usize) -> u32 {
     let t = &NIBBLES[dim];
-    let (mut x, mut v, mut k) = (0, index, 0);
+    let (mut x, mut v, mut k) = (0, rindex, 0);
     while v != 0 {
-        x ^= t[k][v as usize & 15];
-        v >>= 4;
+        x ^= t[k][(v >> 28) as usize];
+        v <<= 4;
         k += 1;
     }
     x
@@ -336,8 +340,8 @@ pub struct SobolSampler {
     key32: u32,
     /// The sample index within its block of 2^32 (the pass).
     index: u32,
-    /// `index` after the pixel's shuffle: the Sobol point this sample is,
-    /// below the power of two above `index`.
+    /// `index` after the pixel's shuffle, bit-reversed: the Sobol point
+    /// this sample is, whose index is below the power of two above `index`.
     shuffled: u32,
     /// The next dimension to draw.
     dim: u32,
@@ -356,9 +360,8 @@ impl SobolSampler {
             key: h,
             key32: (h >> 32) as u32,
             index,
-            // owen_scramble(index) ^ owen_scramble(0): one reversal each way
-            shuffled: (laine_karras(index.reverse_bits(), shuffle) ^ laine_karras(0, shuffle))
-                .reverse_bits(),
+            // owen_scramble(index) ^ owen_scramble(0), bit-reversed
+            shuffled: laine_karras(index.reverse_bits(), shuffle) ^ laine_karras(0, shuffle),
             dim: 0,
         }
     }

@@ -170,7 +170,7 @@ impl SobolLanes {
     /// The next `N` draws of each lane of `mask`, all eight lanes at once:
     /// the scramble seeds hashed ([`owen_seed8`]), the Sobol coordinates
     /// gathered from the bit-reversed nibble tables (as many nibbles as the highest
-    /// shuffled index of the lanes has), the Owen scramble
+    /// shuffled index of the lanes has; the indices come bit-reversed), the Owen scramble
     /// ([`crate::sampling::sobol::owen_scramble`]); the rare draws past the
     /// table are padded lane by lane.
     #[inline(always)]
@@ -201,15 +201,16 @@ impl SobolLanes {
                 let mut row = _mm256_slli_epi32::<7>(inside);
                 let (mut x, mut v, mut t) = (_mm256_setzero_si256(), shuffled, top);
                 while t != 0 {
-                    let n = _mm256_and_si256(v, _mm256_set1_epi32(15));
+                    // the next nibble of the bit-reversed index, from the top
+                    let n = _mm256_srli_epi32::<28>(v);
                     let g = _mm256_i32gather_epi32::<4>(
                         table.as_ptr().cast(),
                         _mm256_add_epi32(row, n),
                     );
                     x = _mm256_xor_si256(x, g);
-                    v = _mm256_srli_epi32::<4>(v);
+                    v = _mm256_slli_epi32::<4>(v);
                     row = _mm256_add_epi32(row, _mm256_set1_epi32(16));
-                    t >>= 4;
+                    t <<= 4;
                 }
                 let mut y = owen_scramble8(x, owen_seed8(key, d));
                 // unsigned d > last: d is not its own minimum with last
