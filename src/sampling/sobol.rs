@@ -153,10 +153,13 @@ const JOE_KUO: [(u32, u32, &[u32]); SOBOL_DIMENSIONS - 1] = [
 /// Fox (ACM TOMS 14, 1988) in the form Joe and Kuo state it.
 const DIRECTIONS: [[u32; 32]; SOBOL_DIMENSIONS] = directions();
 
-/// The same matrices four index bits at a time: `NIBBLES[d][k][n]` is the
-/// XOR of the columns 4k..4k+4 that the bits of n select, so that a
-/// coordinate is eight independent lookups (32 KB in all) instead of a
-/// loop over the index's bits.
+/// The same matrices four index bits at a time, all bit-reversed:
+/// `NIBBLES[d][k][n]` is the XOR of the columns 4k..4k+4 that the bits of
+/// n, read from bit 3 down (n is a nibble of the bit-reversed index), select,
+/// its bits reversed. So a coordinate is one lookup per nibble of the index
+/// (32 KB in all) instead of a loop over the index's bits, its index and
+/// its value both in the order the Owen scramble works in
+/// ([`owen_scramble`], [`sobol_reversed`]).
 static NIBBLES: [[[u32; 16]; 8]; SOBOL_DIMENSIONS] = nibbles();
 
 const fn nibbles() -> [[[u32; 16]; 8]; SOBOL_DIMENSIONS] {
@@ -167,15 +170,15 @@ const fn nibbles() -> [[[u32; 16]; 8]; SOBOL_DIMENSIONS] {
         while k < 8 {
             let mut n = 0;
             while n < 16 {
-                let mut x = 0;
+                let mut x = 0u32;
                 let mut b = 0;
                 while b < 4 {
-                    if (n >> b) & 1 == 1 {
+                    if (n >> (3 - b)) & 1 == 1 {
                         x ^= DIRECTIONS[d][4 * k + b];
                     }
                     b += 1;
                 }
-                t[d][k][n] = x;
+                t[d][k][n] = x.reverse_bits();
                 n += 1;
             }
             k += 1;
@@ -223,12 +226,34 @@ const fn directions() -> [[u32; 32]; SOBOL_DIMENSIONS] {
 /// indices are the same set as in Gray-code order).
 #[inline]
 pub fn sobol(index: u32, dim: usize) -> u32 {
+    sobol_reversed(index.reverse_bits(), dim).reverse_bits()
+}
+
+/// [`sobol`] in bit-reversed form: the coordinate's bits reversed, of the
+/// point whose index has its bits reversed in `rindex`. One lookup per
+/// nibble of the index up to its highest set bit: a pixel's shuffled
+/// indices stay below a power of two above its sample count
+/// ([`SobolSampler`]), so a render of up to 256 samples per pixel takes
+/// two.
+#[inline]
+pub fn sobol_reversed(rindex: u32, dim: usize) -> u32 {
     let t = &NIBBLES[dim];
-    let mut x = 0;
-    for (k, column) in t.iter().enumerate() {
-        x ^= column[(index >> (4 * k)) as usize & 15];
+    let (mut x, mut v, mut k) = (0, rindex, 0);
+    while v != 0 {
+        x ^= t[k][(v >> 28) as usize];
+        v <<= 4;
+        k += 1;
     }
     x
+}
+
+/// The bit-reversed nibble tables as one flat array of u32 (`NIBBLES[d][k][n]` at
+/// `(d · 8 + k) · 16 + n`), for the lanes' gathers.
+#[inline(always)]
+pub(crate) fn nibble_table() -> &'static [u32; SOBOL_DIMENSIONS * 8 * 16] {
+    // SAFETY: an array of arrays of u32 has the layout of the flat array
+    // of as many u32
+    unsafe { &*(&NIBBLES as *const [[[u32; 16]; 8]; SOBOL_DIMENSIONS]).cast() }
 }
 
 /// A nested uniform (Owen) scramble of the 32-bit binary fraction `x`,
@@ -242,13 +267,18 @@ pub fn sobol(index: u32, dim: usize) -> u32 {
 /// for how evenly the flips come out.
 #[inline]
 pub fn owen_scramble(x: u32, seed: u32) -> u32 {
-    let mut x = x.reverse_bits();
+    laine_karras(x.reverse_bits(), seed).reverse_bits()
+}
+
+/// The permutation of [`owen_scramble`] between its two bit reversals:
+/// bit k of the result depends only on bits 0..=k of `x`.
+#[inline(always)]
+pub fn laine_karras(mut x: u32, seed: u32) -> u32 {
     x ^= x.wrapping_mul(0x3d20_adea);
     x = x.wrapping_add(seed);
     x = x.wrapping_mul((seed >> 16) | 1);
     x ^= x.wrapping_mul(0x0552_6c56);
-    x ^= x.wrapping_mul(0x53a2_2864);
-    x.reverse_bits()
+    x ^ x.wrapping_mul(0x53a2_2864)
 }
 
 /// The first dimension of a camera path's vertex at `depth`: 0 and 1 are
@@ -264,22 +294,54 @@ fn to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / 16_777_216.0)
 }
 
-/// A 32-bit seed from a key and a word (the dimension).
+/// A 32-bit seed from a key and a word (the shuffle's seed).
 #[inline]
 fn seed32(key: u64, word: u32) -> u32 {
     (mix64(key ^ (word as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15)) >> 32) as u32
 }
 
+/// The seed of dimension `d`'s scramble from a pixel's 32-bit key: a
+/// 32-bit hash (Wellons' `lowbias32`, 2018) of the key and the dimension,
+/// cheap enough for every draw and computed eight lanes at a time in
+/// `path`'s lanes (`owen_seed8` there, the same operations).
+#[inline(always)]
+pub fn dimension_seed(key: u32, d: u32) -> u32 {
+    let mut x = key ^ d.wrapping_mul(0x9E37_79B9);
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^ (x >> 16)
+}
+
+/// The padding past the table: an independent 32-bit number from the
+/// sample's key, its index and the dimension.
+#[inline]
+pub(crate) fn padding(key: u64, index: u32, d: u32) -> u32 {
+    (mix64(key ^ mix64((index as u64) << 32 | d as u64)) >> 32) as u32
+}
+
 /// The Owen-scrambled Sobol numbers of one pixel's sample: a [`Sampler`]
 /// keyed by (seed, pixel, sample index), whose draws take the dimensions
 /// of the module's layout one after the other.
+///
+/// The index shuffle is a nested scramble whose flips of bit j depend on
+/// the bits above j only; XORed with the shuffle of index 0, it maps every
+/// block [0, 2^m) onto itself. So the sample takes the Sobol point whose
+/// index is below 2^m, a few table lookups (see [`sobol`]), instead of one
+/// at a full 32-bit index: that differs by a fixed point XORed into every
+/// coordinate of the pixel (a digital shift), which the Owen scramble that
+/// follows absorbs.
 #[derive(Clone, Debug)]
 pub struct SobolSampler {
     /// Hash of the seed, the pixel and the index's high word.
     key: u64,
+    /// Its high 32 bits, the key of the dimensions' scramble seeds.
+    key32: u32,
     /// The sample index within its block of 2^32 (the pass).
     index: u32,
-    /// `index` after the pixel's shuffle: the Sobol point this sample is.
+    /// `index` after the pixel's shuffle, bit-reversed: the Sobol point
+    /// this sample is, whose index is below the power of two above `index`.
     shuffled: u32,
     /// The next dimension to draw.
     dim: u32,
@@ -293,10 +355,13 @@ impl SobolSampler {
             h = mix64(h ^ mix64(k.wrapping_add(0x632B_E59B_D9B4_E019)));
         }
         let index = index as u32;
+        let shuffle = seed32(h, u32::MAX);
         SobolSampler {
             key: h,
+            key32: (h >> 32) as u32,
             index,
-            shuffled: owen_scramble(index, seed32(h, u32::MAX)),
+            // owen_scramble(index) ^ owen_scramble(0), bit-reversed
+            shuffled: laine_karras(index.reverse_bits(), shuffle) ^ laine_karras(0, shuffle),
             dim: 0,
         }
     }
@@ -311,34 +376,32 @@ impl SobolSampler {
     /// and `d` (independent numbers).
     #[inline]
     fn sample(&self, d: u32) -> u32 {
-        match self.unscrambled(d) {
-            (x, Some(seed)) => owen_scramble(x, seed),
-            (x, None) => x,
-        }
-    }
-
-    /// Dimension `d` before the scramble: inside the table, the Sobol
-    /// point's coordinate and the seed of its scramble; past it, the
-    /// hashed number itself and None.
-    #[inline(always)]
-    fn unscrambled(&self, d: u32) -> (u32, Option<u32>) {
         if (d as usize) < SOBOL_DIMENSIONS {
-            (sobol(self.shuffled, d as usize), Some(seed32(self.key, d)))
+            // owen_scramble(sobol(..)), the table already reversed
+            let x = sobol_reversed(self.shuffled, d as usize);
+            laine_karras(x, dimension_seed(self.key32, d)).reverse_bits()
         } else {
-            let x = mix64(self.key ^ mix64((self.index as u64) << 32 | d as u64));
-            ((x >> 32) as u32, None)
+            padding(self.key, self.index, d)
         }
     }
 
-    /// The next draw before its scramble ([`SobolSampler::unscrambled`]),
-    /// for `path`'s lanes, which scramble eight lanes' draws at a time:
-    /// [`Sampler::next_f32`] is the same draw scrambled by
-    /// [`owen_scramble`] and made a float.
+    /// The sampler's fields, for `path`'s lanes, which hold them by field:
+    /// (key, key32, index, shuffled, dimension).
     #[inline(always)]
-    pub(crate) fn next_unscrambled(&mut self) -> (u32, Option<u32>) {
-        let x = self.unscrambled(self.dim);
-        self.dim = self.dim.wrapping_add(1);
-        x
+    pub(crate) fn parts(&self) -> (u64, u32, u32, u32, u32) {
+        (self.key, self.key32, self.index, self.shuffled, self.dim)
+    }
+
+    /// The sampler from [`SobolSampler::parts`].
+    #[inline(always)]
+    pub(crate) fn from_parts(key: u64, key32: u32, index: u32, shuffled: u32, dim: u32) -> Self {
+        SobolSampler {
+            key,
+            key32,
+            index,
+            shuffled,
+            dim,
+        }
     }
 }
 

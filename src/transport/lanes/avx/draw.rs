@@ -9,6 +9,7 @@ use std::arch::x86_64::*;
 
 use super::super::LANES;
 use super::{lanes, V};
+use crate::sampling::sobol::{nibble_table, padding, SOBOL_DIMENSIONS};
 use crate::sampling::{Pcg32, Sampler, SobolSampler, PCG_MULT};
 
 /// The samplers of eight lanes: a lane that takes the scalar step takes
@@ -83,35 +84,77 @@ impl Lanes<Pcg32> for Rngs {
     }
 }
 
-/// The [`SobolSampler`] of each lane. A lane's numbers are coordinates of
-/// its own pixel's Sobol point, at dimensions that depend on its depth.
-pub struct SobolLanes([SobolSampler; LANES]);
+/// The [`SobolSampler`] of each lane, by field. A lane's numbers are
+/// coordinates of its own pixel's Sobol point, at dimensions that depend
+/// on its depth.
+#[repr(C, align(32))]
+pub struct SobolLanes {
+    key32: [u32; LANES],
+    shuffled: [u32; LANES],
+    dim: [u32; LANES],
+    index: [u32; LANES],
+    key: [u64; LANES],
+}
 
 impl Lanes<SobolSampler> for SobolLanes {
     #[inline(always)]
     fn new() -> Self {
-        SobolLanes(std::array::from_fn(|_| Self::blank()))
+        SobolLanes {
+            key32: [0; LANES],
+            shuffled: [0; LANES],
+            dim: [0; LANES],
+            index: [0; LANES],
+            key: [0; LANES],
+        }
     }
 
     #[inline(always)]
     fn blank() -> SobolSampler {
-        SobolSampler::new(0, 0, 0)
+        SobolSampler::from_parts(0, 0, 0, 0, 0)
     }
 
     #[inline(always)]
     fn get(&self, i: usize) -> SobolSampler {
-        self.0[i].clone()
+        SobolSampler::from_parts(
+            self.key[i],
+            self.key32[i],
+            self.index[i],
+            self.shuffled[i],
+            self.dim[i],
+        )
     }
 
     #[inline(always)]
     fn set(&mut self, i: usize, s: &SobolSampler) {
-        self.0[i] = s.clone();
+        (
+            self.key[i],
+            self.key32[i],
+            self.index[i],
+            self.shuffled[i],
+            self.dim[i],
+        ) = s.parts();
     }
 
     #[inline(always)]
     fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6] {
-        for i in lanes(mask) {
-            self.0[i].start_vertex(depth[i]);
+        // SAFETY: loads and stores of eight u32 from and to arrays of
+        // eight, register operations; only inlined into `radiance_row`,
+        // which runs where the CPU has AVX2
+        unsafe {
+            // vertex_dimension: 2 + 7 (min(max(depth, 1) − 1, u32::MAX / 8))
+            let d = _mm256_loadu_si256(depth.as_ptr().cast());
+            let d = _mm256_sub_epi32(
+                _mm256_max_epu32(d, _mm256_set1_epi32(1)),
+                _mm256_set1_epi32(1),
+            );
+            let d = _mm256_min_epu32(d, _mm256_set1_epi32((u32::MAX / 8) as i32));
+            let d = _mm256_add_epi32(
+                _mm256_mullo_epi32(d, _mm256_set1_epi32(7)),
+                _mm256_set1_epi32(2),
+            );
+            let dp = self.dim.as_mut_ptr().cast::<__m256i>();
+            let old = _mm256_load_si256(dp);
+            _mm256_store_si256(dp, _mm256_blendv_epi8(old, d, mask32(mask)));
         }
         self.draw::<6>(mask)
     }
@@ -124,50 +167,104 @@ impl Lanes<SobolSampler> for SobolLanes {
 }
 
 impl SobolLanes {
-    /// The next `N` draws of each lane of `mask`: the Sobol coordinates
-    /// and their seeds lane by lane, the Owen scramble
-    /// ([`crate::sampling::sobol::owen_scramble`]) of all eight lanes at
-    /// once, then the hashed numbers of draws past the table put back.
+    /// The next `N` draws of each lane of `mask`, all eight lanes at once:
+    /// the scramble seeds hashed ([`owen_seed8`]), the Sobol coordinates
+    /// gathered from the bit-reversed nibble tables (as many nibbles as the highest
+    /// shuffled index of the lanes has; the indices come bit-reversed), the Owen scramble
+    /// ([`crate::sampling::sobol::owen_scramble`]); the rare draws past the
+    /// table are padded lane by lane.
     #[inline(always)]
     fn draw<const N: usize>(&mut self, mask: u32) -> [__m256; N] {
-        let mut x = [[0u32; LANES]; N];
-        let mut seed = [[0u32; LANES]; N];
-        let mut hashed = [0u32; N];
+        let live = mask32(mask);
+        let mut top = 0;
         for i in lanes(mask) {
-            let s = &mut self.0[i];
-            for k in 0..N {
-                match s.next_unscrambled() {
-                    (xk, Some(sk)) => (x[k][i], seed[k][i]) = (xk, sk),
-                    (xk, None) => {
-                        x[k][i] = xk;
-                        hashed[k] |= 1 << i;
-                    }
-                }
-            }
+            top |= self.shuffled[i];
         }
-        // A loop, not `array::from_fn` (see `Rngs::draw`)
-        // SAFETY: loads of eight u32 from arrays of eight, register
-        // operations; only inlined into `radiance_row`, which runs where
-        // the CPU has AVX2
+        let table = nibble_table();
+        // SAFETY: loads and stores of eight u32 from and to the struct's
+        // 32-byte aligned arrays of eight, gathers of u32 at indices below
+        // the table's length (dimension at most 63, nibble position below
+        // 8, nibble below 16), register operations; only inlined into
+        // `radiance_row`, which runs where the CPU has AVX2
         unsafe {
+            let dp = self.dim.as_mut_ptr().cast::<__m256i>();
+            let dim = _mm256_load_si256(dp);
+            let key = _mm256_load_si256(self.key32.as_ptr().cast());
+            let shuffled = _mm256_load_si256(self.shuffled.as_ptr().cast());
+            let last = _mm256_set1_epi32(SOBOL_DIMENSIONS as i32 - 1);
             let mut out = [_mm256_setzero_ps(); N];
+            // A loop, not `array::from_fn` (see `Rngs::draw`)
             for (k, o) in out.iter_mut().enumerate() {
-                let xk = _mm256_loadu_si256(x[k].as_ptr().cast());
-                let sk = _mm256_loadu_si256(seed[k].as_ptr().cast());
-                let m = V::mask(hashed[k]).0;
-                let y = _mm256_castps_si256(_mm256_blendv_ps(
-                    _mm256_castsi256_ps(owen_scramble8(xk, sk)),
-                    _mm256_castsi256_ps(xk),
-                    m,
-                ));
+                let d = _mm256_add_epi32(dim, _mm256_set1_epi32(k as i32));
+                // (d · 8 + nibble position) · 16 + nibble, d within the table
+                let inside = _mm256_min_epu32(d, last);
+                let mut row = _mm256_slli_epi32::<7>(inside);
+                let (mut x, mut v, mut t) = (_mm256_setzero_si256(), shuffled, top);
+                while t != 0 {
+                    // the next nibble of the bit-reversed index, from the top
+                    let n = _mm256_srli_epi32::<28>(v);
+                    let g = _mm256_i32gather_epi32::<4>(
+                        table.as_ptr().cast(),
+                        _mm256_add_epi32(row, n),
+                    );
+                    x = _mm256_xor_si256(x, g);
+                    v = _mm256_slli_epi32::<4>(v);
+                    row = _mm256_add_epi32(row, _mm256_set1_epi32(16));
+                    t <<= 4;
+                }
+                let mut y = owen_scramble8(x, owen_seed8(key, d));
+                // unsigned d > last: d is not its own minimum with last
+                let past = _mm256_andnot_si256(_mm256_cmpeq_epi32(inside, d), live);
+                let past = _mm256_movemask_ps(_mm256_castsi256_ps(past)) as u32;
+                if past != 0 {
+                    let mut a = [0u32; LANES];
+                    _mm256_storeu_si256(a.as_mut_ptr().cast(), y);
+                    for i in lanes(past) {
+                        a[i] = padding(self.key[i], self.index[i], self.dim[i] + k as u32);
+                    }
+                    y = _mm256_loadu_si256(a.as_ptr().cast());
+                }
                 // (x >> 8) as f32 * 2^-24, as the scalar `to_unit`
                 *o = _mm256_mul_ps(
                     _mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(y)),
                     _mm256_set1_ps(1.0 / 16_777_216.0),
                 );
             }
+            let next = _mm256_add_epi32(dim, _mm256_set1_epi32(N as i32));
+            _mm256_store_si256(dp, _mm256_blendv_epi8(dim, next, live));
             out
         }
+    }
+}
+
+/// The u32 lanes of `mask` as all-ones lanes.
+#[inline(always)]
+fn mask32(mask: u32) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let set = _mm256_set1_epi32(mask as i32);
+        _mm256_cmpeq_epi32(_mm256_and_si256(set, lane), lane)
+    }
+}
+
+/// [`crate::sampling::sobol::dimension_seed`] of eight keys and
+/// dimensions, the same operations on 32-bit lanes.
+#[inline(always)]
+fn owen_seed8(key: __m256i, d: __m256i) -> __m256i {
+    // SAFETY: register operations only; only inlined into `radiance_row`,
+    // which runs where the CPU has AVX2
+    unsafe {
+        let mut x = _mm256_xor_si256(
+            key,
+            _mm256_mullo_epi32(d, _mm256_set1_epi32(0x9E37_79B9u32 as i32)),
+        );
+        x = _mm256_xor_si256(x, _mm256_srli_epi32::<16>(x));
+        x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7feb_352d));
+        x = _mm256_xor_si256(x, _mm256_srli_epi32::<15>(x));
+        x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x846c_a68bu32 as i32));
+        _mm256_xor_si256(x, _mm256_srli_epi32::<16>(x))
     }
 }
 
@@ -208,14 +305,15 @@ fn reverse_bits8(x: __m256i) -> __m256i {
     }
 }
 
-/// [`crate::sampling::sobol::owen_scramble`] of eight u32 `x` with their
-/// seeds, the same operations on 32-bit lanes.
+/// [`crate::sampling::sobol::owen_scramble`] of eight u32 whose bits come
+/// reversed in `x` (as the tables hold them) with their seeds: the same
+/// operations on 32-bit lanes after the first reversal.
 #[inline(always)]
 fn owen_scramble8(x: __m256i, seed: __m256i) -> __m256i {
     // SAFETY: register operations only; only inlined into `radiance_row`,
     // which runs where the CPU has AVX2
     unsafe {
-        let mut x = reverse_bits8(x);
+        let mut x = x;
         x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x3d20_adea)));
         x = _mm256_add_epi32(x, seed);
         let odd = _mm256_or_si256(_mm256_srli_epi32::<16>(seed), _mm256_set1_epi32(1));
