@@ -43,7 +43,10 @@ fn rows(name: &str) -> Vec<Row> {
     match name {
         "path" => vec![
             Row {
-                config: common::path(),
+                config: MethodConfig::Path(kalos::methods::path::Settings {
+                    sampler: kalos::sampling::SamplerKind::Independent,
+                    ..Default::default()
+                }),
                 passes: 16,
                 furnace_bias: none,
                 sharp: 0.01,

@@ -63,8 +63,8 @@ fn render_args<'a>(method: &[&'a str], spp: &'a str) -> Vec<&'a str> {
 }
 
 const EXACT: [&[&str]; 4] = [
+    &["--method", "path", "--sampler", "independent"],
     &["--method", "path"],
-    &["--method", "path", "--sampler", "sobol"],
     &["--method", "light"],
     &["--method", "light", "--variant", "iteration"],
 ];
