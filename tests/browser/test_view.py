@@ -339,8 +339,11 @@ def lightmap_checks(browser, kalos, out, src):
     refs = []
     for seed in ("1", "2"):
         png = os.path.join(out, f"cube-kalos-{seed}.png")
+        # independent numbers: the per-pixel tolerance is measured against
+        # their seed-to-seed difference (Sobol's, less than half of it, is
+        # below the texture filtering's own difference from the viewer)
         run([kalos, "render", gltf, "--spp", "16", "--res", f"{size}x{size}", "--seed", seed,
-             "-q", "-o", png])
+             "--sampler", "independent", "-q", "-o", png])
         with open(png, "rb") as f:
             refs.append(png_pixels(f.read())[2])
     noise = pixel_difference(refs[0], refs[1])
