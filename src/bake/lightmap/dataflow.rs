@@ -281,34 +281,7 @@ fn run_worker(
         t_trace,
         ..Default::default()
     };
-    stats.workers = parts
-        .iter()
-        .map(|p| LightmapWorker {
-            hits: p.2[1],
-            halo: p.2[2],
-            texels: p.2[3],
-            rounds: p.2[4],
-            estimates: p.2[5],
-        })
-        .collect();
-    let lightmap = if gather_on {
-        let mut lm = density.held.clone();
-        for (_, _, f, idx, vals, rays, flags) in &parts {
-            let g = unwire_gathered(vals, rays, flags);
-            let (r, h) = gather::put_gathered(&mut lm, &sh.texels, idx, &g);
-            stats.gather_rays += r;
-            stats.gather_hidden += h;
-            stats.rays += f[0];
-            stats.hits += f[1];
-        }
-        lm_bake::combined(lm, &density.held, &sh.texels, &sh.uv)
-    } else {
-        for (_, _, f, ..) in &parts {
-            stats.rays += f[0];
-            stats.hits += f[1];
-        }
-        density.held
-    };
+    let lightmap = assemble(sh, density, &parts, &mut stats);
     stats.t_estimate = t_estimate + t.elapsed().as_secs_f64();
     Ok(Part {
         out: Some(LightmapBake {
@@ -319,6 +292,42 @@ fn run_worker(
         hits_sent,
         bytes_sent: bytes_sent + halo.received * HIT_BYTES as u64,
     })
+}
+
+/// Worker 0's atlas from every worker's part: the gathers put into the
+/// density atlas, combined and padded (the density atlas itself without
+/// a gather), and the workers' figures into `stats`.
+fn assemble(
+    sh: &Shared,
+    density: DensityAtlas,
+    parts: &[GatherWire],
+    stats: &mut LightmapStats,
+) -> super::Lightmap {
+    stats.workers = parts
+        .iter()
+        .map(|p| LightmapWorker {
+            hits: p.2[1],
+            halo: p.2[2],
+            texels: p.2[3],
+            rounds: p.2[4],
+            estimates: p.2[5],
+        })
+        .collect();
+    for (_, _, f, ..) in parts {
+        stats.rays += f[0];
+        stats.hits += f[1];
+    }
+    if !sh.lm.gather.is_on() {
+        return density.held;
+    }
+    let mut lm = density.held.clone();
+    for (_, _, _, idx, vals, rays, flags) in parts {
+        let g = unwire_gathered(vals, rays, flags);
+        let (r, h) = gather::put_gathered(&mut lm, &sh.texels, idx, &g);
+        stats.gather_rays += r;
+        stats.gather_hidden += h;
+    }
+    lm_bake::combined(lm, &density.held, &sh.texels, &sh.uv)
 }
 
 /// What step 3 reads.
