@@ -342,15 +342,11 @@ impl CheckedBake {
         on_event: &mut dyn FnMut(BakeEvent),
     ) -> Result<BakeOutcome, BakeError> {
         let j = &self.job;
-        if let Some(w) = workers {
-            return self.run_lightmap_dataflow(
-                lm,
-                world,
-                (start, load_seconds),
-                w,
-                cancel,
-                on_event,
-            );
+        if workers.is_some() && j.watch_every.is_some() {
+            return Err(BakeError::Lightmap(LightmapError::Settings(
+                "a lightmap bake across workers is not shown live: drop --view or the workers"
+                    .into(),
+            )));
         }
         let side = lightmap::atlas_side(&world.scene, lm)?;
         if let Some((limit, source)) = job::memory_limit(j.max_memory, j.max_memory_flag) {
@@ -358,30 +354,13 @@ impl CheckedBake {
             render::check_memory(&items, limit, &source)?;
         }
         on_event(BakeEvent::Started);
-        let (source, allow_read) = match &j.scene {
-            SceneInput::File {
-                path, allow_read, ..
-            } => (
-                path.as_deref().filter(|p| !job::is_builtin(Some(p))),
-                &allow_read[..],
-            ),
-            SceneInput::World(_) => (None, &[][..]),
-        };
-        let read = ReadPolicy {
-            allow_read: allow_read.to_vec(),
-            memory_limit: None,
-        };
+        if let Some(w) = workers {
+            let at = (start, load_seconds);
+            return self.run_lightmap_dataflow(lm, world, at, w, cancel, on_event);
+        }
+        let (source, read) = self.asset_source();
         let events = RefCell::new(on_event);
-        let mut on_tick = |t: &Tick| {
-            let mut on_event = events.borrow_mut();
-            match t.phase {
-                Phase::Estimate => on_event(BakeEvent::Texels {
-                    done: t.done,
-                    total: t.total,
-                }),
-                _ => on_event(BakeEvent::Tick(t)),
-            }
-        };
+        let mut on_tick = |t: &Tick| events.borrow_mut()(lightmap_event(t));
         let steer = lightmap::Steering {
             start,
             time: j.time,
@@ -424,31 +403,13 @@ impl CheckedBake {
         on_event: &mut dyn FnMut(BakeEvent),
     ) -> Result<BakeOutcome, BakeError> {
         let j = &self.job;
-        if j.watch_every.is_some() {
-            return Err(BakeError::Lightmap(LightmapError::Settings(
-                "a lightmap bake across workers is not shown live: drop --view or the workers"
-                    .into(),
-            )));
-        }
-        let side = lightmap::atlas_side(&world.scene, lm)?;
-        if let Some((limit, source)) = job::memory_limit(j.max_memory, j.max_memory_flag) {
-            let items = j.lightmap_memory(lm, side);
-            render::check_memory(&items, limit, &source)?;
-        }
-        on_event(BakeEvent::Started);
         let limits = Limits {
             time: j.time,
             rays: j.rays,
             view_rays: 0,
         };
         let done = {
-            let mut on_tick = |t: &Tick| match t.phase {
-                Phase::Estimate => on_event(BakeEvent::Texels {
-                    done: t.done,
-                    total: t.total,
-                }),
-                _ => on_event(BakeEvent::Tick(t)),
-            };
+            let mut on_tick = |t: &Tick| on_event(lightmap_event(t));
             let mut ctl = Control::new(start, limits, cancel).on_tick(&mut on_tick);
             let s = &j.settings;
             match lm_dataflow::bake_lightmap_dataflow(world.clone(), s, lm, workers, &mut ctl) {
@@ -481,15 +442,10 @@ impl CheckedBake {
         })
     }
 
-    /// Writes a baked lightmap's images and .glb where the job asks.
-    fn write_lightmap(
-        &self,
-        baked: &LightmapBake,
-        lm: &LightmapSettings,
-        scene: &Scene,
-    ) -> Result<(), BakeError> {
-        let j = &self.job;
-        let (source, allow_read) = match &j.scene {
+    /// The scene's file (None for the built-in scene or a world given
+    /// whole) and what it may read: the asset a lightmapped .glb copies.
+    fn asset_source(&self) -> (Option<&Path>, ReadPolicy) {
+        let (source, allow_read) = match &self.job.scene {
             SceneInput::File {
                 path, allow_read, ..
             } => (
@@ -502,6 +458,18 @@ impl CheckedBake {
             allow_read: allow_read.to_vec(),
             memory_limit: None,
         };
+        (source, read)
+    }
+
+    /// Writes a baked lightmap's images and .glb where the job asks.
+    fn write_lightmap(
+        &self,
+        baked: &LightmapBake,
+        lm: &LightmapSettings,
+        scene: &Scene,
+    ) -> Result<(), BakeError> {
+        let j = &self.job;
+        let (source, read) = self.asset_source();
         lightmap::write_images(baked, lm)?;
         if let Some(glb) = &j.glb {
             lightmap_glb::write_lightmapped_with(
@@ -553,6 +521,17 @@ impl CheckedBake {
             bytes: d.bytes_sent,
         });
         Ok(d.bake)
+    }
+}
+
+/// A lightmap bake's tick as an event: its texels while it estimates.
+fn lightmap_event<'t>(t: &'t Tick) -> BakeEvent<'t> {
+    match t.phase {
+        Phase::Estimate => BakeEvent::Texels {
+            done: t.done,
+            total: t.total,
+        },
+        _ => BakeEvent::Tick(t),
     }
 }
 
