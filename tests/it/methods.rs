@@ -113,6 +113,15 @@ fn rows(name: &str) -> Vec<Row> {
                 furnace_bias: none,
                 sharp: 0.01,
             },
+            Row {
+                config: common::plb(plb::Settings {
+                    mix: false,
+                    ..Default::default()
+                }),
+                passes: 1024,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
         ],
         "bundle" => vec![Row {
             config: common::bundle(bundle::Settings {

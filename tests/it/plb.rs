@@ -274,6 +274,14 @@ fn plb_is_deterministic_per_seed() {
     let d = common::render(&scene, &pooled, 7, 1).0;
     assert_ne!(a.data, d.data);
     assert_eq!(d.data, common::render(&scene, &pooled, 7, 1).0.data);
+    // The guided form alone, without the light-tracing walks beside it
+    let alone = common::plb(plb::Settings {
+        mix: false,
+        ..Default::default()
+    });
+    let e = common::render(&scene, &alone, 7, 1).0;
+    assert_ne!(a.data, e.data);
+    assert_eq!(e.data, common::render(&scene, &alone, 7, 1).0.data);
     let world = kalos::methods::World::new(scene);
     let err = bad
         .create(&world, &Default::default())

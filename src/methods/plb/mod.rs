@@ -84,7 +84,13 @@
 //!     made it. Each step's new hit has expected power T(Le + L_{m−1}), so
 //!     this has the phase images' expectation without the purge's noise;
 //!   - the camera pass takes glossy first vertices too, sharing them with
-//!     the light paths by MIS ([`crate::transport::camera_pass`]).
+//!     the light paths by MIS ([`crate::transport::camera_pass`]);
+//!   - plain light-tracing walks run beside the population (`--mix`, on
+//!     by default) and the two images are combined by their variances
+//!     measured across lanes, each pass's work going mostly to the one
+//!     with less variance per unit of work (`mix`): where light arrives
+//!     easily (a Cornell box) the walks carry the image, where it does
+//!     not (a gap) the population does.
 //!
 //!   Every change moves where rays go or when they are counted, never the
 //!   expectation (tests/it/plb.rs checks each form against `path`, light
@@ -114,6 +120,7 @@ use crate::transport::camera_pass::CameraPass;
 mod guide;
 mod importance;
 mod iterate;
+mod mix;
 mod purge;
 
 use std::sync::Arc;
@@ -121,6 +128,7 @@ use std::sync::Arc;
 use guide::{DirGuide, DirStats};
 use importance::{share_grids, CellStats, ImportanceGrid, SLOTS};
 use iterate::{run_lane, Form, Lane};
+use mix::{run_walks, Mix};
 
 /// Settings of progressive light path building.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -176,6 +184,18 @@ pub struct Settings {
     /// `guided`: birth).
     #[cfg_attr(feature = "cli", arg(long, value_name = "WHEN", value_enum))]
     pub measure: Option<Measure>,
+    /// `--variant guided` only: run plain light-tracing walks beside the
+    /// population and combine the two images by their measured variances,
+    /// giving each pass's work mostly to the one that does better per unit
+    /// of work (`mix`), so that plb does not lose to `light` where light
+    /// arrives easily. Off: plb alone. The other variants never mix.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
+    #[serde(default = "mix_default")]
+    pub mix: bool,
+}
+
+fn mix_default() -> bool {
+    true
 }
 
 /// The form of the method.
@@ -242,6 +262,7 @@ impl Default for Settings {
             camera_pass: true,
             variant: Variant::Guided,
             measure: None,
+            mix: true,
         }
     }
 }
@@ -265,6 +286,12 @@ impl Settings {
             return Err(MethodError("plb needs at least one lane".into()));
         }
         Ok(())
+    }
+
+    /// Whether light-tracing walks run beside the population (`--mix`,
+    /// guided only).
+    pub fn mixes(&self) -> bool {
+        self.mix && self.variant == Variant::Guided
     }
 
     /// Bytes of the hit populations at their largest, for the memory check
@@ -304,14 +331,21 @@ impl MethodSettings for Settings {
     }
 
     /// Two films per lane (light and hits), their two merges and images,
-    /// the final image, the camera pass; and the populations.
+    /// the final image, the camera pass; when mixing, the walks' films,
+    /// their merge and image, and a copy of each lane's two films (the
+    /// pass's own image is measured against it); and the populations.
     fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
         let lanes = self.lanes.max(1) as u64;
+        let mix = if self.mixes() {
+            (mix::LANES as u64 + 1 + 2 * lanes) * FILM + IMAGE
+        } else {
+            0
+        };
         vec![
             film_item(
                 width,
                 height,
-                (2 * lanes + 2) * FILM + 3 * IMAGE + camera_pass(self.camera_pass),
+                (2 * lanes + 2) * FILM + 3 * IMAGE + camera_pass(self.camera_pass) + mix,
                 &format!(" ({lanes} lanes)"),
             ),
             MemoryItem {
@@ -346,6 +380,8 @@ pub struct Plb {
     /// (`--variant guided`).
     shared_dirs: Option<(DirStats, Arc<DirGuide>)>,
     lanes: Vec<Lane>,
+    /// The light-tracing walks beside the population (`--mix`).
+    mix: Option<Mix>,
     pixels: u64,
     camera_pass: CameraPass,
 }
@@ -374,6 +410,7 @@ impl Plb {
                     Lane::new(w, h, grid, guided.then(Vec::new))
                 })
                 .collect(),
+            mix: settings.mixes().then(|| Mix::new(w, h)),
             shared: pooled.then(|| CellStats::new(SLOTS)),
             shared_dirs: guided.then(|| (DirStats::new(SLOTS), Arc::new(DirGuide::new(SLOTS)))),
             settings,
@@ -427,6 +464,10 @@ impl Plb {
             height: h,
             data: a.data.iter().zip(&b.data).map(|(x, y)| *x + *y).collect(),
         };
+        if let Some(mix) = &self.mix {
+            // The two estimates of the lights' paths, by their variances
+            mix.combine(&mut img);
+        }
         self.camera_pass.add_to(&mut img);
         img
     }
@@ -451,9 +492,13 @@ impl Method for Plb {
     }
 
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
-        let n = self.steps_per_lane();
+        let full = self.steps_per_lane();
+        let n = match &self.mix {
+            Some(m) => m.plb_steps_per_lane(full, self.settings.phase_len as u64),
+            None => full,
+        };
         let s = &self.settings;
-        let rays = self
+        let mut rays = self
             .lanes
             .par_iter_mut()
             .enumerate()
@@ -462,6 +507,38 @@ impl Method for Plb {
                 run_lane(world, s, rng, n, lane)
             })
             .sum::<u64>();
+        if let Some(mix) = self.mix.as_mut() {
+            let steps = n * self.lanes.len() as u64;
+            let count = mix.walks_per_lane_for(steps);
+            let glossy_split = Form::of(s).glossy_split;
+            let walk_rays = mix
+                .films
+                .par_iter_mut()
+                .enumerate()
+                .map(|(i, film)| {
+                    let rng = Pcg32::keyed(&[s.seed, pass, i as u64, 0x3a1]);
+                    run_walks(world, glossy_split, s.max_depth, rng, count, film)
+                })
+                .sum::<u64>();
+            mix.walks_per_lane += count;
+            mix.walk_rays += walk_rays;
+            mix.plb_rays += rays;
+            mix.since += rays;
+            mix.plb_steps += steps;
+            rays += walk_rays;
+            if Mix::due(pass) {
+                let birth = Form::of(s).birth;
+                let lanes: Vec<_> = self
+                    .lanes
+                    .iter()
+                    .map(|l| {
+                        let b = if birth { l.born } else { l.counted };
+                        (&l.le_film, l.steps, &l.hit_film, b)
+                    })
+                    .collect();
+                mix.measure(&lanes);
+            }
+        }
         if let Some(shared) = self.shared.as_mut() {
             share_grids(shared, &mut self.lanes);
         }
@@ -493,6 +570,10 @@ impl Method for Plb {
 
     fn spp(&self) -> f64 {
         let steps: u64 = self.lanes.iter().map(|l| l.steps).sum();
-        steps as f64 / self.pixels as f64
+        let walks = self
+            .mix
+            .as_ref()
+            .map_or(0, |m| m.walks_per_lane * mix::LANES as u64);
+        (steps + walks) as f64 / self.pixels as f64
     }
 }

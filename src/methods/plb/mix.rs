@@ -1,0 +1,437 @@
+//! The mixture with plain light tracing (`--mix on`, guided only).
+//!
+//! Where light reaches the camera easily (a Cornell box), the population
+//! adds little per ray and each of plb's rays costs about twice a light
+//! tracing ray, so plb alone loses to `light` at equal time. Here plb runs
+//! beside independent light-tracing walks that estimate the same image (the
+//! lights' paths, the camera pass excluded, with the same glossy MIS split
+//! as plb's own camera connections), and the two estimates are combined
+//! with weights inversely proportional to their measured variances.
+//!
+//! - *The variances* come from the lanes: each estimate is the mean of
+//!   [`LANES`] independent lane images, so its variance is the spread
+//!   across lanes divided by their number, which holds whatever the
+//!   correlation between a lane's pixels or steps (a population's hits are
+//!   correlated). They are relative ((x − x̄)² / (m² + 0.01), m the smaller
+//!   of the two estimates' means, so that a firefly does not hide itself by
+//!   raising m) and pooled over tiles of [`TILE`]² pixels, shrunk toward
+//!   the mean tile, so that a weight does not follow one pixel's noise.
+//! - *The split of the work* between the two: each pass gives the one that
+//!   has the lower variance per unit of work all but [`FLOOR`] of it, and
+//!   the other [`FLOOR`], so that the other keeps learning (plb's guiding
+//!   improves as it runs) and its variance stays measured. Work is counted
+//!   in rays, a plb ray as [`PLB_RAY_COST`] walk rays (callgrind: 1591
+//!   against 818 instructions per ray on cbox, 2737 against 1296 on
+//!   two-rooms-baffle), so that the split, like everything else, depends on
+//!   the seed only, never on the machine's load.
+//!
+//! Both estimates are unbiased; the combined one has a bias of the order of
+//! the weights' own noise times the correlation between a pixel and the
+//! weights, which pool all pixels, far below the noise.
+
+use std::ops::ControlFlow;
+
+use glam::DVec3;
+
+use crate::film::{Film, Image};
+use crate::methods::World;
+use crate::sampling::Pcg32;
+use crate::simd::dispatched;
+use crate::transport::{connect_emission_sample, connect_to_camera, light_walk, Spectrum};
+
+/// Independent walk lanes (films and streams), fixed so that results do not
+/// depend on the thread count.
+pub(super) const LANES: usize = 8;
+
+/// The least share of a pass's work that each estimate gets.
+const FLOOR: f64 = 0.03;
+
+/// The side of the square tiles over which the weights are pooled.
+const TILE: u32 = 16;
+
+/// What one plb ray costs, in light-tracing walk rays.
+const PLB_RAY_COST: f64 = 2.0;
+
+/// The walks beside plb, and what the split has learnt.
+#[derive(Clone, Debug)]
+pub(super) struct Mix {
+    /// One film per walk lane.
+    pub(super) films: Vec<Film>,
+    /// Walks per lane so far (all lanes run the same number).
+    pub(super) walks_per_lane: u64,
+    /// Rays of the walks, and of plb's lanes (the camera pass excluded).
+    pub(super) walk_rays: u64,
+    pub(super) plb_rays: u64,
+    /// plb's steps so far, over all lanes.
+    pub(super) plb_steps: u64,
+    /// The walks' share of the next pass's work.
+    pub(super) share: f64,
+    /// The relative variances of the two estimates (plb, walks), as last
+    /// measured; 0 until measured.
+    pub(super) var: (f64, f64),
+    /// The same per tile of [`TILE`]² pixels (sums over the tile's pixels
+    /// and channels, in the same units).
+    tiles: Vec<(f64, f64)>,
+    /// plb's variance per unit of work in its recent passes (a moving
+    /// average over passes), 0 until measured: plb learns as it runs, so
+    /// its whole image, early passes included, would understate what its
+    /// next pass is worth.
+    recent: f64,
+    /// plb's rays since the last measurement.
+    pub(super) since: u64,
+    /// Each plb lane's two films (sums) and counts at the last measurement,
+    /// to measure the image of the passes since then.
+    prev: Vec<(Vec<DVec3>, u64, Vec<DVec3>, u64)>,
+}
+
+impl Mix {
+    pub(super) fn new(w: u32, h: u32) -> Self {
+        Mix {
+            films: (0..LANES).map(|_| Film::new(w, h)).collect(),
+            walks_per_lane: 0,
+            walk_rays: 0,
+            plb_rays: 0,
+            plb_steps: 0,
+            share: 0.5,
+            var: (0.0, 0.0),
+            tiles: Vec::new(),
+            recent: 0.0,
+            since: 0,
+            prev: Vec::new(),
+        }
+    }
+
+    /// plb's steps per lane for the next pass, whole phases, from the steps
+    /// per lane `full` of a pass of plb alone.
+    pub(super) fn plb_steps_per_lane(&self, full: u64, phase: u64) -> u64 {
+        let phases = full / phase.max(1);
+        let want = (phases as f64 * (1.0 - self.share)).ceil() as u64;
+        want.clamp(1, phases.max(1)) * phase.max(1)
+    }
+
+    /// Walks per lane for the next pass, given plb's steps (over all lanes)
+    /// in it: the walks' share of the pass's work, at the rays per step and
+    /// per walk measured so far.
+    pub(super) fn walks_per_lane_for(&self, plb_steps: u64) -> u64 {
+        let per_step = if self.plb_steps > 0 {
+            self.plb_rays as f64 / self.plb_steps as f64
+        } else {
+            2.0
+        };
+        let per_walk = if self.walks_per_lane > 0 {
+            (self.walk_rays as f64 / (self.walks_per_lane * LANES as u64) as f64).max(1.0)
+        } else {
+            4.0
+        };
+        let plb_work = plb_steps as f64 * per_step * PLB_RAY_COST;
+        let walks = plb_work * self.share / (1.0 - self.share) / per_walk;
+        (walks / LANES as f64).ceil().max(1.0) as u64
+    }
+
+    /// Combines plb's image `img` (the lights' paths, without the camera
+    /// pass) with the walks' image, tile by tile.
+    pub(super) fn combine(&self, img: &mut Image) {
+        let (w, h) = (self.films[0].width, self.films[0].height);
+        let mut total = Film::new(w, h);
+        for f in &self.films {
+            total.merge(f);
+        }
+        let walks = total.mean(self.walks_per_lane * LANES as u64);
+        let global = self.weight();
+        let tiles_x = w.div_ceil(TILE);
+        // Each tile's variances shrunk toward the mean tile's, so that a
+        // tile that one estimate barely reached does not get all the weight
+        let nt = self.tiles.len().max(1) as f64;
+        let (gp, gw) = (self.var.0, self.var.1);
+        let (mp, mw) = if self.tiles.is_empty() {
+            (0.0, 0.0)
+        } else {
+            let (sp, sw) = self
+                .tiles
+                .iter()
+                .fold((0.0, 0.0), |(a, b), t| (a + t.0, b + t.1));
+            (sp / nt, sw / nt)
+        };
+        for (i, (p, q)) in img.data.iter_mut().zip(&walks.data).enumerate() {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            let t = (y / TILE * tiles_x + x / TILE) as usize;
+            let k = match self.tiles.get(t) {
+                Some(&(vp, vw)) if gp > 0.0 && gw > 0.0 && mp + mw > 0.0 => {
+                    (vp + mp) / (vp + vw + mp + mw)
+                }
+                _ => global,
+            } as f32;
+            if k > 0.0 {
+                *p = *p * (1.0 - k) + *q * k;
+            }
+        }
+    }
+
+    /// The weight of the walks' image over the whole image: the share of
+    /// the inverse variances, or of the work while a variance is unknown.
+    pub(super) fn weight(&self) -> f64 {
+        let (vp, vw) = self.var;
+        if vp > 0.0 && vw > 0.0 && (vp + vw).is_finite() {
+            vp / (vp + vw)
+        } else {
+            let ww = self.walk_rays as f64;
+            let wp = self.plb_rays as f64 * PLB_RAY_COST;
+            if ww + wp > 0.0 {
+                ww / (ww + wp)
+            } else {
+                0.0
+            }
+        }
+    }
+
+    /// Whether to measure after pass `pass`: after passes 0, 1, 3, 7 and
+    /// then every 8th, so that the measurement (a walk over every lane's
+    /// films) costs a few per cent of the work, not a fifth.
+    pub(super) fn due(pass: u64) -> bool {
+        (pass + 1).is_power_of_two() || (pass + 1).is_multiple_of(8)
+    }
+
+    /// Measures the two variances from the lane images (`plb`: plb's lanes
+    /// as (the lights' film, its samples, the hits' film, its samples)), and
+    /// plb's variance per unit of work in the passes since the last
+    /// measurement (its rays in them: [`Mix::since`]), and sets the split
+    /// of the next passes.
+    pub(super) fn measure(&mut self, plb: &[(&Film, u64, &Film, u64)]) {
+        let pass_rays = std::mem::take(&mut self.since);
+        let nw = self.walks_per_lane;
+        let n = self.films[0].sum.len();
+        if self.prev.len() != plb.len() {
+            self.prev = plb
+                .iter()
+                .map(|_| (vec![DVec3::ZERO; n], 0, vec![DVec3::ZERO; n], 0))
+                .collect();
+        }
+        if nw == 0 || plb.len() < 2 {
+            return;
+        }
+        let inv = |n: u64| if n == 0 { 0.0 } else { 1.0 / n as f64 };
+        let sw = inv(nw);
+        // Per lane: the scales of its whole image and of this pass's image
+        let scales: Vec<[f64; 4]> = plb
+            .iter()
+            .zip(&self.prev)
+            .map(|((_, a, _, b), (_, pa, _, pb))| [inv(*a), inv(*b), inv(a - pa), inv(b - pb)])
+            .collect();
+        let (lp, lw) = (plb.len() as f64, LANES as f64);
+        let (mut vp, mut vw, mut vd) = (0.0f64, 0.0f64, 0.0f64);
+        let width = self.films[0].width;
+        let tiles_x = width.div_ceil(TILE);
+        let tiles_y = self.films[0].height.div_ceil(TILE);
+        self.tiles.clear();
+        self.tiles.resize((tiles_x * tiles_y) as usize, (0.0, 0.0));
+        let mut xp = vec![DVec3::ZERO; plb.len()];
+        let mut xd = vec![DVec3::ZERO; plb.len()];
+        for j in 0..n {
+            let (mut mp, mut md) = (DVec3::ZERO, DVec3::ZERO);
+            for (i, (le, _, hits, _)) in plb.iter().enumerate() {
+                let (pl, _, ph, _) = &mut self.prev[i];
+                let k = scales[i];
+                xp[i] = le.sum[j] * k[0] + hits.sum[j] * k[1];
+                xd[i] = (le.sum[j] - pl[j]) * k[2] + (hits.sum[j] - ph[j]) * k[3];
+                pl[j] = le.sum[j];
+                ph[j] = hits.sum[j];
+                mp += xp[i];
+                md += xd[i];
+            }
+            mp /= lp;
+            md /= lp;
+            let mut mw = DVec3::ZERO;
+            for f in &self.films {
+                mw += f.sum[j] * sw;
+            }
+            mw /= lw;
+            // The smaller of the two means: a firefly in one estimate
+            // must not shrink the relative variance it causes
+            let m = mp.min(mw).max(DVec3::ZERO);
+            let w = DVec3::ONE / (m * m + crate::metrics::EPSILON);
+            let spread = |xs: &[DVec3], mean: DVec3| {
+                xs.iter().map(|x| (*x - mean) * (*x - mean)).sum::<DVec3>()
+            };
+            let mut sq = DVec3::ZERO;
+            for f in &self.films {
+                let d = f.sum[j] * sw - mw;
+                sq += d * d;
+            }
+            let (a, b) = ((spread(&xp, mp) * w).element_sum(), (sq * w).element_sum());
+            let (x, y) = (j as u32 % width, j as u32 / width);
+            let t = &mut self.tiles[(y / TILE * tiles_x + x / TILE) as usize];
+            t.0 += a;
+            t.1 += b;
+            vp += a;
+            vd += (spread(&xd, md) * w).element_sum();
+            vw += b;
+        }
+        for ((_, pa, _, pb), (_, a, _, b)) in self.prev.iter_mut().zip(plb) {
+            *pa = *a;
+            *pb = *b;
+        }
+        // The variance of a mean of L lanes: the lanes' spread / (L − 1) / L
+        let norm = 1.0 / (3.0 * n as f64);
+        let lanes_p = norm / (lp * (lp - 1.0));
+        let lanes_w = norm / (lw * (lw - 1.0));
+        self.var = (vp * lanes_p, vw * lanes_w);
+        for t in &mut self.tiles {
+            *t = (t.0 * lanes_p, t.1 * lanes_w);
+        }
+        // Variance times work: what each would reach with all the work
+        let pass = vd * lanes_p * pass_rays as f64 * PLB_RAY_COST;
+        if pass.is_finite() && pass > 0.0 {
+            self.recent = if self.recent > 0.0 {
+                0.5 * (self.recent + pass)
+            } else {
+                pass
+            };
+        }
+        let ep = self.recent;
+        let ew = self.var.1 * self.walk_rays as f64;
+        if ep > 0.0 && ew > 0.0 && (ep + ew).is_finite() {
+            self.share = if ew < ep { 1.0 - FLOOR } else { FLOOR };
+        }
+    }
+}
+
+dispatched! {
+    /// `count` light-tracing walks of one lane into `film`; returns the rays
+    /// traced. Compiled for x86-64-v3 by runtime dispatch, as `light`'s.
+    pub(super) fn run_walks(
+        world: &World,
+        glossy_split: bool,
+        max_depth: Option<u32>,
+        rng: Pcg32,
+        count: u64,
+        film: &mut Film,
+    ) -> u64 {
+        let mut rng = rng;
+        let mut rays = 0;
+        for _ in 0..count {
+            rays += walk(world, glossy_split, max_depth, &mut rng, film);
+        }
+        rays
+    }
+}
+
+/// One light-tracing walk, connected to the camera at its emission vertex
+/// and at every non-delta vertex, with plb's glossy MIS split
+/// ([`connect_to_camera`]); returns the rays traced.
+#[inline(always)]
+fn walk(
+    world: &World,
+    glossy_split: bool,
+    max_depth: Option<u32>,
+    rng: &mut Pcg32,
+    film: &mut Film,
+) -> u64 {
+    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
+        return 0;
+    };
+    let mut rays = connect_emission_sample(world, &es, 1.0, film);
+    let walk = light_walk(
+        world,
+        es.ray(),
+        es.phi,
+        Spectrum::Rgb,
+        max_depth,
+        rng,
+        |e| {
+            if e.vertex.bsdf.has_smooth() {
+                if let Some((pix, c)) =
+                    connect_to_camera(world, e.vertex, e.beta, glossy_split, &mut rays)
+                {
+                    film.splat(pix.x, pix.y, c);
+                }
+            }
+            ControlFlow::Continue(())
+        },
+    );
+    rays + walk
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A film whose every pixel holds `v` (a sum).
+    fn film(v: f64) -> Film {
+        let mut f = Film::new(32, 16);
+        f.sum.iter_mut().for_each(|p| *p = DVec3::splat(v));
+        f
+    }
+
+    #[test]
+    fn measures_on_a_doubling_then_regular_schedule() {
+        let due: Vec<u64> = (0..40).filter(|&p| Mix::due(p)).collect();
+        assert_eq!(due, [0, 1, 3, 7, 15, 23, 31, 39]);
+    }
+
+    #[test]
+    fn plb_keeps_whole_phases_and_at_least_one() {
+        let mut m = Mix::new(4, 4);
+        m.share = 0.97;
+        assert_eq!(m.plb_steps_per_lane(2400, 400), 400);
+        m.share = 0.03;
+        assert_eq!(m.plb_steps_per_lane(2400, 400), 2400);
+        m.share = 0.5;
+        assert_eq!(m.plb_steps_per_lane(2400, 400), 1200);
+        assert_eq!(m.plb_steps_per_lane(400, 400), 400);
+    }
+
+    /// Walk lanes that agree, plb lanes that scatter: the walks get the
+    /// weight and the next pass's work, and back when the roles swap.
+    #[test]
+    fn the_less_noisy_estimate_gets_the_weight_and_the_work() {
+        let mut m = Mix::new(32, 16);
+        // Each walk lane: 10 walks of value 0.5 per pixel, with a small
+        // spread between lanes
+        m.walks_per_lane = 10;
+        m.walk_rays = 8 * 10 * 4;
+        m.plb_rays = 8 * 10 * 2;
+        m.plb_steps = 8 * 10;
+        for (i, f) in m.films.iter_mut().enumerate() {
+            *f = film(5.0 + 0.01 * i as f64);
+        }
+        // plb lanes: the same mean, fifty times the walks' spread
+        let plb: Vec<(Film, Film)> = (0..8)
+            .map(|i| (film(5.0 + 0.5 * (i as f64 - 3.5)), film(0.0)))
+            .collect();
+        let lanes: Vec<_> = plb.iter().map(|(a, b)| (a, 10, b, 10)).collect();
+        m.since = 160;
+        m.measure(&lanes);
+        let (vp, vw) = m.var;
+        assert!(vp > 100.0 * vw, "variances {vp:e} {vw:e}");
+        assert!(m.weight() > 0.99, "walks' weight {}", m.weight());
+        assert_eq!(m.share, 1.0 - FLOOR);
+        // The combination follows the weights, tile by tile
+        let mut img = Image::new(32, 16);
+        img.data
+            .iter_mut()
+            .for_each(|p| *p = glam::Vec3::splat(1.0));
+        m.combine(&mut img);
+        for p in &img.data {
+            assert!((p.x - 0.5).abs() < 0.01, "{p:?}");
+        }
+
+        // Swap the roles: plb lanes that agree, walks that scatter
+        let mut m2 = Mix::new(32, 16);
+        m2.walks_per_lane = 10;
+        m2.walk_rays = 8 * 10 * 4;
+        m2.plb_rays = 8 * 10 * 2;
+        m2.plb_steps = 8 * 10;
+        for (i, f) in m2.films.iter_mut().enumerate() {
+            *f = film(5.0 + 0.5 * (i as f64 - 3.5));
+        }
+        let plb: Vec<(Film, Film)> = (0..8)
+            .map(|i| (film(5.0 + 0.01 * i as f64), film(0.0)))
+            .collect();
+        let lanes: Vec<_> = plb.iter().map(|(a, b)| (a, 10, b, 10)).collect();
+        m2.since = 160;
+        m2.measure(&lanes);
+        assert!(m2.weight() < 0.01, "walks' weight {}", m2.weight());
+        assert_eq!(m2.share, FLOOR);
+    }
+}
