@@ -24,6 +24,14 @@
 //!   against 818 instructions per ray on cbox, 2737 against 1296 on
 //!   two-rooms-baffle), so that the split, like everything else, depends on
 //!   the seed only, never on the machine's load.
+//! - *The size of a pass* stays that of a pass of plb alone: plb's share
+//!   is paid in whole phases, one every few passes when its share is
+//!   small, and the walks fill the rest. A pass sized by plb's least work
+//!   (a phase per lane) and the walks' share of it would be some thirty
+//!   times larger, and the camera pass, one sample per pixel a pass, would
+//!   get a thirtieth of its share (on the glass-mirror scene, 22 passes
+//!   for 6 M rays instead of 437, and the sphere's edge, which only the
+//!   camera pass reaches, 20 % dark in two seeds' mean).
 //!
 //! Both estimates are unbiased; the combined one has a bias of the order of
 //! the weights' own noise times the correlation between a pixel and the
@@ -66,6 +74,9 @@ pub(super) struct Mix {
     pub(super) plb_steps: u64,
     /// The walks' share of the next pass's work.
     pub(super) share: f64,
+    /// plb's steps per lane owed and not yet run (less than a phase, or
+    /// negative after its first pass, which runs a phase whatever it owes).
+    credit: f64,
     /// The relative variances of the two estimates (plb, walks), as last
     /// measured; 0 until measured.
     pub(super) var: (f64, f64),
@@ -93,6 +104,7 @@ impl Mix {
             plb_rays: 0,
             plb_steps: 0,
             share: 0.5,
+            credit: 0.0,
             var: (0.0, 0.0),
             tiles: Vec::new(),
             recent: 0.0,
@@ -101,18 +113,27 @@ impl Mix {
         }
     }
 
-    /// plb's steps per lane for the next pass, whole phases, from the steps
-    /// per lane `full` of a pass of plb alone.
-    pub(super) fn plb_steps_per_lane(&self, full: u64, phase: u64) -> u64 {
-        let phases = full / phase.max(1);
-        let want = (phases as f64 * (1.0 - self.share)).ceil() as u64;
-        want.clamp(1, phases.max(1)) * phase.max(1)
+    /// plb's steps per lane for the next pass, whole phases. A pass has the
+    /// work of a pass of plb alone (`full` steps per lane), of which plb's
+    /// share is 1 − share: its steps accumulate until they make a phase,
+    /// so a pass is no larger than plb's own and the camera pass, one
+    /// sample per pixel a pass, keeps its share of the work. The first
+    /// pass runs a phase, so that plb is measured from the start.
+    pub(super) fn plb_steps_per_lane(&mut self, full: u64, phase: u64) -> u64 {
+        let phase = phase.max(1);
+        self.credit += full as f64 * (1.0 - self.share);
+        let mut n = (self.credit / phase as f64).floor().max(0.0) as u64 * phase;
+        if self.plb_steps == 0 {
+            n = n.max(phase);
+        }
+        self.credit -= n as f64;
+        n
     }
 
-    /// Walks per lane for the next pass, given plb's steps (over all lanes)
-    /// in it: the walks' share of the pass's work, at the rays per step and
-    /// per walk measured so far.
-    pub(super) fn walks_per_lane_for(&self, plb_steps: u64) -> u64 {
+    /// Walks per lane for the next pass, whose whole work is that of
+    /// `full_steps` plb steps (over all lanes): the walks' share of it, at
+    /// the rays per step and per walk measured so far.
+    pub(super) fn walks_per_lane_for(&self, full_steps: u64) -> u64 {
         let per_step = if self.plb_steps > 0 {
             self.plb_rays as f64 / self.plb_steps as f64
         } else {
@@ -123,8 +144,8 @@ impl Mix {
         } else {
             4.0
         };
-        let plb_work = plb_steps as f64 * per_step * PLB_RAY_COST;
-        let walks = plb_work * self.share / (1.0 - self.share) / per_walk;
+        let pass_work = full_steps as f64 * per_step * PLB_RAY_COST;
+        let walks = pass_work * self.share / per_walk;
         (walks / LANES as f64).ceil().max(1.0) as u64
     }
 
@@ -370,15 +391,37 @@ mod tests {
     }
 
     #[test]
-    fn plb_keeps_whole_phases_and_at_least_one() {
+    fn plb_keeps_whole_phases_and_its_share_of_each_pass() {
         let mut m = Mix::new(4, 4);
+        // The first pass runs a phase whatever plb's share
         m.share = 0.97;
-        assert_eq!(m.plb_steps_per_lane(2400, 400), 400);
-        m.share = 0.03;
-        assert_eq!(m.plb_steps_per_lane(2400, 400), 2400);
+        assert_eq!(m.plb_steps_per_lane(800, 400), 400);
+        m.plb_steps = 400;
+        // Then 3 % of 800 steps a pass: a phase once 400 are owed, and
+        // over many passes plb's share of the steps
+        let runs: Vec<u64> = (0..40).map(|_| m.plb_steps_per_lane(800, 400)).collect();
+        assert!(runs.iter().all(|&n| n == 0 || n == 400), "{runs:?}");
+        let ran: u64 = runs.iter().sum::<u64>() + 400;
+        assert!((ran as f64 - 0.03 * 800.0 * 41.0).abs() <= 400.0, "{ran}");
+        // Half: a phase a pass of two phases; all: the whole pass
         m.share = 0.5;
-        assert_eq!(m.plb_steps_per_lane(2400, 400), 1200);
-        assert_eq!(m.plb_steps_per_lane(400, 400), 400);
+        m.credit = 0.0;
+        assert_eq!(m.plb_steps_per_lane(800, 400), 400);
+        m.share = 0.0;
+        assert_eq!(m.plb_steps_per_lane(2400, 400), 2400);
+    }
+
+    /// The walks take their share of a pass's work, counted in plb rays.
+    #[test]
+    fn walks_take_their_share_of_the_pass() {
+        let mut m = Mix::new(4, 4);
+        m.plb_rays = 3000;
+        m.plb_steps = 1000;
+        m.walk_rays = 8 * 100 * 5;
+        m.walks_per_lane = 100;
+        m.share = 0.5;
+        // 8000 steps × 3 rays × cost 2 = 48000 walk rays; half at 5 a walk
+        assert_eq!(m.walks_per_lane_for(8000), 4800 / 8);
     }
 
     /// Walk lanes that agree, plb lanes that scatter: the walks get the

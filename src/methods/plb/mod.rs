@@ -493,7 +493,7 @@ impl Method for Plb {
 
     fn step(&mut self, world: &World, pass: u64) -> StepStats {
         let full = self.steps_per_lane();
-        let n = match &self.mix {
+        let n = match self.mix.as_mut() {
             Some(m) => m.plb_steps_per_lane(full, self.settings.phase_len as u64),
             None => full,
         };
@@ -509,7 +509,7 @@ impl Method for Plb {
             .sum::<u64>();
         if let Some(mix) = self.mix.as_mut() {
             let steps = n * self.lanes.len() as u64;
-            let count = mix.walks_per_lane_for(steps);
+            let count = mix.walks_per_lane_for(full * self.lanes.len() as u64);
             let glossy_split = Form::of(s).glossy_split;
             let walk_rays = mix
                 .films
