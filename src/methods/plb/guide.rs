@@ -53,7 +53,7 @@ const MIN_RECORDS: u32 = 64;
 const BIN_PRIOR: f32 = 1.0;
 
 /// The bin of a unit direction.
-#[inline]
+#[inline(always)]
 pub(super) fn bin(d: Vec3) -> usize {
     let z = ((d.z + 1.0) * 0.5 * N_Z as f32) as usize;
     z.min(N_Z - 1) * N_PHI + sector(d.x, d.y)
@@ -192,12 +192,13 @@ pub(super) struct DirRecord {
 
 impl DirRecord {
     /// The record of a ray from `cell` along `d` that brought back `r`, or
-    /// None for a value that is not a finite number ≥ 0.
-    #[inline]
-    pub(super) fn new(cell: u32, d: Vec3, r: f64) -> Option<Self> {
+    /// None for a value that is not a finite number ≥ 0. `known` is `d`'s
+    /// bin if it was already computed.
+    #[inline(always)]
+    pub(super) fn new(cell: u32, d: Vec3, known: Option<u32>, r: f64) -> Option<Self> {
         (r.is_finite() && r >= 0.0).then(|| DirRecord {
             cell,
-            bin: bin(d) as u32,
+            bin: known.unwrap_or_else(|| bin(d) as u32),
             r: r as f32,
         })
     }
@@ -303,14 +304,25 @@ impl DirGuide {
 
     /// The solid-angle density of `d` under `cell`'s distribution (uniform
     /// if it does not guide).
-    #[inline]
+    #[cfg(test)]
     pub(super) fn pdf(&self, cell: u32, d: Vec3) -> f32 {
+        self.pdf_and_bin(cell, d).0
+    }
+
+    /// [`DirGuide::pdf`], and `d`'s bin when the density needed it (the
+    /// cell guides): the ray's directional record reuses it instead of
+    /// computing [`bin`] again.
+    #[inline(always)]
+    pub(super) fn pdf_and_bin(&self, cell: u32, d: Vec3) -> (f32, Option<u32>) {
         let per_bin = BINS as f32 / (4.0 * std::f32::consts::PI);
         let Some(c) = self.cdf_of(cell) else {
-            return 1.0 / (4.0 * std::f32::consts::PI);
+            return (1.0 / (4.0 * std::f32::consts::PI), None);
         };
         let b = bin(d);
-        (c[b] - if b == 0 { 0.0 } else { c[b - 1] }) * per_bin
+        (
+            (c[b] - if b == 0 { 0.0 } else { c[b - 1] }) * per_bin,
+            Some(b as u32),
+        )
     }
 }
 
@@ -320,6 +332,8 @@ impl DirGuide {
 pub(super) struct Guided {
     pub(super) wi: Vec3,
     pub(super) w: Rgb,
+    /// `wi`'s bin, when the guide's density computed it.
+    pub(super) bin: Option<u32>,
 }
 
 /// The next direction of a light path at hit vertex `v` in `cell`, in
@@ -336,7 +350,7 @@ pub(super) fn scatter_guided(
 ) -> Option<Guided> {
     let guide = match guide {
         Some(g) if g.is_on(cell) && !v.bsdf.has_delta() && !v.bsdf.is_transmissive() => g,
-        _ => return scatter(v, rng).map(|(wi, w)| Guided { wi, w }),
+        _ => return scatter(v, rng).map(|(wi, w)| Guided { wi, w, bin: None }),
     };
     let wi = if rng.next_f32() < ALPHA {
         let s = v
@@ -347,7 +361,11 @@ pub(super) fn scatter_guided(
         guide.sample(cell, rng.next_f32(), rng.next_2d())
     };
     let wl = v.frame.to_local(wi);
-    let zero = Guided { wi, w: Rgb::ZERO };
+    let zero = Guided {
+        wi,
+        w: Rgb::ZERO,
+        bin: None,
+    };
     if wi.dot(v.ng) * wl.z <= 0.0 || v.wo.dot(v.ng) * v.wo_local.z <= 0.0 {
         return Some(zero);
     }
@@ -355,21 +373,22 @@ pub(super) fn scatter_guided(
     if f == Rgb::ZERO {
         return Some(zero);
     }
-    let p = ALPHA * v.bsdf.pdf(v.wo_local, wl) + (1.0 - ALPHA) * guide.pdf(cell, wi);
+    let (q, bin) = guide.pdf_and_bin(cell, wi);
+    let p = ALPHA * v.bsdf.pdf(v.wo_local, wl) + (1.0 - ALPHA) * q;
     let k = shading_normal_correction_over(v.wo, wi, v.ng, v.frame.n, p);
     let w = f * k;
     if k == 0.0 || !w.is_finite() {
-        return Some(zero);
+        return Some(Guided { bin, ..zero });
     }
-    Some(Guided { wi, w })
+    Some(Guided { wi, w, bin })
 }
 
 /// An emitted direction from a one-sided diffuse emitter with normal `n` in
 /// `cell`: the cosine sample `d_cos` already drawn, or, with probability
 /// 1 − α when the cell guides, a direction from the guide. Returns the
-/// direction and the factor cos θ / p(ω) that turns the emission sample's
+/// direction, the factor cos θ / p(ω) that turns the emission sample's
 /// positional power (Le / p_pos) into the ray's power (zero below the
-/// emitter).
+/// emitter), and the direction's bin when the density computed it.
 #[inline(always)]
 pub(super) fn emit_guided(
     n: Vec3,
@@ -377,11 +396,11 @@ pub(super) fn emit_guided(
     guide: &DirGuide,
     cell: u32,
     rng: &mut Pcg32,
-) -> (Vec3, f32) {
+) -> (Vec3, f32, Option<u32>) {
     let u_pick = rng.next_f32();
     let (u_bin, u) = (rng.next_f32(), rng.next_2d());
     if !guide.is_on(cell) {
-        return (d_cos, std::f32::consts::PI);
+        return (d_cos, std::f32::consts::PI, None);
     }
     let d = if u_pick < ALPHA {
         d_cos
@@ -390,10 +409,11 @@ pub(super) fn emit_guided(
     };
     let cos = d.dot(n);
     if cos <= 0.0 {
-        return (d, 0.0);
+        return (d, 0.0, None);
     }
-    let p = ALPHA * cos * std::f32::consts::FRAC_1_PI + (1.0 - ALPHA) * guide.pdf(cell, d);
-    (d, if p > 0.0 { cos / p } else { 0.0 })
+    let (q, bin) = guide.pdf_and_bin(cell, d);
+    let p = ALPHA * cos * std::f32::consts::FRAC_1_PI + (1.0 - ALPHA) * q;
+    (d, if p > 0.0 { cos / p } else { 0.0 }, bin)
 }
 
 #[cfg(test)]
@@ -469,7 +489,7 @@ mod tests {
                 rng.next_2d(),
             );
             let r = if d.z > 0.5 { 3.0 } else { 1.0 };
-            stats.add(&DirRecord::new(1, d, r).unwrap());
+            stats.add(&DirRecord::new(1, d, None, r).unwrap());
         }
         let g = DirGuide::build(&stats);
         assert!(!g.is_on(0) && g.is_on(1));

@@ -26,7 +26,7 @@ pub(super) const NO_PARENT: u32 = u32::MAX;
 
 /// A photon hit, the record of §5. Powers are stored in units of the lane's
 /// σ (actual power = σ · `phi`), and so are `out_lum`, `contrib` and `s`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 pub(super) struct Hit {
     /// Location, surface (triangle, shape → BSDF) and normals.
     pub(super) sp: SurfacePoint,
@@ -129,21 +129,6 @@ impl Lane {
         self.cum.push(self.cum.last().copied().unwrap_or(0.0) + w);
         self.hits.push(hit);
     }
-
-    /// Rebuilds the prefix sums and Σ out_lum after the purge.
-    #[inline]
-    pub(super) fn rebuild(&mut self) {
-        self.cum.clear();
-        self.reflected = 0.0;
-        let mut acc = 0.0;
-        for h in &self.hits {
-            if h.spawn {
-                acc += h.s;
-                self.reflected += h.out_lum as f64;
-            }
-            self.cum.push(acc);
-        }
-    }
 }
 
 /// The switches of one plb run, read once from its settings.
@@ -181,8 +166,9 @@ const LIGHT_FLOOR: f64 = 0.1;
 struct Source {
     /// Slot of the importance grid (the parent's cell, or the lights').
     slot: u32,
-    /// Cell and direction for the directional histograms (guided only).
-    dir: Option<(u32, glam::Vec3)>,
+    /// Cell, direction and, when already computed, the direction's bin,
+    /// for the directional histograms (guided only).
+    dir: Option<(u32, glam::Vec3, Option<u32>)>,
 }
 
 dispatched! {
@@ -262,10 +248,10 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
                 (true, Some(grid), Some(guide)) if area => {
                     // A guided direction: Φ = Le cos θ / (p_pos p(ω))
                     let cell = grid.cell(es.p);
-                    let (d, k) = emit_guided(es.n, es.d, guide, cell, rng);
+                    let (d, k, bin) = emit_guided(es.n, es.d, guide, cell, rng);
                     source = Some(Source {
                         slot: LIGHT_SLOT,
-                        dir: Some((cell, d)),
+                        dir: Some((cell, d, bin)),
                     });
                     if k > 0.0 {
                         let ray = Ray::new(offset_point(es.p, es.n, d), d);
@@ -280,7 +266,7 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
                                 .grid
                                 .as_ref()
                                 .filter(|_| area)
-                                .map(|g| (g.cell(es.p), es.d)),
+                                .map(|g| (g.cell(es.p), es.d, None)),
                         });
                     }
                     shot = Some((es.ray(), es.phi * inv_p, NO_PARENT, 1));
@@ -305,7 +291,7 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
                 if lane.grid.is_some() {
                     source = Some(Source {
                         slot: h.cell,
-                        dir: form.guided.then_some((h.cell, g.wi)),
+                        dir: form.guided.then_some((h.cell, g.wi, g.bin)),
                     });
                 }
                 if g.w != Rgb::ZERO {
@@ -348,8 +334,8 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
                 g.record(src.slot, r);
             }
         }
-        if let (Some((cell, d)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
-            dirs.extend(DirRecord::new(cell, d, r));
+        if let (Some((cell, d, bin)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
+            dirs.extend(DirRecord::new(cell, d, bin, r));
         }
     }
 

@@ -1,7 +1,7 @@
 //! The end of a phase (§5) and the random purge of the hit population (§4).
 
 use super::importance::compute_importance;
-use super::iterate::{Form, Hit, Lane, NO_PARENT};
+use super::iterate::{Form, Lane, NO_PARENT};
 use super::Settings;
 
 /// Buffers the purge reuses from phase to phase.
@@ -33,105 +33,129 @@ pub(super) fn end_phase(s: &Settings, form: Form, rng: &mut Pcg32, lane: &mut La
         }
     }
 
+    // Importance, and the dense list of the positive importances that
+    // [`survival_scale`] reads (8 bytes per hit, not a hit record)
+    let positive = &mut lane.scratch.positive;
+    positive.clear();
     match &lane.grid {
         Some(g) => {
             let weight = g.weights();
             for h in lane.hits.iter_mut() {
                 h.s = h.out_lum as f64 * weight(h.cell);
+                if h.s > 0.0 {
+                    positive.push(h.s);
+                }
             }
         }
-        None => compute_importance(&mut lane.hits, s.lambda as f64),
+        None => {
+            compute_importance(&mut lane.hits, s.lambda as f64);
+            positive.extend(lane.hits.iter().map(|h| h.s).filter(|x| *x > 0.0));
+        }
     }
-    purge(
-        &mut lane.hits,
-        lane.sigma,
-        s.population,
-        rng,
-        &mut lane.scratch,
-    );
+    let c = survival_scale(positive, s.population);
+    purge(lane, c, rng);
     lane.sigma = 1.0;
-    lane.rebuild();
     // The survivors carry the estimate with the weight of one phase (see the
     // module docs): the next phase runs m = P+1 … 2P
     lane.m = s.phase_len as u64;
 }
 
-/// The random purge of §4: hit i survives with k_i = min(1, c s_i), c chosen
-/// so that Σk_i = `cap` (when more than `cap` hits have s_i > 0); survivors'
-/// power and importance are divided by k_i, and σ is folded into the stored
-/// powers. Parent links to killed hits are cut.
+/// The random purge of §4: hit i survives with k_i = min(1, c s_i), c from
+/// [`survival_scale`] (None: every hit survives); survivors' power and
+/// importance are divided by k_i, and σ is folded into the stored powers.
+/// Parent links to killed hits are cut.
 ///
-/// The survivors are compacted in place, in order, so the population keeps
-/// its allocation from phase to phase (building a new vector each phase
-/// reallocated the whole population whenever the next phase outgrew it;
-/// the cost is measured in docs/notebook/plb.md). The positive importances
-/// are first copied into a dense list, so that the iterations of
-/// [`survival_scale`] read 8 bytes per hit, not a whole hit record each.
-#[inline]
-fn purge(hits: &mut Vec<Hit>, sigma: f64, cap: usize, rng: &mut Pcg32, scratch: &mut Scratch) {
-    let n = hits.len();
-    scratch.positive.clear();
-    scratch
-        .positive
-        .extend(hits.iter().map(|h| h.s).filter(|x| *x > 0.0));
-    let c = survival_scale(scratch.positive.iter().copied(), cap);
-    let new_index = &mut scratch.new_index;
+/// One pass over the population, in order: the survivors are compacted in
+/// place (so the population keeps its allocation from phase to phase), each
+/// survivor's parent link is remapped as it is moved (a parent always
+/// precedes its children, so its new index is known by then), and the
+/// selection's prefix sums and Σ out_lum are rebuilt on the way
+/// (before, a pass of its own). Inlined into the
+/// lane's dispatched loop, so that the move of a record is a few vector
+/// moves, not a call to `memcpy`.
+#[inline(always)]
+fn purge(lane: &mut Lane, c: Option<f64>, rng: &mut Pcg32) {
+    let sigma = lane.sigma;
+    let n = lane.hits.len();
+    let new_index = &mut lane.scratch.new_index;
     new_index.clear();
     new_index.resize(n, NO_PARENT);
-    let (mut i, mut kept) = (0, 0);
-    // retain_mut visits the hits once each, in order
-    hits.retain_mut(|h| {
-        let index = i;
-        i += 1;
+    lane.cum.clear();
+    // Written out rather than with `retain_mut`, whose closure was not
+    // inlined (its captures then live in memory, not registers)
+    lane.cum.resize(n, 0.0);
+    let cum = &mut lane.cum[..n];
+    let new_index = &mut new_index[..n];
+    let hits = &mut lane.hits[..n];
+    let (mut acc, mut reflected) = (0.0, 0.0);
+    let mut kept = 0;
+    for i in 0..n {
+        let h = &mut hits[i];
         let k = match c {
             None => 1.0,
             Some(c) => (c * h.s).min(1.0),
         };
         if k <= 0.0 || (k < 1.0 && rng.next_f64() >= k) {
-            return false;
+            continue;
         }
         let f = (sigma / k) as f32;
         h.phi *= f;
         h.contrib *= f;
         h.out_lum *= f;
         h.s *= sigma / k;
-        new_index[index] = kept;
-        kept += 1;
-        true
-    });
-    for h in hits.iter_mut() {
         if h.parent != NO_PARENT {
+            debug_assert!((h.parent as usize) < i, "a parent precedes its child");
             h.parent = new_index[h.parent as usize];
         }
+        if h.spawn {
+            acc += h.s;
+            reflected += h.out_lum as f64;
+        }
+        new_index[i] = kept as u32;
+        cum[kept] = acc;
+        // A survivor moves only once a hit before it was killed
+        if kept != i {
+            hits[kept] = hits[i];
+        }
+        kept += 1;
     }
+    lane.hits.truncate(kept);
+    lane.cum.truncate(kept);
+    lane.reflected = reflected;
 }
 
-/// The c with Σ min(1, c s_i) = `cap`, or None when every hit with s_i > 0
-/// can survive (then all hits are kept with k_i = 1). Found by the
-/// fixed-point iteration c ← (cap − #saturated) / Σ_unsaturated s_i from
-/// c = cap / Σs_i, which increases monotonically to the root (no sort: the
-/// purge runs once per phase over the whole population).
-#[inline]
-fn survival_scale(s: impl Iterator<Item = f64> + Clone, cap: usize) -> Option<f64> {
-    let (n, total) = s
-        .clone()
-        .filter(|x| *x > 0.0)
-        .fold((0usize, 0.0f64), |(n, t), x| (n + 1, t + x));
+/// The c with Σ min(1, c s_i) = `cap` over the positive importances `s`, or
+/// None when every hit with s_i > 0 can survive (then all hits are kept
+/// with k_i = 1). Found by the fixed-point iteration c ← (cap − #saturated)
+/// / Σ_unsaturated s_i from c = cap / Σs_i, which increases monotonically
+/// to the root (no sort: the purge runs once per phase over the whole
+/// population).
+///
+/// Since c only grows, a hit once saturated (c s_i ≥ 1) stays saturated, so
+/// each iteration drops the newly saturated from `s` (which it leaves
+/// holding the unsaturated ones, in order) and sums only the rest: the same
+/// sums in the same order as summing over all of `s` each time, so the same
+/// c to the bit.
+#[inline(always)]
+fn survival_scale(s: &mut Vec<f64>, cap: usize) -> Option<f64> {
+    let n = s.len();
+    let total = s.iter().fold(0.0f64, |t, x| t + x);
     if n <= cap || total <= 0.0 {
         return None;
     }
     let mut c = cap as f64 / total;
+    let mut sat = 0usize;
     for _ in 0..64 {
-        let (sat, rest) = s
-            .clone()
-            .filter(|x| *x > 0.0)
-            .fold((0usize, 0.0f64), |(k, r), x| {
-                if c * x >= 1.0 {
-                    (k + 1, r)
-                } else {
-                    (k, r + x)
-                }
-            });
+        let mut rest = 0.0f64;
+        s.retain(|&x| {
+            let saturated = c * x >= 1.0;
+            if saturated {
+                sat += 1;
+            } else {
+                rest += x;
+            }
+            !saturated
+        });
         if sat >= cap || rest <= 0.0 {
             return Some(c);
         }
@@ -147,6 +171,75 @@ fn survival_scale(s: impl Iterator<Item = f64> + Clone, cap: usize) -> Option<f6
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn positives(s: &[f64]) -> Vec<f64> {
+        s.iter().copied().filter(|x| *x > 0.0).collect()
+    }
+
+    /// The fixed-point iteration as first written, summing over every
+    /// positive importance at each step.
+    fn survival_scale_plain(s: &[f64], cap: usize) -> Option<f64> {
+        let pos = || s.iter().copied().filter(|x| *x > 0.0);
+        let (n, total) = pos().fold((0usize, 0.0f64), |(n, t), x| (n + 1, t + x));
+        if n <= cap || total <= 0.0 {
+            return None;
+        }
+        let mut c = cap as f64 / total;
+        for _ in 0..64 {
+            let (sat, rest) = pos().fold((0usize, 0.0f64), |(k, r), x| {
+                if c * x >= 1.0 {
+                    (k + 1, r)
+                } else {
+                    (k, r + x)
+                }
+            });
+            if sat >= cap || rest <= 0.0 {
+                return Some(c);
+            }
+            let next = (cap - sat) as f64 / rest;
+            if next <= c * (1.0 + 1e-12) {
+                return Some(next.max(c));
+            }
+            c = next;
+        }
+        Some(c)
+    }
+
+    /// Dropping the saturated importances as they saturate gives the c of
+    /// the plain iteration to the bit (the purge's survivors, and so the
+    /// images, depend on it).
+    #[test]
+    fn survival_scale_matches_the_plain_iteration() {
+        let mut rng = Pcg32::keyed(&[11]);
+        let mut saturating = 0;
+        for trial in 0..400 {
+            let n = 1 + (rng.next_f64() * 2000.0) as usize;
+            let cap = 1 + (rng.next_f64() * n as f64) as usize;
+            let power = 1 + trial % 12;
+            let s: Vec<f64> = (0..n)
+                .map(|_| {
+                    let u = rng.next_f64();
+                    if u < 0.05 {
+                        0.0
+                    } else {
+                        u.powi(power) * 1e3
+                    }
+                })
+                .collect();
+            let plain = survival_scale_plain(&s, cap);
+            let fast = survival_scale(&mut positives(&s), cap);
+            assert_eq!(
+                plain.map(f64::to_bits),
+                fast.map(f64::to_bits),
+                "n {n} cap {cap}"
+            );
+            if let Some(c) = fast {
+                saturating += usize::from(s.iter().any(|x| c * x >= 1.0));
+            }
+        }
+        // The populations exercise the saturated case, not only c = cap/Σs
+        assert!(saturating > 100, "{saturating}");
+    }
 
     /// c against Σ min(1, c s_i) = cap on populations with many saturated
     /// hits, over a range of caps.
@@ -165,7 +258,7 @@ mod tests {
                         }
                     })
                     .collect();
-                let Some(c) = survival_scale(s.iter().copied(), cap) else {
+                let Some(c) = survival_scale(&mut positives(&s), cap) else {
                     assert!(s.iter().filter(|x| **x > 0.0).count() <= cap);
                     continue;
                 };
@@ -181,9 +274,9 @@ mod tests {
     #[test]
     fn survival_scale_sums_to_cap() {
         let s = [10.0, 1.0, 1.0, 1.0, 0.5, 0.0, 0.25];
-        let c = survival_scale(s.iter().copied(), 3).unwrap();
+        let c = survival_scale(&mut positives(&s), 3).unwrap();
         let sum: f64 = s.iter().map(|x| (c * x).min(1.0)).sum();
         assert!((sum - 3.0).abs() < 1e-9, "{sum}");
-        assert!(survival_scale(s.iter().copied(), 6).is_none());
+        assert!(survival_scale(&mut positives(&s), 6).is_none());
     }
 }
