@@ -192,13 +192,16 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     #[serde(default = "mix_default")]
     pub mix: bool,
-    /// The numbers the camera pass draws: independent ones (PCG32
-    /// streams), or Owen-scrambled Sobol points per pixel, the pass as the
-    /// sample index ([`crate::transport::camera_pass`]). The light paths
-    /// (the population and the mixed walks) draw independent numbers
-    /// either way. A partial-result file without the field was written
-    /// with independent numbers.
-    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "independent"))]
+    /// The numbers the camera pass draws: Owen-scrambled Sobol points per
+    /// pixel, the pass as the sample index (the default), or independent
+    /// ones (PCG32 streams) ([`crate::transport::camera_pass`]). The light
+    /// paths (the population and the mixed walks) draw independent
+    /// numbers either way. Per sample, Sobol's relMSE against
+    /// independent's on glass-mirror: 0.77 at 64 spp, 0.89 at 256 (8
+    /// seeds), at 1.003× the instructions; scenes without a camera pass
+    /// are unchanged (docs/notebook/light.md). A partial-result file
+    /// without the field was written with independent numbers.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "sobol"))]
     #[serde(default, skip_serializing_if = "SamplerKind::is_independent")]
     pub sampler: SamplerKind,
 }
@@ -272,7 +275,7 @@ impl Default for Settings {
             variant: Variant::Guided,
             measure: None,
             mix: true,
-            sampler: SamplerKind::Independent,
+            sampler: SamplerKind::Sobol,
         }
     }
 }
