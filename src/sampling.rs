@@ -2,18 +2,19 @@
 //!
 //! The generator is PCG32 (O'Neill 2014), written here by hand: it is twelve
 //! lines, and streams keyed by (seed, pass, task) make every render
-//! reproducible whatever the thread count. A camera path draws through the
-//! [`Sampler`] trait, which PCG32 (`--sampler independent`) and the
-//! Owen-scrambled Sobol points of [`sobol`] (`--sampler sobol`) implement.
+//! reproducible whatever the thread count. A camera path or a light walk
+//! draws through the [`Sampler`] trait, which PCG32 (`--sampler
+//! independent`) and the Owen-scrambled Sobol points of [`sobol`]
+//! (`--sampler sobol`) implement.
 
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
 pub mod sobol;
 
-pub use sobol::SobolSampler;
+pub use sobol::{SobolSampler, SobolWalkSampler};
 
-/// Where a camera path's numbers come from: uniform numbers in [0, 1),
+/// Where a path's numbers come from: uniform numbers in [0, 1),
 /// one or two at a time. [`Pcg32`] gives independent ones; a
 /// low-discrepancy sampler gives each draw its own dimension of a point
 /// set and is told where each vertex's dimensions start.
@@ -22,10 +23,11 @@ pub trait Sampler {
     fn next_f32(&mut self) -> f32;
     /// A uniform point in [0, 1)².
     fn next_2d(&mut self) -> Vec2;
-    /// The camera path reaches its vertex at `depth` (the end of its
-    /// `depth`-th segment): a sampler with a dimension layout moves to that
-    /// vertex's dimensions, so that each vertex draws from its own whatever
-    /// the earlier ones drew. Independent numbers ignore it.
+    /// The path (a camera path, or a light walk for [`SobolWalkSampler`])
+    /// reaches its vertex at `depth` (the end of its `depth`-th segment): a
+    /// sampler with a dimension layout moves to that vertex's dimensions,
+    /// so that each vertex draws from its own whatever the earlier ones
+    /// drew. Independent numbers ignore it.
     #[inline(always)]
     fn start_vertex(&mut self, depth: u32) {
         let _ = depth;
@@ -44,16 +46,19 @@ impl Sampler for Pcg32 {
     }
 }
 
-/// Which numbers `path` draws (`--sampler`).
+/// Which numbers a method draws (`--sampler`): `path`'s camera paths,
+/// `light`'s walks and the camera pass of `light` and `plb`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum SamplerKind {
-    /// Independent numbers from PCG32, one stream per (seed, pass, pixel).
+    /// Independent numbers from PCG32, one stream per (seed, pass, pixel)
+    /// (per (seed, pass, lane) for `light`'s walks).
     #[default]
     Independent,
     /// Owen-scrambled Sobol points, one randomisation per (seed, pixel), the
-    /// pass as the sample index ([`sobol`]).
+    /// pass as the sample index ([`sobol`]); for `light`'s walks, one per
+    /// (seed, pass), the walk as the index ([`SobolWalkSampler`]).
     Sobol,
 }
 

@@ -350,8 +350,15 @@ pub struct SobolSampler {
 impl SobolSampler {
     /// The sampler of sample `index` (the pass) of `pixel` under `seed`.
     pub fn new(seed: u64, pixel: u64, index: u64) -> Self {
-        let mut h = 0x5851_F42D_4C95_7F2Du64;
-        for k in [seed, pixel, index >> 32] {
+        Self::keyed(0x5851_F42D_4C95_7F2D, seed, pixel, index)
+    }
+
+    /// The sampler of sample `index` of the sequence keyed by `(a, b)`
+    /// under the domain `h`: the hash of the keys and the index's high
+    /// word chooses the index shuffle and the dimensions' scrambles.
+    #[inline]
+    fn keyed(mut h: u64, a: u64, b: u64, index: u64) -> Self {
+        for k in [a, b, index >> 32] {
             h = mix64(h ^ mix64(k.wrapping_add(0x632B_E59B_D9B4_E019)));
         }
         let index = index as u32;
@@ -402,6 +409,67 @@ impl SobolSampler {
             shuffled,
             dim,
         }
+    }
+}
+
+/// The first dimension of a light walk's vertex at `depth` (1: the first
+/// hit): 0 to 4 are the emission's (light choice, point, direction), then
+/// four per vertex (see [`SobolWalkSampler`]).
+#[inline]
+pub fn walk_vertex_dimension(depth: u32) -> u32 {
+    5 + 4 * depth.saturating_sub(1).min(u32::MAX / 8)
+}
+
+/// The Owen-scrambled Sobol numbers of one light-tracing walk (`light
+/// --sampler sobol`): walk k of a pass is Sobol point k of a sequence
+/// randomised by (seed, pass), since light paths belong to no pixel.
+///
+/// Layout: dimension 0 chooses the light, 1–2 the point on it, 3–4 the
+/// direction of emission; the vertex at depth d (the d-th segment's end)
+/// takes the four from 5 + 4 (d − 1), in the order the walk draws them:
+/// Russian roulette (1D), then the BSDF's lobe (1D) and direction (2D).
+/// Past the table ([`SOBOL_DIMENSIONS`]: from the 15th vertex's last
+/// draw) the numbers are hashed independent ones, as in
+/// [`SobolSampler`]. A pass's walks take the indices 0 … n − 1, split
+/// among `light`'s lanes as contiguous ranges, so the points a pass draws
+/// do not depend on the thread count, and a pass of n walks uses the
+/// first n points of one shuffled sequence: every aligned block of 2^m of
+/// them is a (t, m, s)-net.
+#[derive(Clone, Debug)]
+pub struct SobolWalkSampler(SobolSampler);
+
+impl SobolWalkSampler {
+    /// The sampler of walk `index` of pass `pass` under `seed`.
+    #[inline]
+    pub fn new(seed: u64, pass: u64, index: u64) -> Self {
+        SobolWalkSampler(SobolSampler::keyed(
+            0x1F83_D9AB_FB41_BD6B,
+            seed,
+            pass,
+            index,
+        ))
+    }
+
+    /// The dimension the next draw takes.
+    pub fn dimension(&self) -> u32 {
+        self.0.dim
+    }
+}
+
+impl Sampler for SobolWalkSampler {
+    #[inline(always)]
+    fn next_f32(&mut self) -> f32 {
+        self.0.next_f32()
+    }
+
+    #[inline(always)]
+    fn next_2d(&mut self) -> Vec2 {
+        self.0.next_2d()
+    }
+
+    #[inline(always)]
+    fn start_vertex(&mut self, depth: u32) {
+        self.0.dim = walk_vertex_dimension(depth);
     }
 }
 

@@ -54,6 +54,17 @@
 //! with probability 1/16 (weighted by 16). The effort thus follows the
 //! fraction of pixels whose first hit is delta, as the light-based method
 //! gives about one light path per pixel per pass.
+//!
+//! Numbers (`--sampler` of `light` and `plb`). A pixel's sample of pass
+//! p draws from PCG32 keyed by (seed, pass, pixel), or with
+//! [`SamplerKind::Sobol`] is Owen-scrambled Sobol point p of the pixel's
+//! sequence ([`SobolSampler`], keyed by (seed, pixel, pass) as `path`'s),
+//! with its own layout: dimensions 0–1 the camera jitter, 2 the lobe and
+//! 3–4 the direction at x₁, then from the vertex at depth 2 on `path`'s
+//! seven per vertex ([`radiance_from`] moves there). An unmarked pixel's
+//! coin is drawn from the PCG32 stream either way, so both samplers visit
+//! the same pixels, and an unmarked pixel's samples are the points of the
+//! passes that drew it (unbiased, not stratified).
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -65,7 +76,7 @@ use crate::bsdf::{Bsdf, Mode};
 use crate::emitter::LightSelection;
 use crate::film::Image;
 use crate::geometry::{offset_point, Ray};
-use crate::sampling::Pcg32;
+use crate::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler};
 use crate::scene::Rgb;
 use crate::simd::dispatched;
 use crate::state::Shard;
@@ -117,6 +128,8 @@ pub struct CameraPass {
     limits: DepthLimits,
     /// The rows this process samples, y ≡ K (mod N) for shard K/N.
     shard: Shard,
+    /// Which numbers the samples draw (see the module docs).
+    sampler: SamplerKind,
 }
 
 impl CameraPass {
@@ -126,13 +139,15 @@ impl CameraPass {
     /// scene with neither delta lobes nor an environment (nor, with
     /// `glossy`, glossy lobes). With `glossy` the method's camera
     /// connections must be weighted by 1 − [`camera_share`]
-    /// ([`CameraPass::splits_glossy`]).
+    /// ([`CameraPass::splits_glossy`]). `sampler` chooses the numbers the
+    /// samples draw (see the module docs).
     pub fn new(
         world: &World,
         enabled: bool,
         glossy: bool,
         seed: u64,
         max_depth: Option<u32>,
+        sampler: SamplerKind,
     ) -> Self {
         let needed = world.lights.env.is_some()
             || world.scene.materials.iter().any(|m| {
@@ -154,6 +169,7 @@ impl CameraPass {
                 light_selection: LightSelection::Power,
             },
             shard: Shard::WHOLE,
+            sampler,
         }
     }
 
@@ -238,7 +254,7 @@ impl CameraPass {
         let pre = self.prepare(world);
         self.passes += 1;
         let w = world.camera.width as usize;
-        let (seed, limits, glossy) = (self.seed, &self.limits, self.glossy);
+        let (seed, limits, glossy, sampler) = (self.seed, &self.limits, self.glossy, self.sampler);
         let marked = &self.marked;
         let shard = self.shard;
         let rays: u64 = self
@@ -249,7 +265,7 @@ impl CameraPass {
                 if !shard.owns(y as u64) {
                     return 0;
                 }
-                sample_row(world, limits, glossy, marked, seed, pass, y, row)
+                sample_row(world, limits, glossy, sampler, marked, seed, pass, y, row)
             })
             .sum();
         pre + rays
@@ -276,6 +292,7 @@ dispatched! {
         world: &World,
         limits: &DepthLimits,
         glossy: bool,
+        sampler: SamplerKind,
         marked: &[bool],
         seed: u64,
         pass: u64,
@@ -294,7 +311,13 @@ dispatched! {
             } else {
                 continue;
             };
-            let (l, r) = sample_pixel(world, limits, glossy, x, y, &mut rng);
+            let (l, r) = match sampler {
+                SamplerKind::Independent => sample_pixel(world, limits, glossy, x, y, &mut rng),
+                SamplerKind::Sobol => {
+                    let mut s = SobolSampler::new(seed, i as u64, pass);
+                    sample_pixel(world, limits, glossy, x, y, &mut s)
+                }
+            };
             rays += r;
             let v = l * weight;
             if v.is_finite() {
@@ -310,13 +333,13 @@ dispatched! {
 /// (and, with `glossy`, through a glossy BSDF's other lobes, weighted by
 /// [`camera_share`]).
 #[inline(always)]
-fn sample_pixel(
+fn sample_pixel<S: Sampler>(
     world: &World,
     limits: &DepthLimits,
     glossy: bool,
     x: usize,
     y: usize,
-    rng: &mut Pcg32,
+    rng: &mut S,
 ) -> (Rgb, u64) {
     let j = rng.next_2d();
     let ray = world.camera.ray(x as f32 + j.x, y as f32 + j.y);

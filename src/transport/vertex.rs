@@ -5,7 +5,7 @@ use glam::Vec3;
 use crate::accel::Hit;
 use crate::bsdf::{shading_normal_correction_over, Bsdf, Mode};
 use crate::geometry::{Frame, Ray};
-use crate::sampling::Pcg32;
+use crate::sampling::Sampler;
 use crate::scene::{Rgb, SurfacePoint};
 use crate::world::World;
 
@@ -127,7 +127,7 @@ impl World {
 /// BSDF gives no sample or the sample leaves on the wrong side of the
 /// geometric surface. Draws one 1D and one 2D number.
 #[inline(always)]
-pub fn scatter(v: &Vertex, rng: &mut Pcg32) -> Option<(Vec3, Rgb)> {
+pub fn scatter<S: Sampler>(v: &Vertex, rng: &mut S) -> Option<(Vec3, Rgb)> {
     let wo = v.wo_local;
     let uc = rng.next_f32();
     let u = rng.next_2d();

@@ -5,7 +5,7 @@ use std::ops::ControlFlow;
 use super::{scatter, Vertex};
 use crate::accel::Hit;
 use crate::geometry::{offset_point, Ray};
-use crate::sampling::Pcg32;
+use crate::sampling::{Pcg32, Sampler};
 use crate::scene::Rgb;
 use crate::world::World;
 
@@ -99,15 +99,18 @@ pub struct LightVertex<'a> {
 /// could not be. The hook may end the walk with [`ControlFlow::Break`].
 ///
 /// Random numbers, per vertex: one for the roulette, then those of
-/// [`scatter`]; the hook draws none.
+/// [`scatter`]; the hook draws none. Each vertex first calls
+/// [`Sampler::start_vertex`] with its depth, so that a sampler with a
+/// dimension layout ([`crate::sampling::SobolWalkSampler`]) draws the
+/// vertex's own dimensions; PCG32 ignores it.
 #[inline(always)]
-pub fn light_walk(
+pub fn light_walk<S: Sampler>(
     world: &World,
     mut ray: Ray,
     mut beta: Rgb,
     spectrum: Spectrum,
     max_depth: Option<u32>,
-    rng: &mut Pcg32,
+    rng: &mut S,
     mut on_vertex: impl FnMut(&LightVertex) -> ControlFlow<()>,
 ) -> u64 {
     let max_depth = max_depth.unwrap_or(u32::MAX);
@@ -138,6 +141,7 @@ pub fn light_walk(
 
         // Terminate the walk with Russian roulette on the albedo, capped
         // below 1 so that every walk ends
+        rng.start_vertex(depth);
         let albedo = vertex.bsdf.albedo(vertex.wo_local);
         let a = match spectrum {
             Spectrum::Rgb => albedo.max_element(),

@@ -19,6 +19,7 @@ use crate::common;
 use crate::common::{block_stats, max_block_z, render, render_budget};
 use kalos::film::Image;
 use kalos::methods::{light, plb, Budget, Common, MethodConfig, World};
+use kalos::sampling::SamplerKind;
 use kalos::scene::{self, Scene};
 use kalos::transport::camera_pass::CameraPass;
 
@@ -142,7 +143,7 @@ fn camera_pass_costs_nothing_on_cbox() {
     let mut s = scene::load(&root().join("scenes/cbox/cbox.xml")).expect("scene");
     s.set_resolution(32, 32);
     let world = World::new(s.clone());
-    assert!(!CameraPass::new(&world, true, false, 0, None).is_active());
+    assert!(!CameraPass::new(&world, true, false, 0, None, SamplerKind::Independent).is_active());
     let on = MethodConfig::Light(light::Settings {
         camera_pass: true,
         ..Default::default()

@@ -14,6 +14,7 @@
 use crate::common;
 
 use kalos::methods::{self, bundle, density, light, plb, Budget, Common, MethodConfig};
+use kalos::sampling::SamplerKind;
 use kalos::scene::Scene;
 
 /// The furnace's resolution: 16 × 16 pixels.
@@ -44,7 +45,7 @@ fn rows(name: &str) -> Vec<Row> {
         "path" => vec![
             Row {
                 config: MethodConfig::Path(kalos::methods::path::Settings {
-                    sampler: kalos::sampling::SamplerKind::Independent,
+                    sampler: SamplerKind::Independent,
                     ..Default::default()
                 }),
                 passes: 16,
@@ -53,7 +54,7 @@ fn rows(name: &str) -> Vec<Row> {
             },
             Row {
                 config: MethodConfig::Path(kalos::methods::path::Settings {
-                    sampler: kalos::sampling::SamplerKind::Sobol,
+                    sampler: SamplerKind::Sobol,
                     ..Default::default()
                 }),
                 passes: 16,
@@ -63,7 +64,19 @@ fn rows(name: &str) -> Vec<Row> {
         ],
         "light" => vec![
             Row {
-                config: common::light(light::Settings::default()),
+                config: common::light(light::Settings {
+                    sampler: SamplerKind::Independent,
+                    ..Default::default()
+                }),
+                passes: 1024,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
+            Row {
+                config: common::light(light::Settings {
+                    sampler: SamplerKind::Sobol,
+                    ..Default::default()
+                }),
                 passes: 1024,
                 furnace_bias: none,
                 sharp: 0.01,
@@ -80,7 +93,21 @@ fn rows(name: &str) -> Vec<Row> {
         ],
         "plb" => vec![
             Row {
-                config: common::plb(plb::Settings::default()),
+                config: common::plb(plb::Settings {
+                    sampler: SamplerKind::Independent,
+                    ..Default::default()
+                }),
+                passes: 1024,
+                furnace_bias: none,
+                sharp: 0.01,
+            },
+            // the camera pass's Sobol points (the furnace has no camera
+            // pass; the determinism check's glass scene has)
+            Row {
+                config: common::plb(plb::Settings {
+                    sampler: SamplerKind::Sobol,
+                    ..Default::default()
+                }),
                 passes: 1024,
                 furnace_bias: none,
                 sharp: 0.01,

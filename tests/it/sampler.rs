@@ -1,15 +1,16 @@
-//! The samplers of `path` (`--sampler`): the Owen-scrambled Sobol points
-//! checked directly (stratification of every 1D and 2D draw, error that
-//! falls faster than 1/√N on smooth integrands), and `path` with them
+//! The samplers of `path`, `light` and `plb` (`--sampler`): the
+//! Owen-scrambled Sobol points checked directly (stratification of every
+//! 1D and 2D draw, error that falls faster than 1/√N on smooth
+//! integrands, `light`'s walk layout), and the methods with them
 //! (furnace, agreement with independent numbers on cbox, the same image
 //! whatever the thread count, the flag refused by the other methods).
 
 use crate::common;
 
 use glam::Vec2;
-use kalos::methods::{path, Budget, Common, MethodConfig};
+use kalos::methods::{light, path, plb, Budget, Common, MethodConfig};
 use kalos::sampling::sobol::{owen_scramble, sobol, vertex_dimension, SOBOL_DIMENSIONS};
-use kalos::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler};
+use kalos::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler, SobolWalkSampler};
 use kalos::scene::Scene;
 
 /// The smallest t for which the 2^m points are a (t, m, 2)-net in base 2:
@@ -388,14 +389,15 @@ fn sobol_lanes_give_the_scalar_radiance_bit_for_bit() {
     );
 }
 
-/// `--sampler` is a setting of `path`: another method refuses it with the
-/// message that names `path`, and `path` refuses an unknown sampler.
+/// `--sampler` is a setting of `path`, `light` and `plb`: another method
+/// refuses it with the message that names them, and `path` refuses an
+/// unknown sampler.
 #[test]
 fn other_methods_refuse_the_sampler_flag() {
     let o = common::kalos(&[
         "render",
         "--method",
-        "light",
+        "density",
         "--res",
         "8x8",
         "--spp",
@@ -407,7 +409,10 @@ fn other_methods_refuse_the_sampler_flag() {
     ]);
     assert!(!o.status.success());
     let e = common::stderr(&o);
-    assert!(e.contains("--sampler") && e.contains("'path'"), "{e}");
+    assert!(
+        e.contains("--sampler") && e.contains("'path'") && e.contains("'light'"),
+        "{e}"
+    );
     let o = common::kalos(&[
         "render",
         "--res",
@@ -419,4 +424,194 @@ fn other_methods_refuse_the_sampler_flag() {
     ]);
     assert!(!o.status.success());
     assert!(common::stderr(&o).contains("halton"));
+}
+
+/// The first 2^m walks of a pass as `light --sampler sobol` draws them:
+/// each walk's numbers at dimensions 0 to 8 (the emission's five, then the
+/// first vertex's roulette, lobe and direction), in the walk's order.
+fn walk_points(seed: u64, pass: u64, m: u32) -> Vec<[f32; 9]> {
+    (0..1u64 << m)
+        .map(|k| {
+            let mut s = SobolWalkSampler::new(seed, pass, k);
+            let (sel, pos, dir) = (s.next_f32(), s.next_2d(), s.next_2d());
+            s.start_vertex(1);
+            assert_eq!(s.dimension(), 5);
+            let (rr, lobe, wi) = (s.next_f32(), s.next_f32(), s.next_2d());
+            [sel, pos.x, pos.y, dir.x, dir.y, rr, lobe, wi.x, wi.y]
+        })
+        .collect()
+}
+
+/// `light`'s walks with Sobol points: the first 2^m walks of a pass put
+/// one number in each interval [k/2^m, (k+1)/2^m) of every 1D draw (the
+/// light choice, the roulette, the lobe), and their 2D draws (the point
+/// on the light, the direction of emission, the first bounce's direction)
+/// are nets of small t (1 to 3 at 2^6 … 2^12, the t of Joe and Kuo's
+/// dimensions 1–2, 3–4 and 7–8, which the scramble keeps; bound 3). Another
+/// pass is another randomisation; each vertex starts at its own four
+/// dimensions; past the table the numbers are independent.
+#[test]
+fn light_walk_draws_are_stratified_within_a_pass() {
+    for m in [6, 8, 10, 12] {
+        for (seed, pass) in [(0, 0), (7, 3)] {
+            let pts = walk_points(seed, pass, m);
+            for d in [0, 5, 6] {
+                let mut hit = vec![false; 1 << m];
+                for p in &pts {
+                    let k = (p[d] * (1u32 << m) as f32) as usize;
+                    assert!(!hit[k], "2^{m}, dimension {d}: two walks in interval {k}");
+                    hit[k] = true;
+                }
+            }
+            for d in [1, 3, 7] {
+                let xy: Vec<Vec2> = pts.iter().map(|p| Vec2::new(p[d], p[d + 1])).collect();
+                let t = t_value(&xy, m);
+                assert!(t <= 3, "2^{m}, dimensions {d}, {}: t = {t}", d + 1);
+            }
+        }
+    }
+    assert!(
+        walk_points(0, 0, 4) != walk_points(0, 1, 4),
+        "the pass changes nothing"
+    );
+    for depth in 1..20 {
+        let mut s = SobolWalkSampler::new(1, 2, 3);
+        s.start_vertex(depth);
+        assert_eq!(s.dimension(), 5 + 4 * (depth - 1));
+    }
+    // Vertex 16's direction is past the table: independent numbers
+    let past: Vec<Vec2> = (0..1u64 << 10)
+        .map(|k| {
+            let mut s = SobolWalkSampler::new(3, 4, k);
+            s.start_vertex(16);
+            s.next_f32();
+            s.next_f32();
+            assert!(s.dimension() as usize >= SOBOL_DIMENSIONS);
+            s.next_2d()
+        })
+        .collect();
+    let t = t_value(&past, 10);
+    assert!(t >= 7, "independent numbers should not be a net: t = {t}");
+}
+
+fn light_with(sampler: SamplerKind) -> MethodConfig {
+    common::light(light::Settings {
+        sampler,
+        ..Default::default()
+    })
+}
+
+/// The white furnace (L = 2) with `light --sampler sobol`: 8 replicas of
+/// 256 passes at 16 × 16, within 5.41 standard errors (the 99.9 % t
+/// quantile, 7 degrees of freedom), a bound under 2 % of the value.
+#[test]
+fn light_with_sobol_passes_the_furnace() {
+    let scene = common::furnace(0.5, 1.0, 16);
+    let v: Vec<f64> = (0..8)
+        .map(|s| image_mean(&scene, &light_with(SamplerKind::Sobol), 100 + s, 256))
+        .collect();
+    let (m, se) = mean_se(&v);
+    let tol = 5.41 * se;
+    eprintln!("furnace, light sobol: {m:.5} ± {tol:.1e}");
+    assert!((m - 2.0).abs() <= tol, "mean {m} vs 2 ± {tol}");
+    assert!(tol < 0.04, "tolerance {tol} too wide to judge");
+}
+
+/// On cbox, `light` estimates the same image with Sobol points as with
+/// independent numbers: image means of 8 replicas (32 × 32, 64 passes)
+/// within 5.41 standard errors of their difference, and 8 × 8 blocks of
+/// two renders of 64 passes each within |z| < 4.5.
+#[test]
+fn light_with_sobol_agrees_with_independent_on_cbox() {
+    let scene = cbox(32);
+    let (sobol, indep) = (
+        light_with(SamplerKind::Sobol),
+        light_with(SamplerKind::Independent),
+    );
+    let vs: Vec<f64> = (0..8)
+        .map(|s| image_mean(&scene, &sobol, 10 + s, 64))
+        .collect();
+    let vi: Vec<f64> = (0..8)
+        .map(|s| image_mean(&scene, &indep, 10 + s, 64))
+        .collect();
+    let ((ms, ss), (mi, si)) = (mean_se(&vs), mean_se(&vi));
+    let tol = 5.41 * (ss * ss + si * si).sqrt();
+    eprintln!("cbox light means: sobol {ms:.5}, independent {mi:.5}, tolerance {tol:.1e}");
+    assert!(
+        (ms - mi).abs() <= tol,
+        "sobol {ms} vs independent {mi} ± {tol}"
+    );
+    assert!(tol < 0.02 * mi, "tolerance {tol} too wide to judge");
+
+    let blocks = |cfg: &MethodConfig| {
+        let (a, _) = common::render(&scene, cfg, 1, 64);
+        let (b, _) = common::render(&scene, cfg, 2, 64);
+        common::block_stats(&a, &b, 8, &|_, _| true)
+    };
+    let (z, block) = common::max_block_z(&blocks(&sobol), &blocks(&indep), 1e-4);
+    assert!(z < 4.5, "block {block} differs by {z:.2} standard errors");
+}
+
+/// `light --sampler sobol` (walks and camera pass) and `plb --sampler
+/// sobol` (camera pass) give a seed the same image whatever the thread
+/// count, on glass-mirror (mirror and glass seen by the camera, so the
+/// camera pass runs); another seed, or independent numbers, another.
+#[test]
+fn light_and_plb_sobol_images_do_not_depend_on_the_thread_count() {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut scene = kalos::scene::load(&root.join("scenes/glass-mirror/scene.xml")).expect("scene");
+    scene.set_resolution(24, 24);
+    let run = |threads: usize, cfg: &MethodConfig, seed: u64| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| {
+                common::render_budget(
+                    &scene,
+                    cfg,
+                    &Common {
+                        seed,
+                        max_depth: None,
+                    },
+                    Budget {
+                        passes: Some(3),
+                        ..Default::default()
+                    },
+                )
+            })
+    };
+    let plb_with = |sampler| {
+        common::plb(plb::Settings {
+            sampler,
+            ..Default::default()
+        })
+    };
+    for (sobol, indep) in [
+        (
+            light_with(SamplerKind::Sobol),
+            light_with(SamplerKind::Independent),
+        ),
+        (
+            plb_with(SamplerKind::Sobol),
+            plb_with(SamplerKind::Independent),
+        ),
+    ] {
+        let one = run(1, &sobol, 42);
+        let two = run(2, &sobol, 42);
+        let three = run(3, &sobol, 42);
+        assert_eq!(one.1, two.1, "{sobol:?}: ray counts differ");
+        assert!(
+            one.0 == two.0 && two.0 == three.0,
+            "{sobol:?}: images differ with the thread count"
+        );
+        assert!(
+            run(2, &sobol, 43).0 != one.0,
+            "{sobol:?}: the seed changes nothing"
+        );
+        assert!(
+            run(2, &indep, 42).0 != one.0,
+            "{sobol:?}: the sampler changes nothing"
+        );
+    }
 }

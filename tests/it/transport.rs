@@ -6,7 +6,7 @@
 use std::ops::ControlFlow;
 
 use kalos::methods::{bundle, density, Common, MethodConfig, World};
-use kalos::sampling::Pcg32;
+use kalos::sampling::{Pcg32, SamplerKind};
 use kalos::scene::{self, Rgb, Scene};
 use kalos::transport::camera_pass::CameraPass;
 use kalos::transport::{light_walk, Spectrum};
@@ -176,7 +176,7 @@ fn density_at_max_depth_1_shows_only_the_emitters() {
 fn prepare_counts_the_setup_rays() {
     let res = 24u64;
     let glass = World::new(load("glass-mirror/scene.xml", res as u32));
-    let mut cp = CameraPass::new(&glass, true, false, 0, None);
+    let mut cp = CameraPass::new(&glass, true, false, 0, None, SamplerKind::Independent);
     let rays = cp.prepare(&glass);
     assert!(
         (res * res..=16 * res * res).contains(&rays),

@@ -113,7 +113,7 @@ use super::{
 };
 use crate::film::{Film, Image};
 use crate::memory::MemoryItem;
-use crate::sampling::Pcg32;
+use crate::sampling::{Pcg32, SamplerKind};
 use crate::state::{ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 
@@ -192,6 +192,18 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     #[serde(default = "mix_default")]
     pub mix: bool,
+    /// The numbers the camera pass draws: Owen-scrambled Sobol points per
+    /// pixel, the pass as the sample index (the default), or independent
+    /// ones (PCG32 streams) ([`crate::transport::camera_pass`]). The light
+    /// paths (the population and the mixed walks) draw independent
+    /// numbers either way. Per sample, Sobol's relMSE against
+    /// independent's on glass-mirror: 0.77 at 64 spp, 0.89 at 256 (8
+    /// seeds), at 1.003× the instructions; scenes without a camera pass
+    /// are unchanged (docs/notebook/light.md). A partial-result file
+    /// without the field was written with independent numbers.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "sobol"))]
+    #[serde(default, skip_serializing_if = "SamplerKind::is_independent")]
+    pub sampler: SamplerKind,
 }
 
 fn mix_default() -> bool {
@@ -263,6 +275,7 @@ impl Default for Settings {
             variant: Variant::Guided,
             measure: None,
             mix: true,
+            sampler: SamplerKind::Sobol,
         }
     }
 }
@@ -400,6 +413,7 @@ impl Plb {
                 guided,
                 settings.seed,
                 settings.max_depth,
+                settings.sampler,
             ),
             lanes: (0..n)
                 .map(|_| {

@@ -62,10 +62,11 @@ fn render_args<'a>(method: &[&'a str], spp: &'a str) -> Vec<&'a str> {
     v
 }
 
-const EXACT: [&[&str]; 4] = [
+const EXACT: [&[&str]; 5] = [
     &["--method", "path", "--sampler", "independent"],
     &["--method", "path"],
-    &["--method", "light"],
+    &["--method", "light", "--sampler", "independent"],
+    &["--method", "light", "--sampler", "sobol"],
     &["--method", "light", "--variant", "iteration"],
 ];
 
@@ -104,7 +105,7 @@ fn shards_merged_give_the_bytes_of_one_run() {
 #[test]
 fn a_render_resumed_from_its_checkpoint_gives_the_bytes_of_one_run() {
     let dir = tempfile::tempdir().expect("tempdir");
-    for (i, method) in EXACT[..3].iter().enumerate() {
+    for (i, method) in EXACT[..4].iter().enumerate() {
         let one = dir.path().join(format!("one-{i}.pfm"));
         let mut a = render_args(method, "7");
         a.extend(["-o", s(&one)]);
