@@ -99,19 +99,25 @@ fn generated_uv_is_in_range_and_charts_keep_their_padding() {
         let s = load(p);
         let uv = lightmap_uv(&s, None, &size(512)).unwrap();
         assert_eq!(uv.source, UvSource::Generated);
-        assert_eq!((uv.width, uv.height), (512, 512));
-        assert!(uv.charts > 0);
-        check_structure(&s, &uv);
-        let (clashes, border) = padding_violations(&s, &uv, 2);
-        assert_eq!(clashes, 0, "{p}: texels claimed by two charts");
-        assert_eq!(
-            border, 0,
-            "{p}: charts closer than the padding to the border"
-        );
-        // And the test can fail: with a wider claim than the packer's
-        // clearance, neighbouring charts collide.
-        assert!(padding_violations(&s, &uv, 6).0 > 0, "{p}");
+        charts_are_apart(p, &s, &uv);
     }
+}
+
+/// A 512² generated atlas of scene `p` holds every triangle, and no two
+/// charts come within twice the padding (2 texels) nor a chart within the
+/// padding of the border; and the check can fail: with a wider claim than
+/// the packer's clearance (6 texels), neighbouring charts collide.
+fn charts_are_apart(p: &str, s: &Scene, uv: &LightmapUv) {
+    assert_eq!((uv.width, uv.height), (512, 512));
+    assert!(uv.charts > 0);
+    check_structure(s, uv);
+    let (clashes, border) = padding_violations(s, uv, 2);
+    assert_eq!(clashes, 0, "{p}: texels claimed by two charts");
+    assert_eq!(
+        border, 0,
+        "{p}: charts closer than the padding to the border"
+    );
+    assert!(padding_violations(s, uv, 6).0 > 0, "{p}");
 }
 
 /// The rows packing (`--fast-packing`) keeps the same guarantees: every
@@ -125,16 +131,7 @@ fn fast_packing_keeps_the_charts_apart() {
             ..size(512)
         };
         let uv = lightmap_uv(&s, None, &opts).unwrap();
-        assert_eq!((uv.width, uv.height), (512, 512));
-        assert!(uv.charts > 0);
-        check_structure(&s, &uv);
-        let (clashes, border) = padding_violations(&s, &uv, 2);
-        assert_eq!(clashes, 0, "{p}: texels claimed by two charts");
-        assert_eq!(
-            border, 0,
-            "{p}: charts closer than the padding to the border"
-        );
-        assert!(padding_violations(&s, &uv, 6).0 > 0, "{p}");
+        charts_are_apart(p, &s, &uv);
     }
 }
 

@@ -247,20 +247,33 @@ fn cbox(res: u32) -> Scene {
 /// block-channel z values: a false alarm about once in 1000 runs).
 #[test]
 fn path_with_sobol_agrees_with_independent_on_cbox() {
-    let scene = cbox(48);
     let (sobol, indep) = (
         path_with(SamplerKind::Sobol),
         path_with(SamplerKind::Independent),
     );
+    sobol_agrees_with_independent(&cbox(48), "path", &sobol, &indep, 128);
+}
+
+/// The two tests of a Sobol method against its independent form on
+/// `scene`: the image means of 8 replicas of `spp` samples (or passes)
+/// within 5.41 standard errors of their difference, and 8 × 8 blocks of
+/// two renders of 64 within |z| < 4.5.
+fn sobol_agrees_with_independent(
+    scene: &Scene,
+    label: &str,
+    sobol: &MethodConfig,
+    indep: &MethodConfig,
+    spp: u64,
+) {
     let vs: Vec<f64> = (0..8)
-        .map(|s| image_mean(&scene, &sobol, 10 + s, 128))
+        .map(|s| image_mean(scene, sobol, 10 + s, spp))
         .collect();
     let vi: Vec<f64> = (0..8)
-        .map(|s| image_mean(&scene, &indep, 10 + s, 128))
+        .map(|s| image_mean(scene, indep, 10 + s, spp))
         .collect();
     let ((ms, ss), (mi, si)) = (mean_se(&vs), mean_se(&vi));
     let tol = 5.41 * (ss * ss + si * si).sqrt();
-    eprintln!("cbox means: sobol {ms:.5}, independent {mi:.5}, tolerance {tol:.1e}");
+    eprintln!("cbox {label} means: sobol {ms:.5}, independent {mi:.5}, tolerance {tol:.1e}");
     assert!(
         (ms - mi).abs() <= tol,
         "sobol {ms} vs independent {mi} ± {tol}"
@@ -268,11 +281,11 @@ fn path_with_sobol_agrees_with_independent_on_cbox() {
     assert!(tol < 0.02 * mi, "tolerance {tol} too wide to judge");
 
     let blocks = |cfg: &MethodConfig| {
-        let (a, _) = common::render(&scene, cfg, 1, 64);
-        let (b, _) = common::render(&scene, cfg, 2, 64);
+        let (a, _) = common::render(scene, cfg, 1, 64);
+        let (b, _) = common::render(scene, cfg, 2, 64);
         common::block_stats(&a, &b, 8, &|_, _| true)
     };
-    let (z, block) = common::max_block_z(&blocks(&sobol), &blocks(&indep), 1e-4);
+    let (z, block) = common::max_block_z(&blocks(sobol), &blocks(indep), 1e-4);
     assert!(z < 4.5, "block {block} differs by {z:.2} standard errors");
 }
 
@@ -523,33 +536,11 @@ fn light_with_sobol_passes_the_furnace() {
 /// two renders of 64 passes each within |z| < 4.5.
 #[test]
 fn light_with_sobol_agrees_with_independent_on_cbox() {
-    let scene = cbox(32);
     let (sobol, indep) = (
         light_with(SamplerKind::Sobol),
         light_with(SamplerKind::Independent),
     );
-    let vs: Vec<f64> = (0..8)
-        .map(|s| image_mean(&scene, &sobol, 10 + s, 64))
-        .collect();
-    let vi: Vec<f64> = (0..8)
-        .map(|s| image_mean(&scene, &indep, 10 + s, 64))
-        .collect();
-    let ((ms, ss), (mi, si)) = (mean_se(&vs), mean_se(&vi));
-    let tol = 5.41 * (ss * ss + si * si).sqrt();
-    eprintln!("cbox light means: sobol {ms:.5}, independent {mi:.5}, tolerance {tol:.1e}");
-    assert!(
-        (ms - mi).abs() <= tol,
-        "sobol {ms} vs independent {mi} ± {tol}"
-    );
-    assert!(tol < 0.02 * mi, "tolerance {tol} too wide to judge");
-
-    let blocks = |cfg: &MethodConfig| {
-        let (a, _) = common::render(&scene, cfg, 1, 64);
-        let (b, _) = common::render(&scene, cfg, 2, 64);
-        common::block_stats(&a, &b, 8, &|_, _| true)
-    };
-    let (z, block) = common::max_block_z(&blocks(&sobol), &blocks(&indep), 1e-4);
-    assert!(z < 4.5, "block {block} differs by {z:.2} standard errors");
+    sobol_agrees_with_independent(&cbox(32), "light", &sobol, &indep, 64);
 }
 
 /// `light --sampler sobol` (walks and camera pass) and `plb --sampler

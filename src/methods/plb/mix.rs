@@ -427,27 +427,34 @@ mod tests {
         assert_eq!(m.walks_per_lane_for(8000), 4800 / 8);
     }
 
-    /// Walk lanes that agree, plb lanes that scatter: the walks get the
-    /// weight and the next pass's work, and back when the roles swap.
-    #[test]
-    fn the_less_noisy_estimate_gets_the_weight_and_the_work() {
+    /// A mixture measured once: 8 walk lanes of 10 walks and 8 plb lanes of
+    /// 10 steps, every pixel of lane i at 5 + `walk(i)` (walks) and
+    /// 5 + `plb(i)` (plb's lights' film; its hits' film empty), as sums.
+    fn measured(walk: impl Fn(f64) -> f64, plb: impl Fn(f64) -> f64) -> Mix {
         let mut m = Mix::new(32, 16);
-        // Each walk lane: 10 walks of value 0.5 per pixel, with a small
-        // spread between lanes
         m.walks_per_lane = 10;
         m.walk_rays = 8 * 10 * 4;
         m.plb_rays = 8 * 10 * 2;
         m.plb_steps = 8 * 10;
         for (i, f) in m.films.iter_mut().enumerate() {
-            *f = film(5.0 + 0.01 * i as f64);
+            *f = film(5.0 + walk(i as f64));
         }
-        // plb lanes: the same mean, fifty times the walks' spread
-        let plb: Vec<(Film, Film)> = (0..8)
-            .map(|i| (film(5.0 + 0.5 * (i as f64 - 3.5)), film(0.0)))
+        let lanes: Vec<(Film, Film)> = (0..8)
+            .map(|i| (film(5.0 + plb(i as f64)), film(0.0)))
             .collect();
-        let lanes: Vec<_> = plb.iter().map(|(a, b)| (a, 10, b, 10)).collect();
+        let lanes: Vec<_> = lanes.iter().map(|(a, b)| (a, 10, b, 10)).collect();
         m.since = 160;
         m.measure(&lanes);
+        m
+    }
+
+    /// Walk lanes that agree, plb lanes that scatter: the walks get the
+    /// weight and the next pass's work, and back when the roles swap.
+    #[test]
+    fn the_less_noisy_estimate_gets_the_weight_and_the_work() {
+        // Walk lanes (10 walks of 0.5 per pixel) with a small spread; plb
+        // lanes with the same mean and fifty times the walks' spread
+        let m = measured(|i| 0.01 * i, |i| 0.5 * (i - 3.5));
         let (vp, vw) = m.var;
         assert!(vp > 100.0 * vw, "variances {vp:e} {vw:e}");
         assert!(m.weight() > 0.99, "walks' weight {}", m.weight());
@@ -463,20 +470,7 @@ mod tests {
         }
 
         // Swap the roles: plb lanes that agree, walks that scatter
-        let mut m2 = Mix::new(32, 16);
-        m2.walks_per_lane = 10;
-        m2.walk_rays = 8 * 10 * 4;
-        m2.plb_rays = 8 * 10 * 2;
-        m2.plb_steps = 8 * 10;
-        for (i, f) in m2.films.iter_mut().enumerate() {
-            *f = film(5.0 + 0.5 * (i as f64 - 3.5));
-        }
-        let plb: Vec<(Film, Film)> = (0..8)
-            .map(|i| (film(5.0 + 0.01 * i as f64), film(0.0)))
-            .collect();
-        let lanes: Vec<_> = plb.iter().map(|(a, b)| (a, 10, b, 10)).collect();
-        m2.since = 160;
-        m2.measure(&lanes);
+        let m2 = measured(|i| 0.5 * (i - 3.5), |i| 0.01 * i);
         assert!(m2.weight() < 0.01, "walks' weight {}", m2.weight());
         assert_eq!(m2.share, FLOOR);
     }
