@@ -17,7 +17,7 @@ use std::ops::ControlFlow;
 use kalos::methods::World;
 use kalos::sampling::Pcg32;
 use kalos::scene::luminance;
-use kalos::transport::{connect_to_camera, light_walk, Spectrum};
+use kalos::transport::{connect_to_camera, light_walk, Roulette, Spectrum};
 
 /// Tallies of one room.
 #[derive(Default)]
@@ -48,6 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             es.ray(),
             es.phi,
             Spectrum::Rgb,
+            Roulette::Albedo,
             None,
             &mut rng,
             |e| {

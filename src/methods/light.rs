@@ -68,7 +68,7 @@ use crate::state::{Shard, ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 use crate::transport::{
     connect_emission_sample, connect_to_camera, follow_delta_chain, light_walk, scatter,
-    splat_to_camera, Landing, Spectrum,
+    splat_to_camera, Landing, Roulette, Spectrum,
 };
 
 /// Which form of the method.
@@ -525,6 +525,7 @@ fn trace_walk<S: Sampler>(world: &World, s: &Settings, rng: &mut S, film: &mut F
         es.ray(),
         es.phi,
         Spectrum::Rgb,
+        Roulette::Albedo,
         s.max_depth,
         rng,
         |e| {

@@ -48,7 +48,8 @@ pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};
 pub use walk::{
-    follow_delta_chain, light_walk, Landing, LightVertex, Spectrum, DELTA_CHAIN_DEPTH_LIMIT,
+    follow_delta_chain, light_walk, Landing, LightVertex, Roulette, Spectrum,
+    DELTA_CHAIN_DEPTH_LIMIT,
 };
 
 #[cfg(doc)]

@@ -37,7 +37,7 @@ use crate::geometry::{offset_point, Frame, Ray};
 use crate::methods::World;
 use crate::sampling::{cosine_hemisphere, uniform_triangle, Distribution1D, Pcg32};
 use crate::scene::{luminance, EmitterDesc, Rgb};
-use crate::transport::{light_walk, Spectrum};
+use crate::transport::{light_walk, Roulette, Spectrum};
 
 /// Particles per chunk (one random stream each).
 pub const CHUNK: u64 = 1 << 14;
@@ -407,38 +407,47 @@ fn trace_one(
     // The walk records a hit only while its light path is shorter than
     // `max_depth`: the view pass adds the segment to the eye (Mitsuba's
     // convention, as in light tracing)
-    light_walk(world, ray, beta, spectrum, max_depth, rng, |e| {
-        // Record the hit on a surface with a diffuse part (the side the
-        // particle came from), its power times the coat's transmittance
-        // T(cos θ) for a coated model (1 otherwise), so that the estimate is
-        // the Ĥ of [`crate::bsdf::DiffusePart`]
-        let (v, hit) = (e.vertex, e.hit);
-        let sid = surfaces.tri_surface[hit.tri as usize];
-        let s = &surfaces.list[sid as usize];
-        let wo = v.wo_local;
-        if s.diffuse && wo.z > 0.0 {
-            // and times |wo·ns|/|wo·ng|: a hit's power falls on the geometric
-            // area, but the Lambertian lobe of a shading normal reflects
-            // ∫ L_i |wi·ns| dω, so this is the irradiance L = R·H/π needs.
-            // The light tracer's camera connection carries the same factor
-            // (Veach 1997, eq. 5.17); it is exactly 1 where ns = ng
-            let t = v.bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z))
-                * shading_weight(wo.z, v.wo.dot(v.ng));
-            let back = v.wo.dot(v.sp.ng) < 0.0;
-            let (u, v) = match s.kind {
-                Kind::Planar => {
-                    let c = s.to_chart(v.sp.p) / s.size;
-                    (c.x, c.y)
-                }
-                Kind::Curved => (hit.b1, hit.b2),
-            };
-            hits.push(Hit {
-                surface: SurfaceId { index: sid, back },
-                u: to_fixed(u),
-                v: to_fixed(v),
-                rgb: encode_rgb9e5(e.beta * t),
-            });
-        }
-        ControlFlow::Continue(())
-    })
+    light_walk(
+        world,
+        ray,
+        beta,
+        spectrum,
+        Roulette::Albedo,
+        max_depth,
+        rng,
+        |e| {
+            // Record the hit on a surface with a diffuse part (the side the
+            // particle came from), its power times the coat's transmittance
+            // T(cos θ) for a coated model (1 otherwise), so that the estimate is
+            // the Ĥ of [`crate::bsdf::DiffusePart`]
+            let (v, hit) = (e.vertex, e.hit);
+            let sid = surfaces.tri_surface[hit.tri as usize];
+            let s = &surfaces.list[sid as usize];
+            let wo = v.wo_local;
+            if s.diffuse && wo.z > 0.0 {
+                // and times |wo·ns|/|wo·ng|: a hit's power falls on the geometric
+                // area, but the Lambertian lobe of a shading normal reflects
+                // ∫ L_i |wi·ns| dω, so this is the irradiance L = R·H/π needs.
+                // The light tracer's camera connection carries the same factor
+                // (Veach 1997, eq. 5.17); it is exactly 1 where ns = ng
+                let t = v.bsdf.diffuse_part().map_or(1.0, |d| d.t(wo.z))
+                    * shading_weight(wo.z, v.wo.dot(v.ng));
+                let back = v.wo.dot(v.sp.ng) < 0.0;
+                let (u, v) = match s.kind {
+                    Kind::Planar => {
+                        let c = s.to_chart(v.sp.p) / s.size;
+                        (c.x, c.y)
+                    }
+                    Kind::Curved => (hit.b1, hit.b2),
+                };
+                hits.push(Hit {
+                    surface: SurfaceId { index: sid, back },
+                    u: to_fixed(u),
+                    v: to_fixed(v),
+                    rgb: encode_rgb9e5(e.beta * t),
+                });
+            }
+            ControlFlow::Continue(())
+        },
+    )
 }
