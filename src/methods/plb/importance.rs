@@ -2,31 +2,31 @@
 //! and the pooled-importance grid of `--variant pooled` (our extension, not
 //! in the paper).
 
-use super::iterate::{Hit, Lane, NO_PARENT};
+use super::iterate::{Hit, Lane, Measured, NO_PARENT};
 use crate::scene::luminance;
 
 /// `ComputeImportance` of §3.1: the potential impact of eq. (9) plus λ times
 /// the image impact of each child, eq. (8), averaged over the hit and its
 /// children. Left unnormalised (the selection normalises by the sum).
 #[inline]
-pub(super) fn compute_importance(hits: &mut [Hit], lambda: f64) {
-    for h in hits.iter_mut() {
+pub(super) fn compute_importance(hits: &mut [Hit], measured: &mut [Measured], lambda: f64) {
+    debug_assert_eq!(hits.len(), measured.len());
+    for (h, m) in hits.iter_mut().zip(measured.iter_mut()) {
         h.s = 0.0;
-        h.nchild = 0;
+        m.nchild = 0;
     }
     for i in 0..hits.len() {
-        let potential = (hits[i].out_lum * hits[i].g_star) as f64;
+        let potential = (hits[i].out_lum * measured[i].g_star) as f64;
         hits[i].s += potential;
-        let p = hits[i].parent;
+        let p = measured[i].parent;
         if p != NO_PARENT {
-            let impact = luminance(hits[i].contrib).max(0.0) as f64;
-            let parent = &mut hits[p as usize];
-            parent.s += lambda * impact;
-            parent.nchild += 1;
+            let impact = luminance(measured[i].contrib).max(0.0) as f64;
+            hits[p as usize].s += lambda * impact;
+            measured[p as usize].nchild += 1;
         }
     }
-    for h in hits.iter_mut() {
-        h.s /= (h.nchild + 1) as f64;
+    for (h, m) in hits.iter_mut().zip(measured.iter()) {
+        h.s /= (m.nchild + 1) as f64;
     }
 }
 
