@@ -366,7 +366,9 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
             }
         }
         if let (Some((cell, d, bin)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
-            dirs.extend(DirRecord::new(cell, d, bin, r));
+            if let Some(rec) = DirRecord::new(cell, d, bin, r) {
+                dirs.push(rec);
+            }
         }
     }
 
