@@ -355,21 +355,8 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
             world, ray, stored, parent, depth, form, birth, rng, lane, &mut rays,
         );
     }
-    // What the ray brought back, per unit power, for the learnt statistics
-    // (0 when it escaped, landed hidden, or was never traced)
     if let Some(src) = source {
-        let r = born.map_or(0.0, |c| landing_value(&c, lane.grid.as_ref(), form.guided));
-        // Pooled records only the hits' rays; guided also the lights'
-        if src.slot != LIGHT_SLOT || form.guided {
-            if let Some(g) = lane.grid.as_mut() {
-                g.record(src.slot, r);
-            }
-        }
-        if let (Some((cell, d, bin)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
-            if let Some(rec) = DirRecord::new(cell, d, bin, r) {
-                dirs.push(rec);
-            }
-        }
+        learn(lane, form, src, born);
     }
 
     lane.in_phase += 1;
@@ -377,6 +364,25 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
         end_phase(s, form, rng, lane);
     }
     rays
+}
+
+/// Records what the ray from `src` brought back, per unit power, in the
+/// learnt statistics (0 when it escaped, landed hidden, or was never
+/// traced: `born` None).
+#[inline(always)]
+fn learn(lane: &mut Lane, form: Form, src: Source, born: Option<Born>) {
+    let r = born.map_or(0.0, |c| landing_value(&c, lane.grid.as_ref(), form.guided));
+    // Pooled records only the hits' rays; guided also the lights'
+    if src.slot != LIGHT_SLOT || form.guided {
+        if let Some(g) = lane.grid.as_mut() {
+            g.record(src.slot, r);
+        }
+    }
+    if let (Some((cell, d, bin)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
+        if let Some(rec) = DirRecord::new(cell, d, bin, r) {
+            dirs.push(rec);
+        }
+    }
 }
 
 /// What [`landing_value`] reads of the hit a step appended (its
