@@ -214,7 +214,7 @@ pub fn shading_normal_correction(wo_world: Vec3, wi_world: Vec3, ng: Vec3, ns: V
 /// d = pdf (the weight f |wi·ns| / pdf, corrected, is f times this), and a
 /// camera connection d = 1, so that the cosine is never multiplied in and
 /// divided out again.
-#[inline]
+#[inline(always)]
 pub fn shading_normal_correction_over(
     wo_world: Vec3,
     wi_world: Vec3,

@@ -24,6 +24,10 @@ pub struct Landing {
     /// The first vertex with a non-delta lobe (or the vertex past
     /// [`DELTA_CHAIN_DEPTH_LIMIT`]).
     pub vertex: Vertex,
+    /// The closest hit the vertex was built from (triangle and
+    /// barycentrics: [`World::surface_point`] rebuilds the vertex's point
+    /// from it, to the same bits).
+    pub hit: Hit,
     /// The power arriving there.
     pub phi: Rgb,
     /// Segments of the light path up to and including the last ray.
@@ -51,7 +55,12 @@ pub fn follow_delta_chain(
         let hit = world.accel.intersect(&ray)?;
         let vertex = world.vertex(&ray, &hit);
         if vertex.bsdf.has_smooth() || depth > DELTA_CHAIN_DEPTH_LIMIT {
-            return Some(Landing { vertex, phi, depth });
+            return Some(Landing {
+                vertex,
+                hit,
+                phi,
+                depth,
+            });
         }
         // A purely specular surface: pass the power on
         let (wi, w) = scatter(&vertex, rng)?;

@@ -55,8 +55,11 @@ const BIN_PRIOR: f32 = 1.0;
 /// The bin of a unit direction.
 #[inline(always)]
 pub(super) fn bin(d: Vec3) -> usize {
-    let z = ((d.z + 1.0) * 0.5 * N_Z as f32) as usize;
-    z.min(N_Z - 1) * N_PHI + sector(d.x, d.y)
+    // `as i32` then `max(0)`, not a saturating `as usize`: the same band
+    // for every input (NaN and negatives 0, large values the last band),
+    // in fewer instructions
+    let z = ((d.z + 1.0) * 0.5 * N_Z as f32) as i32;
+    (z.max(0) as usize).min(N_Z - 1) * N_PHI + sector(d.x, d.y)
 }
 
 /// The φ sector of direction (x, y, ·): ⌊(atan2(y, x)/2π + ½) N_PHI⌋,
@@ -465,6 +468,39 @@ mod tests {
             (1.0, f32::INFINITY),
         ] {
             check(x, y);
+        }
+    }
+
+    /// The band of cos θ through `as i32` is the band of the saturating
+    /// `as usize` it replaced, for every kind of input.
+    #[test]
+    fn band_matches_the_saturating_conversion() {
+        let old = |z: f32| (((z + 1.0) * 0.5 * N_Z as f32) as usize).min(N_Z - 1);
+        let mut rng = Pcg32::keyed(&[9]);
+        let mut zs: Vec<f32> = (0..100_000).map(|_| 2.0 * rng.next_f32() - 1.0).collect();
+        for k in 0..=N_Z {
+            let edge = 2.0 * k as f32 / N_Z as f32 - 1.0;
+            let bits = edge.to_bits() as i64;
+            zs.extend(
+                (-50..=50).map(|i| f32::from_bits((bits + i).clamp(0, u32::MAX as i64) as u32)),
+            );
+        }
+        zs.extend([
+            -1.0,
+            1.0,
+            -0.0,
+            -1.5,
+            -3.0,
+            2.0,
+            1e30,
+            -1e30,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ]);
+        for z in zs {
+            let d = Vec3::new(0.3, 0.4, z);
+            assert_eq!(bin(d) / N_PHI, old(z), "z = {z:e}");
         }
     }
 

@@ -15,7 +15,7 @@ use crate::film::Film;
 use crate::geometry::{offset_point, Ray};
 use crate::methods::World;
 use crate::sampling::Pcg32;
-use crate::scene::{luminance, Rgb, SurfacePoint};
+use crate::scene::{luminance, Rgb};
 use crate::simd::dispatched;
 use crate::transport::{
     connect_emission_sample, connect_to_camera, follow_delta_chain, Landing, Vertex,
@@ -24,42 +24,66 @@ use crate::transport::{
 /// No parent: the hit was shot from a light.
 pub(super) const NO_PARENT: u32 = u32::MAX;
 
-/// A photon hit, the record of §5. Powers are stored in units of the lane's
-/// σ (actual power = σ · `phi`), and so are `out_lum`, `contrib` and `s`.
+/// A photon hit, the record of §5: what every form reads. Powers are
+/// stored in units of the lane's σ (actual power = σ · `phi`), and so are
+/// `out_lum` and `s`.
+///
+/// 64 bytes, one cache line: the surface point is not kept (76 bytes) but
+/// rebuilt from the triangle and barycentrics when the hit spawns, by the
+/// function that built it at the landing ([`World::surface_point`]), so to
+/// the same bits; and what only the paper's importance and the phase
+/// images read is kept apart, in [`Measured`], by the forms that read it.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Hit {
-    /// Location, surface (triangle, shape → BSDF) and normals.
-    pub(super) sp: SurfacePoint,
+    /// Triangle of the landing.
+    pub(super) tri: u32,
+    /// Barycentrics of the landing on `tri`.
+    pub(super) b1: f32,
+    pub(super) b2: f32,
     /// Incoming direction, reversed (toward where the power came from).
     pub(super) wo: glam::Vec3,
     /// Incoming power, RGB.
     pub(super) phi: Rgb,
     /// Output luminance: Lum(Φ · a(ω_in)).
     pub(super) out_lum: f32,
-    /// g*(x) of eq. (9): f² / (|x − eye|² 4π S_p).
-    pub(super) g_star: f32,
+    /// Importance (unnormalised hit-selection weight).
+    pub(super) s: f64,
+    /// Segments from the light to this hit.
+    pub(super) depth: u32,
+    /// Cell of the pooled-importance grid (0 without one).
+    pub(super) cell: u32,
+    /// May spawn a ray (non-zero output, below the depth limit).
+    pub(super) spawn: bool,
+}
+
+/// The part of a hit's record that only the paper's `ComputeImportance`
+/// (eqs. (8), (9)) and the phase images (`--measure phase`) read, kept
+/// beside the population ([`Lane::measured`], same order) by the forms that
+/// read it ([`Form::measured`]). `contrib` is in units of σ, as the powers.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Measured {
     /// Image contribution Φ f cos θ g(x) (eq. (8)), zero when hidden.
     pub(super) contrib: Rgb,
     /// Film position of the contribution.
     pub(super) pix: Vec2,
-    /// Number of children in the population.
-    pub(super) nchild: u32,
-    /// Importance (unnormalised hit-selection weight).
-    pub(super) s: f64,
+    /// g*(x) of eq. (9): f² / (|x − eye|² 4π S_p).
+    pub(super) g_star: f32,
     /// Index of the parent hit, or [`NO_PARENT`].
     pub(super) parent: u32,
-    /// Segments from the light to this hit.
-    pub(super) depth: u32,
-    /// May spawn a ray (non-zero output, below the depth limit).
-    pub(super) spawn: bool,
-    /// Cell of the pooled-importance grid (0 without one).
-    pub(super) cell: u32,
+    /// Number of children in the population.
+    pub(super) nchild: u32,
 }
+
+const _: () = assert!(std::mem::size_of::<Hit>() == 64);
+const _: () = assert!(std::mem::size_of::<Measured>() == 32);
 
 /// One independent population with its films.
 #[derive(Clone, Debug)]
 pub(super) struct Lane {
     pub(super) hits: Vec<Hit>,
+    /// The hits' [`Measured`] parts, in the same order, when the form
+    /// reads them (else empty).
+    pub(super) measured: Vec<Measured>,
     /// Prefix sums of the hits' selection weights (zero for hits that cannot
     /// spawn), for selection by binary search.
     pub(super) cum: Vec<f64>,
@@ -101,6 +125,7 @@ impl Lane {
         dirs: Option<Vec<DirRecord>>,
     ) -> Self {
         Lane {
+            measured: Vec::new(),
             grid,
             dirs,
             guide: None,
@@ -139,6 +164,9 @@ pub(super) struct Form {
     pub(super) guided: bool,
     /// Hits measured at birth (else at every phase end).
     pub(super) birth: bool,
+    /// The lane keeps the hits' [`Measured`] parts: the paper's importance
+    /// or the phase images read them.
+    pub(super) measured: bool,
     /// Camera connections carry the light side's MIS weight of the glossy
     /// camera pass (guided with the camera pass on).
     pub(super) glossy_split: bool,
@@ -148,9 +176,11 @@ pub(super) struct Form {
 
 impl Form {
     pub(super) fn of(s: &Settings) -> Self {
+        let birth = s.measure.unwrap_or(s.variant.default_measure()) == Measure::Birth;
         Form {
             guided: s.variant == Variant::Guided,
-            birth: s.measure.unwrap_or(s.variant.default_measure()) == Measure::Birth,
+            birth,
+            measured: !birth || s.variant == Variant::Paper,
             glossy_split: s.variant == Variant::Guided && s.camera_pass,
             max_depth: s.max_depth.unwrap_or(u32::MAX),
         }
@@ -285,7 +315,8 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
         let h = &lane.hits[i];
         let s_i = (1.0 - p_light) * h.s / w_hits;
         if s_i > 0.0 {
-            let v = Vertex::new(world, h.sp, h.wo);
+            let sp = world.tris.surface_point(&world.scene, h.tri, h.b1, h.b2);
+            let v = Vertex::new(world, sp, h.wo);
             let guide = lane.guide.as_deref().filter(|_| form.guided);
             if let Some(g) = scatter_guided(&v, guide, h.cell, rng) {
                 if lane.grid.is_some() {
@@ -296,7 +327,7 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
                 }
                 if g.w != Rgb::ZERO {
                     let phi = h.phi * g.w * (lane.sigma / s_i) as f32;
-                    let ray = Ray::new(offset_point(h.sp.p, h.sp.ng, g.wi), g.wi);
+                    let ray = Ray::new(offset_point(sp.p, sp.ng, g.wi), g.wi);
                     shot = Some((ray, phi, i as u32, h.depth + 1));
                 }
             }
@@ -306,6 +337,7 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
     // Multiply every stored power by (1 − 1/m), lazily through σ
     if m == 1 {
         lane.hits.clear();
+        lane.measured.clear();
         lane.cum.clear();
         lane.reflected = 0.0;
         lane.sigma = 1.0;
@@ -314,29 +346,17 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
     }
 
     // Trace, and append the new hit with power Φ/m
-    let before = lane.hits.len();
+    let mut born = None;
     if let Some((ray, phi, parent, depth)) = shot {
         let stored = phi * (1.0 / (m as f64 * lane.sigma)) as f32;
         // At birth the hit's power is Φ = stored · m σ
         let birth = (form.birth && counting).then_some((m as f64 * lane.sigma) as f32);
-        rays += trace(world, ray, stored, parent, depth, form, birth, rng, lane);
+        born = trace(
+            world, ray, stored, parent, depth, form, birth, rng, lane, &mut rays,
+        );
     }
-    // What the ray brought back, per unit power, for the learnt statistics
-    // (0 when it escaped, landed hidden, or was never traced)
     if let Some(src) = source {
-        let r = lane
-            .hits
-            .get(before)
-            .map_or(0.0, |c| landing_value(c, lane.grid.as_ref(), form.guided));
-        // Pooled records only the hits' rays; guided also the lights'
-        if src.slot != LIGHT_SLOT || form.guided {
-            if let Some(g) = lane.grid.as_mut() {
-                g.record(src.slot, r);
-            }
-        }
-        if let (Some((cell, d, bin)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
-            dirs.extend(DirRecord::new(cell, d, bin, r));
-        }
+        learn(lane, form, src, born);
     }
 
     lane.in_phase += 1;
@@ -346,12 +366,42 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
     rays
 }
 
+/// Records what the ray from `src` brought back, per unit power, in the
+/// learnt statistics (0 when it escaped, landed hidden, or was never
+/// traced: `born` None).
+#[inline(always)]
+fn learn(lane: &mut Lane, form: Form, src: Source, born: Option<Born>) {
+    let r = born.map_or(0.0, |c| landing_value(&c, lane.grid.as_ref(), form.guided));
+    // Pooled records only the hits' rays; guided also the lights'
+    if src.slot != LIGHT_SLOT || form.guided {
+        if let Some(g) = lane.grid.as_mut() {
+            g.record(src.slot, r);
+        }
+    }
+    if let (Some((cell, d, bin)), Some(dirs)) = (src.dir, lane.dirs.as_mut()) {
+        if let Some(rec) = DirRecord::new(cell, d, bin, r) {
+            dirs.push(rec);
+        }
+    }
+}
+
+/// What [`landing_value`] reads of the hit a step appended (its
+/// contribution is not in the population's record under every form).
+#[derive(Clone, Copy, Debug)]
+struct Born {
+    phi: Rgb,
+    contrib: Rgb,
+    out_lum: f32,
+    spawn: bool,
+    cell: u32,
+}
+
 /// The value r of a landing hit `c`, per unit of the power that reached it:
 /// the image impact of its camera connection (`--variant pooled`), plus,
 /// guided, what its own spawned rays are expected to bring, its output
 /// luminance times its cell's value W (so that a landing hidden from the
 /// camera, behind the baffle say, is worth what it passes on).
-fn landing_value(c: &Hit, grid: Option<&ImportanceGrid>, guided: bool) -> f64 {
+fn landing_value(c: &Born, grid: Option<&ImportanceGrid>, guided: bool) -> f64 {
     let l = luminance(c.phi) as f64;
     if l <= 0.0 {
         return 0.0;
@@ -366,7 +416,8 @@ fn landing_value(c: &Hit, grid: Option<&ImportanceGrid>, guided: bool) -> f64 {
 /// Sends stored power `phi` along `ray`, through delta chains
 /// ([`follow_delta_chain`]), and appends the first non-delta hit with its
 /// camera connection; `birth` (the factor from stored to actual power) when
-/// the hit is measured at birth. Returns the rays.
+/// the hit is measured at birth. Adds the rays to `rays`; returns what
+/// [`landing_value`] reads of the new hit, if one was appended.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn trace(
@@ -379,36 +430,35 @@ fn trace(
     birth: Option<f32>,
     rng: &mut Pcg32,
     lane: &mut Lane,
-) -> u64 {
+    rays: &mut u64,
+) -> Option<Born> {
     let max_depth = form.max_depth;
-    let mut rays = 0;
-    let Some(Landing {
-        vertex: v,
+    let landing = follow_delta_chain(world, ray, phi, depth, rng, rays)?;
+    let Landing {
+        vertex: ref v,
+        hit,
         phi,
         depth,
-    }) = follow_delta_chain(world, ray, phi, depth, rng, &mut rays)
-    else {
-        return rays;
-    };
+    } = landing;
 
     // The hit's image contribution, eq. (8), made once (deterministic)
     let mut contrib = Rgb::ZERO;
     let mut pix = Vec2::ZERO;
     if depth < max_depth && v.bsdf.has_smooth() {
-        if let Some((p, c)) = connect_to_camera(world, &v, phi, form.glossy_split, &mut rays) {
+        if let Some((p, c)) = connect_to_camera(world, v, phi, form.glossy_split, rays) {
             contrib = c;
             pix = p;
         }
     }
     // The potential impact, eq. (9): Φ a g*(x), g* = f²/(|x − eye|² 4π S_p)
-    let sp = v.sp;
+    let sp = &v.sp;
     let a = v.bsdf.albedo(v.wo_local);
     let out_lum = luminance(phi * a).max(0.0);
     let r2 = (sp.p - world.camera.position()).length_squared().max(1e-12);
     let g_star = world.camera.pixels_per_area() / (r2 * 4.0 * std::f32::consts::PI);
     let spawn = out_lum > 0.0 && depth.saturating_add(1) < max_depth && out_lum.is_finite();
     if !(phi.is_finite() && out_lum.is_finite()) {
-        return rays;
+        return None;
     }
     if let Some(k) = birth {
         if contrib != Rgb::ZERO {
@@ -422,20 +472,32 @@ fn trace(
         }
         None => (0, (out_lum * g_star) as f64),
     };
+    if form.measured {
+        lane.measured.push(Measured {
+            contrib,
+            pix,
+            g_star,
+            parent,
+            nchild: 0,
+        });
+    }
     lane.push(Hit {
-        sp,
+        tri: hit.tri,
+        b1: hit.b1,
+        b2: hit.b2,
         wo: v.wo,
         phi,
         out_lum,
-        g_star,
-        contrib,
-        pix,
-        nchild: 0,
         s,
-        parent,
         depth,
         spawn,
         cell,
     });
-    rays
+    Some(Born {
+        phi,
+        contrib,
+        out_lum,
+        spawn,
+        cell,
+    })
 }

@@ -311,9 +311,16 @@ impl Settings {
     /// before a render ([`crate::render::memory_estimate`]): per lane, the
     /// cap plus the phase's new hits (each step appends one, the purge at
     /// the phase's end brings them back to the cap), each with its prefix
-    /// sum and the purge's two buffers (its importance, its new index).
+    /// sum and the purge's two buffers (its importance, its new index), and
+    /// its [`iterate::Measured`] part when the form keeps one.
     pub fn population_bytes(&self) -> u64 {
+        let measured = if iterate::Form::of(self).measured {
+            std::mem::size_of::<iterate::Measured>()
+        } else {
+            0
+        };
         let per_hit = (std::mem::size_of::<iterate::Hit>()
+            + measured
             + 2 * std::mem::size_of::<f64>()
             + std::mem::size_of::<u32>()) as u64;
         let hits = self.population as u64 + u64::from(self.phase_len);

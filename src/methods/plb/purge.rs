@@ -26,7 +26,7 @@ pub(super) fn end_phase(s: &Settings, form: Form, rng: &mut Pcg32, lane: &mut La
     if lane.phases > s.discard && !form.birth {
         lane.counted += 1;
         let sigma = lane.sigma as f32;
-        for h in &lane.hits {
+        for h in &lane.measured {
             if h.contrib != Rgb::ZERO {
                 lane.hit_film.splat(h.pix.x, h.pix.y, h.contrib * sigma);
             }
@@ -48,7 +48,7 @@ pub(super) fn end_phase(s: &Settings, form: Form, rng: &mut Pcg32, lane: &mut La
             }
         }
         None => {
-            compute_importance(&mut lane.hits, s.lambda as f64);
+            compute_importance(&mut lane.hits, &mut lane.measured, s.lambda as f64);
             positive.extend(lane.hits.iter().map(|h| h.s).filter(|x| *x > 0.0));
         }
     }
@@ -69,23 +69,28 @@ pub(super) fn end_phase(s: &Settings, form: Form, rng: &mut Pcg32, lane: &mut La
 /// place (so the population keeps its allocation from phase to phase), each
 /// survivor's parent link is remapped as it is moved (a parent always
 /// precedes its children, so its new index is known by then), and the
-/// selection's prefix sums and Σ out_lum are rebuilt on the way
-/// (before, a pass of its own). Inlined into the
-/// lane's dispatched loop, so that the move of a record is a few vector
-/// moves, not a call to `memcpy`.
+/// selection's prefix sums and Σ out_lum are rebuilt on the way. Inlined
+/// into the lane's dispatched loop, so that the move of a record is a few
+/// vector moves, not a call to `memcpy`. The buffers are not cleared first
+/// (every entry read is written before, in this pass), and the parent
+/// links and their new indices are kept only by the forms with
+/// [`Measured`](super::iterate::Measured) records (no other form reads
+/// them).
 #[inline(always)]
 fn purge(lane: &mut Lane, c: Option<f64>, rng: &mut Pcg32) {
     let sigma = lane.sigma;
     let n = lane.hits.len();
-    let new_index = &mut lane.scratch.new_index;
-    new_index.clear();
-    new_index.resize(n, NO_PARENT);
-    lane.cum.clear();
+    // One prefix sum per hit already: overwritten below up to the survivors
+    debug_assert_eq!(lane.cum.len(), n);
+    lane.cum.resize(n, 0.0);
+    let mut measured = (!lane.measured.is_empty()).then(|| {
+        debug_assert_eq!(lane.measured.len(), n);
+        lane.scratch.new_index.resize(n, NO_PARENT);
+        (&mut lane.measured[..n], &mut lane.scratch.new_index[..n])
+    });
     // Written out rather than with `retain_mut`, whose closure was not
     // inlined (its captures then live in memory, not registers)
-    lane.cum.resize(n, 0.0);
     let cum = &mut lane.cum[..n];
-    let new_index = &mut new_index[..n];
     let hits = &mut lane.hits[..n];
     let (mut acc, mut reflected) = (0.0, 0.0);
     let mut kept = 0;
@@ -96,30 +101,40 @@ fn purge(lane: &mut Lane, c: Option<f64>, rng: &mut Pcg32) {
             Some(c) => (c * h.s).min(1.0),
         };
         if k <= 0.0 || (k < 1.0 && rng.next_f64() >= k) {
+            if let Some((_, new_index)) = measured.as_mut() {
+                new_index[i] = NO_PARENT;
+            }
             continue;
         }
         let f = (sigma / k) as f32;
         h.phi *= f;
-        h.contrib *= f;
         h.out_lum *= f;
         h.s *= sigma / k;
-        if h.parent != NO_PARENT {
-            debug_assert!((h.parent as usize) < i, "a parent precedes its child");
-            h.parent = new_index[h.parent as usize];
-        }
         if h.spawn {
             acc += h.s;
             reflected += h.out_lum as f64;
         }
-        new_index[i] = kept as u32;
         cum[kept] = acc;
         // A survivor moves only once a hit before it was killed
         if kept != i {
             hits[kept] = hits[i];
         }
+        if let Some((ms, new_index)) = measured.as_mut() {
+            let m = &mut ms[i];
+            m.contrib *= f;
+            if m.parent != NO_PARENT {
+                debug_assert!((m.parent as usize) < i, "a parent precedes its child");
+                m.parent = new_index[m.parent as usize];
+            }
+            new_index[i] = kept as u32;
+            if kept != i {
+                ms[kept] = ms[i];
+            }
+        }
         kept += 1;
     }
     lane.hits.truncate(kept);
+    lane.measured.truncate(kept);
     lane.cum.truncate(kept);
     lane.reflected = reflected;
 }
