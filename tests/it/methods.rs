@@ -37,50 +37,54 @@ struct Row {
     sharp: f64,
 }
 
+impl Row {
+    /// A row of a method with no bias of its own on the furnace, checked
+    /// to 1 %.
+    fn unbiased(config: MethodConfig, passes: u64) -> Row {
+        Row {
+            config,
+            passes,
+            furnace_bias: |_| 0.0,
+            sharp: 0.01,
+        }
+    }
+}
+
 /// The rows for `name`: the method's forms worth checking. Panics for a
 /// method without rows, which is how a forgotten method fails.
 fn rows(name: &str) -> Vec<Row> {
-    let none = |_| 0.0;
     match name {
         "path" => vec![
-            Row {
-                config: MethodConfig::Path(kalos::methods::path::Settings {
+            Row::unbiased(
+                MethodConfig::Path(kalos::methods::path::Settings {
                     sampler: SamplerKind::Independent,
                     ..Default::default()
                 }),
-                passes: 16,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
-            Row {
-                config: MethodConfig::Path(kalos::methods::path::Settings {
+                16,
+            ),
+            Row::unbiased(
+                MethodConfig::Path(kalos::methods::path::Settings {
                     sampler: SamplerKind::Sobol,
                     ..Default::default()
                 }),
-                passes: 16,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
+                16,
+            ),
         ],
         "light" => vec![
-            Row {
-                config: common::light(light::Settings {
+            Row::unbiased(
+                common::light(light::Settings {
                     sampler: SamplerKind::Independent,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
-            Row {
-                config: common::light(light::Settings {
+                1024,
+            ),
+            Row::unbiased(
+                common::light(light::Settings {
                     sampler: SamplerKind::Sobol,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
+                1024,
+            ),
             Row {
                 config: common::light(light::Settings {
                     variant: light::Variant::Iteration,
@@ -92,63 +96,51 @@ fn rows(name: &str) -> Vec<Row> {
             },
         ],
         "plb" => vec![
-            Row {
-                config: common::plb(plb::Settings {
+            Row::unbiased(
+                common::plb(plb::Settings {
                     sampler: SamplerKind::Independent,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
+                1024,
+            ),
             // the camera pass's Sobol points (the furnace has no camera
             // pass; the determinism check's glass scene has)
-            Row {
-                config: common::plb(plb::Settings {
+            Row::unbiased(
+                common::plb(plb::Settings {
                     sampler: SamplerKind::Sobol,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
-            Row {
-                config: common::plb(plb::Settings {
+                1024,
+            ),
+            Row::unbiased(
+                common::plb(plb::Settings {
                     variant: plb::Variant::Paper,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
-            Row {
-                config: common::plb(plb::Settings {
+                1024,
+            ),
+            Row::unbiased(
+                common::plb(plb::Settings {
                     variant: plb::Variant::Paper,
                     measure: Some(plb::Measure::Birth),
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
-            Row {
-                config: common::plb(plb::Settings {
+                1024,
+            ),
+            Row::unbiased(
+                common::plb(plb::Settings {
                     variant: plb::Variant::Pooled,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
-            Row {
-                config: common::plb(plb::Settings {
+                1024,
+            ),
+            Row::unbiased(
+                common::plb(plb::Settings {
                     mix: false,
                     ..Default::default()
                 }),
-                passes: 1024,
-                furnace_bias: none,
-                sharp: 0.01,
-            },
+                1024,
+            ),
         ],
         "bundle" => vec![Row {
             config: common::bundle(bundle::Settings {
@@ -169,15 +161,13 @@ fn rows(name: &str) -> Vec<Row> {
             // spread was not measured separately, under the same bound
             sharp: 0.06,
         }],
-        "density" => vec![Row {
-            config: common::density(density::Settings {
+        "density" => vec![Row::unbiased(
+            common::density(density::Settings {
                 particles: 400_000,
                 ..Default::default()
             }),
-            passes: 1,
-            furnace_bias: none,
-            sharp: 0.01,
-        }],
+            1,
+        )],
         other => panic!("method '{other}' has no row in tests/methods.rs"),
     }
 }

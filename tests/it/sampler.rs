@@ -8,6 +8,7 @@
 use crate::common;
 
 use glam::Vec2;
+use kalos::film::Image;
 use kalos::methods::{light, path, plb, Budget, Common, MethodConfig};
 use kalos::sampling::sobol::{owen_scramble, sobol, vertex_dimension, SOBOL_DIMENSIONS};
 use kalos::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler, SobolWalkSampler};
@@ -293,39 +294,59 @@ fn sobol_agrees_with_independent(
 /// count; another seed gives another, and independent numbers another.
 #[test]
 fn sobol_images_do_not_depend_on_the_thread_count() {
-    let scene = cbox(24);
-    let sobol = path_with(SamplerKind::Sobol);
-    let run = |threads: usize, cfg: &MethodConfig, seed: u64| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool")
-            .install(|| {
-                common::render_budget(
-                    &scene,
-                    cfg,
-                    &Common {
-                        seed,
-                        max_depth: None,
-                    },
-                    Budget {
-                        passes: Some(3),
-                        ..Default::default()
-                    },
-                )
-            })
-    };
-    let one = run(1, &sobol, 42);
-    let two = run(2, &sobol, 42);
-    let three = run(3, &sobol, 42);
-    assert_eq!(one.1, two.1, "ray counts differ");
+    assert_same_image_whatever_the_threads(
+        &cbox(24),
+        &path_with(SamplerKind::Sobol),
+        &path_with(SamplerKind::Independent),
+    );
+}
+
+/// Three passes of `cfg` on `scene` under `seed`, on a pool of `threads`.
+fn render_on(threads: usize, scene: &Scene, cfg: &MethodConfig, seed: u64) -> (Image, u64) {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("pool")
+        .install(|| {
+            common::render_budget(
+                scene,
+                cfg,
+                &Common {
+                    seed,
+                    max_depth: None,
+                },
+                Budget {
+                    passes: Some(3),
+                    ..Default::default()
+                },
+            )
+        })
+}
+
+/// Seed 42 gives `sobol` the same image on 1, 2 and 3 threads (and the
+/// same ray count on 1 and 2); seed 43 gives another, and `indep` (the
+/// same method with independent numbers) another, so the check can fail.
+fn assert_same_image_whatever_the_threads(
+    scene: &Scene,
+    sobol: &MethodConfig,
+    indep: &MethodConfig,
+) {
+    let one = render_on(1, scene, sobol, 42);
+    let two = render_on(2, scene, sobol, 42);
+    let three = render_on(3, scene, sobol, 42);
+    assert_eq!(one.1, two.1, "{sobol:?}: ray counts differ");
     assert!(
         one.0 == two.0 && two.0 == three.0,
-        "images differ with the thread count"
+        "{sobol:?}: images differ with the thread count"
     );
-    assert!(run(2, &sobol, 43).0 != one.0, "the seed changes nothing");
-    let indep = run(2, &path_with(SamplerKind::Independent), 42);
-    assert!(indep.0 != one.0, "the sampler changes nothing");
+    assert!(
+        render_on(2, scene, sobol, 43).0 != one.0,
+        "{sobol:?}: the seed changes nothing"
+    );
+    assert!(
+        render_on(2, scene, indep, 42).0 != one.0,
+        "{sobol:?}: the sampler changes nothing"
+    );
 }
 
 /// `path`'s eight AVX lanes draw from the Sobol sampler as the scalar
@@ -552,26 +573,6 @@ fn light_and_plb_sobol_images_do_not_depend_on_the_thread_count() {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut scene = kalos::scene::load(&root.join("scenes/glass-mirror/scene.xml")).expect("scene");
     scene.set_resolution(24, 24);
-    let run = |threads: usize, cfg: &MethodConfig, seed: u64| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool")
-            .install(|| {
-                common::render_budget(
-                    &scene,
-                    cfg,
-                    &Common {
-                        seed,
-                        max_depth: None,
-                    },
-                    Budget {
-                        passes: Some(3),
-                        ..Default::default()
-                    },
-                )
-            })
-    };
     let plb_with = |sampler| {
         common::plb(plb::Settings {
             sampler,
@@ -588,21 +589,6 @@ fn light_and_plb_sobol_images_do_not_depend_on_the_thread_count() {
             plb_with(SamplerKind::Independent),
         ),
     ] {
-        let one = run(1, &sobol, 42);
-        let two = run(2, &sobol, 42);
-        let three = run(3, &sobol, 42);
-        assert_eq!(one.1, two.1, "{sobol:?}: ray counts differ");
-        assert!(
-            one.0 == two.0 && two.0 == three.0,
-            "{sobol:?}: images differ with the thread count"
-        );
-        assert!(
-            run(2, &sobol, 43).0 != one.0,
-            "{sobol:?}: the seed changes nothing"
-        );
-        assert!(
-            run(2, &indep, 42).0 != one.0,
-            "{sobol:?}: the sampler changes nothing"
-        );
+        assert_same_image_whatever_the_threads(&scene, &sobol, &indep);
     }
 }
