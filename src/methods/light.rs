@@ -531,7 +531,7 @@ fn trace_walk<S: Sampler>(world: &World, s: &Settings, rng: &mut S, film: &mut F
         |e| {
             // Connect to the camera at every non-delta vertex
             if e.vertex.bsdf.has_smooth() {
-                rays += splat_to_camera(world, e.vertex, e.beta, film);
+                rays += splat_to_camera(world, e.vertex, e.beta, false, film);
             }
             ControlFlow::Continue(())
         },

@@ -64,13 +64,20 @@ pub fn connect_to_camera(
 }
 
 dispatched! {
-    /// [`connect_to_camera`] (without the glossy split) and the splat of its
-    /// contribution into `film`; returns the rays traced. Dispatched on its
-    /// own, so that the light walk's per-vertex hook that calls it stays
-    /// small enough to be inlined into the dispatched walk.
-    pub fn splat_to_camera(world: &World, v: &Vertex, phi: Rgb, film: &mut Film) -> u64 {
+    /// [`connect_to_camera`] and the splat of its contribution into `film`;
+    /// returns the rays traced. Dispatched on its own, so that the light
+    /// walk's per-vertex hook that calls it stays small enough to be inlined
+    /// into the dispatched walk, and the connection runs in the x86-64-v3
+    /// copy whatever walk calls it.
+    pub fn splat_to_camera(
+        world: &World,
+        v: &Vertex,
+        phi: Rgb,
+        glossy_split: bool,
+        film: &mut Film,
+    ) -> u64 {
         let mut rays = 0;
-        if let Some((pix, c)) = connect_to_camera(world, v, phi, false, &mut rays) {
+        if let Some((pix, c)) = connect_to_camera(world, v, phi, glossy_split, &mut rays) {
             film.splat(pix.x, pix.y, c);
         }
         rays

@@ -47,14 +47,13 @@
 use std::ops::ControlFlow;
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use crate::film::{Film, Image};
 use crate::methods::World;
 use crate::sampling::Pcg32;
 use crate::simd::dispatched;
-use crate::transport::{
-    connect_emission_sample, connect_to_camera, light_walk, Roulette, Spectrum,
-};
+use crate::transport::{connect_emission_sample, light_walk, splat_to_camera, Roulette, Spectrum};
 
 /// Independent walk lanes (films and streams), fixed so that results do not
 /// depend on the thread count.
@@ -229,7 +228,9 @@ impl Mix {
     /// as (the lights' film, its samples, the hits' film, its samples)), and
     /// plb's variance per unit of work in the passes since the last
     /// measurement (its rays in them: [`Mix::since`]), and sets the split
-    /// of the next passes.
+    /// of the next passes. The pixels are measured a row of tiles at a
+    /// time on every core ([`measure_tile_row`]), and the rows' sums added
+    /// in row order, so the figures do not depend on the thread count.
     pub(super) fn measure(&mut self, plb: &[(&Film, u64, &Film, u64)]) {
         let pass_rays = std::mem::take(&mut self.since);
         let nw = self.walks_per_lane;
@@ -244,66 +245,52 @@ impl Mix {
             return;
         }
         let inv = |n: u64| if n == 0 { 0.0 } else { 1.0 / n as f64 };
-        let sw = inv(nw);
         // Per lane: the scales of its whole image and of this pass's image
         let scales: Vec<[f64; 4]> = plb
             .iter()
             .zip(&self.prev)
             .map(|((_, a, _, b), (_, pa, _, pb))| [inv(*a), inv(*b), inv(a - pa), inv(b - pb)])
             .collect();
-        let (lp, lw) = (plb.len() as f64, LANES as f64);
+        let width = self.films[0].width as usize;
+        let tiles_x = width.div_ceil(TILE as usize);
+        // Each lane's previous films, cut into rows of tiles
+        let chunk = TILE as usize * width;
+        let mut rows: Vec<Vec<(&mut [DVec3], &mut [DVec3])>> =
+            (0..n.div_ceil(chunk)).map(|_| Vec::new()).collect();
+        for (pl, _, ph, _) in &mut self.prev {
+            for (row, cut) in rows
+                .iter_mut()
+                .zip(pl.chunks_mut(chunk).zip(ph.chunks_mut(chunk)))
+            {
+                row.push(cut);
+            }
+        }
+        let input = MeasureInput {
+            plb,
+            scales: &scales,
+            walks: &self.films,
+            walk_scale: inv(nw),
+            width,
+            tiles_x,
+        };
+        let parts: Vec<TileRow> = rows
+            .into_par_iter()
+            .enumerate()
+            .map(|(r, mut prev)| measure_tile_row(&input, r * chunk, &mut prev))
+            .collect();
         let (mut vp, mut vw, mut vd) = (0.0f64, 0.0f64, 0.0f64);
-        let width = self.films[0].width;
-        let tiles_x = width.div_ceil(TILE);
-        let tiles_y = self.films[0].height.div_ceil(TILE);
         self.tiles.clear();
-        self.tiles.resize((tiles_x * tiles_y) as usize, (0.0, 0.0));
-        let mut xp = vec![DVec3::ZERO; plb.len()];
-        let mut xd = vec![DVec3::ZERO; plb.len()];
-        for j in 0..n {
-            let (mut mp, mut md) = (DVec3::ZERO, DVec3::ZERO);
-            for (i, (le, _, hits, _)) in plb.iter().enumerate() {
-                let (pl, _, ph, _) = &mut self.prev[i];
-                let k = scales[i];
-                xp[i] = le.sum[j] * k[0] + hits.sum[j] * k[1];
-                xd[i] = (le.sum[j] - pl[j]) * k[2] + (hits.sum[j] - ph[j]) * k[3];
-                pl[j] = le.sum[j];
-                ph[j] = hits.sum[j];
-                mp += xp[i];
-                md += xd[i];
-            }
-            mp /= lp;
-            md /= lp;
-            let mut mw = DVec3::ZERO;
-            for f in &self.films {
-                mw += f.sum[j] * sw;
-            }
-            mw /= lw;
-            // The smaller of the two means: a firefly in one estimate
-            // must not shrink the relative variance it causes
-            let m = mp.min(mw).max(DVec3::ZERO);
-            let w = DVec3::ONE / (m * m + crate::metrics::EPSILON);
-            let spread = |xs: &[DVec3], mean: DVec3| {
-                xs.iter().map(|x| (*x - mean) * (*x - mean)).sum::<DVec3>()
-            };
-            let mut sq = DVec3::ZERO;
-            for f in &self.films {
-                let d = f.sum[j] * sw - mw;
-                sq += d * d;
-            }
-            let (a, b) = ((spread(&xp, mp) * w).element_sum(), (sq * w).element_sum());
-            let (x, y) = (j as u32 % width, j as u32 / width);
-            let t = &mut self.tiles[(y / TILE * tiles_x + x / TILE) as usize];
-            t.0 += a;
-            t.1 += b;
-            vp += a;
-            vd += (spread(&xd, md) * w).element_sum();
-            vw += b;
+        for part in parts {
+            vp += part.vp;
+            vw += part.vw;
+            vd += part.vd;
+            self.tiles.extend(part.tiles);
         }
         for ((_, pa, _, pb), (_, a, _, b)) in self.prev.iter_mut().zip(plb) {
             *pa = *a;
             *pb = *b;
         }
+        let (lp, lw) = (plb.len() as f64, LANES as f64);
         // The variance of a mean of L lanes: the lanes' spread / (L − 1) / L
         let norm = 1.0 / (3.0 * n as f64);
         let lanes_p = norm / (lp * (lp - 1.0));
@@ -329,6 +316,85 @@ impl Mix {
     }
 }
 
+/// What [`measure_tile_row`] reads: plb's lanes, their scales (whole image,
+/// this pass's image; lights' and hits' films), the walks' films and their
+/// scale, and the image's width in pixels and in tiles.
+struct MeasureInput<'a> {
+    plb: &'a [(&'a Film, u64, &'a Film, u64)],
+    scales: &'a [[f64; 4]],
+    walks: &'a [Film],
+    walk_scale: f64,
+    width: usize,
+    tiles_x: usize,
+}
+
+/// One row of tiles' relative spreads, as sums over its pixels and
+/// channels: plb's lanes' (`vp`), the walks' (`vw`), plb's lanes' over the
+/// passes since the last measurement (`vd`), and the first two per tile.
+struct TileRow {
+    vp: f64,
+    vw: f64,
+    vd: f64,
+    tiles: Vec<(f64, f64)>,
+}
+
+/// Measures the pixels from `first` on, one row of tiles, and moves each
+/// plb lane's previous films (`prev`, the same pixels) to its films now.
+fn measure_tile_row(
+    input: &MeasureInput,
+    first: usize,
+    prev: &mut [(&mut [DVec3], &mut [DVec3])],
+) -> TileRow {
+    let mut out = TileRow {
+        vp: 0.0,
+        vw: 0.0,
+        vd: 0.0,
+        tiles: vec![(0.0, 0.0); input.tiles_x],
+    };
+    let (lp, lw) = (input.plb.len() as f64, input.walks.len() as f64);
+    let mut xp = vec![DVec3::ZERO; input.plb.len()];
+    let mut xd = vec![DVec3::ZERO; input.plb.len()];
+    let spread =
+        |xs: &[DVec3], mean: DVec3| xs.iter().map(|x| (*x - mean) * (*x - mean)).sum::<DVec3>();
+    for o in 0..prev.first().map_or(0, |p| p.0.len()) {
+        let j = first + o;
+        let (mut mp, mut md) = (DVec3::ZERO, DVec3::ZERO);
+        for (i, ((le, _, hits, _), (pl, ph))) in input.plb.iter().zip(prev.iter_mut()).enumerate() {
+            let k = input.scales[i];
+            xp[i] = le.sum[j] * k[0] + hits.sum[j] * k[1];
+            xd[i] = (le.sum[j] - pl[o]) * k[2] + (hits.sum[j] - ph[o]) * k[3];
+            pl[o] = le.sum[j];
+            ph[o] = hits.sum[j];
+            mp += xp[i];
+            md += xd[i];
+        }
+        mp /= lp;
+        md /= lp;
+        let mut mw = DVec3::ZERO;
+        for f in input.walks {
+            mw += f.sum[j] * input.walk_scale;
+        }
+        mw /= lw;
+        // The smaller of the two means: a firefly in one estimate
+        // must not shrink the relative variance it causes
+        let m = mp.min(mw).max(DVec3::ZERO);
+        let w = DVec3::ONE / (m * m + crate::metrics::EPSILON);
+        let mut sq = DVec3::ZERO;
+        for f in input.walks {
+            let d = f.sum[j] * input.walk_scale - mw;
+            sq += d * d;
+        }
+        let (a, b) = ((spread(&xp, mp) * w).element_sum(), (sq * w).element_sum());
+        let t = &mut out.tiles[j % input.width / TILE as usize];
+        t.0 += a;
+        t.1 += b;
+        out.vp += a;
+        out.vd += (spread(&xd, md) * w).element_sum();
+        out.vw += b;
+    }
+    out
+}
+
 dispatched! {
     /// `count` light-tracing walks of one lane into `film`; returns the rays
     /// traced. Compiled for x86-64-v3 by runtime dispatch, as `light`'s.
@@ -351,7 +417,7 @@ dispatched! {
 
 /// One light-tracing walk, connected to the camera at its emission vertex
 /// and at every non-delta vertex, with plb's glossy MIS split
-/// ([`connect_to_camera`]); returns the rays traced.
+/// ([`splat_to_camera`]); returns the rays traced.
 #[inline(always)]
 fn walk(
     world: &World,
@@ -375,11 +441,7 @@ fn walk(
         rng,
         |e| {
             if e.vertex.bsdf.has_smooth() {
-                if let Some((pix, c)) =
-                    connect_to_camera(world, e.vertex, e.beta, glossy_split, &mut rays)
-                {
-                    film.splat(pix.x, pix.y, c);
-                }
+                rays += splat_to_camera(world, e.vertex, e.beta, glossy_split, film);
             }
             ControlFlow::Continue(())
         },
