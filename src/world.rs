@@ -57,6 +57,8 @@ impl World {
         let lights = Lights::new(&scene);
         let camera = Camera::new(&scene.camera);
         let tris = TriRecords::new(&scene);
+        on_event(BuildEvent::Phase("building the materials' tables".into()));
+        scene.materials.par_iter().for_each(|m| m.prepare());
         World {
             scene,
             accel,

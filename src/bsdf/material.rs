@@ -254,6 +254,28 @@ impl Material {
         }
     }
 
+    /// Builds now the tables [`Material::bsdf`] would otherwise build on
+    /// first use: the coat table of a `roughplastic` (about 1 G instructions,
+    /// some 0.3 s, once per process and parameters). [`crate::world::World`]
+    /// calls it while it builds, so that the time is the scene's preparation
+    /// and not the first pass's, as Mitsuba's is. glTF's coats, whose
+    /// roughness may come from a texture, are still built on first use.
+    pub fn prepare(&self) {
+        match self {
+            Material::RoughPlastic {
+                distribution,
+                alpha,
+                eta,
+                coat,
+                ..
+            } => {
+                CoatTable::cached(Microfacet::new(*distribution, *alpha), *eta, *coat);
+            }
+            Material::TwoSided(inner) => inner.prepare(),
+            _ => {}
+        }
+    }
+
     /// True when the integrator should flip the shading frame to the side of
     /// `wo` before calling the BSDF: `twosided` around a reflective model.
     /// False for everything else, including glass: the dielectrics handle both
