@@ -57,8 +57,21 @@ impl World {
         let lights = Lights::new(&scene);
         let camera = Camera::new(&scene.camera);
         let tris = TriRecords::new(&scene);
+        // The tables of the materials some shape uses (a scene may define
+        // materials nothing references: they cost nothing, as before)
         on_event(BuildEvent::Phase("building the materials' tables".into()));
-        scene.materials.par_iter().for_each(|m| m.prepare());
+        let mut used = vec![false; scene.materials.len()];
+        for sh in scene.shapes.iter().filter(|sh| sh.tri_count > 0) {
+            if let Some(u) = used.get_mut(sh.material as usize) {
+                *u = true;
+            }
+        }
+        scene
+            .materials
+            .par_iter()
+            .zip(&used)
+            .filter(|(_, &u)| u)
+            .for_each(|(m, _)| m.prepare());
         World {
             scene,
             accel,
