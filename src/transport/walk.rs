@@ -137,7 +137,8 @@ pub struct LightVertex<'a> {
 /// vertex `on_vertex` measures it; then the walk ends by Russian roulette
 /// (`roulette`: on the albedo, the papers' form, so that a particle keeps
 /// its power while it lives, §4 of the 1999 stochastic-iteration paper,
-/// §3.1 of the density-estimation paper; or on the throughput), or scatters in importance mode ([`scatter`]). Returns the rays traced by
+/// §3.1 of the density-estimation paper; or on the throughput), or
+/// scatters in importance mode ([`scatter`]). Returns the rays traced by
 /// the walk itself (the hook counts its own).
 ///
 /// Depths follow Mitsuba's `max_depth` (see the [module docs](super)): the
@@ -189,8 +190,8 @@ pub fn light_walk<S: Sampler>(
             break;
         }
 
-        // Terminate the walk with Russian roulette on the albedo, capped
-        // below 1 so that every walk ends
+        // Terminate the walk by Russian roulette (`roulette`), its
+        // probability capped below 1 so that every walk ends
         rng.start_vertex(depth);
         let u_rr = rng.next_f32();
         let (wi, w) = match roulette {

@@ -61,7 +61,7 @@ pub(super) const LANES: usize = 8;
 
 /// The least share of a pass's work that each estimate gets. 3 % until
 /// 2026-11-27; 1 % gave 4 % less error at equal time on cbox (seeds 1–6)
-/// and 5 % less on two-rooms-baffle (seeds 1–3), 10 s each, with the
+/// and 6 % less on two-rooms-baffle (seeds 1–3), 10 s each, with the
 /// measurement every 64th pass (docs/notebook/plb.md, "The floor and the
 /// measurement's cost").
 const FLOOR: f64 = 0.01;
