@@ -73,6 +73,11 @@ pub struct Hit {
     pub b2: f32,
 }
 
+/// The far end of [`Accel::occluded`]'s segment, as a fraction of its
+/// length: short of the end point, so that the surface there does not
+/// block it.
+const OCCLUDED_TMAX: f32 = 1.0 - 1e-4;
+
 /// The acceleration structure.
 pub struct Accel {
     /// `None` for a scene without triangles.
@@ -469,7 +474,60 @@ impl Accel {
     /// ([`crate::geometry::offset_point`]); the segment stops just short of `b`.
     #[inline]
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
-        self.any(a, b - a, 0.0, 1.0 - 1e-4, &mut traverse::NoCount)
+        self.any(a, b - a, 0.0, OCCLUDED_TMAX, &mut traverse::NoCount)
+    }
+
+    /// [`Accel::intersect`] of the rays of the lanes of `mask` (bit i for
+    /// lane i of eight): lane i's ray is `Ray::new(o[·][i], d[·][i])`, its
+    /// answer goes to `out[i]`, bit for bit the one `intersect` gives;
+    /// lanes outside `mask` are left as they were. For the AVX lanes of
+    /// `transport::lanes`, which hold their rays by component: one call for
+    /// up to eight rays, without the round trip of each ray and answer
+    /// through memory that a call per ray costs.
+    pub fn intersect_lanes(
+        &self,
+        o: &[[f32; 8]; 3],
+        d: &[[f32; 8]; 3],
+        mask: u32,
+        out: &mut [Option<Hit>; 8],
+    ) {
+        match &self.core {
+            #[cfg(target_arch = "x86_64")]
+            Some(Core::Bvh8(w)) => {
+                let _ = w.avx2;
+                // SAFETY: a Wide8 holds an Avx2 token, made only where AVX2
+                // was detected
+                unsafe { traverse8::closest_lanes(w, o, d, mask, out) }
+            }
+            _ => {
+                for i in (0..8).filter(|i| mask & (1 << i) != 0) {
+                    let lane = |a: &[[f32; 8]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
+                    out[i] = self.intersect(&Ray::new(lane(o), lane(d)));
+                }
+            }
+        }
+    }
+
+    /// [`Accel::occluded`] of the segments of the lanes of `mask`, from
+    /// `a[·][i]` to `b[·][i]`: the lanes whose segment is blocked, bit for
+    /// bit as `occluded` answers. For the AVX lanes, as
+    /// [`Accel::intersect_lanes`] is.
+    pub fn occluded_lanes(&self, a: &[[f32; 8]; 3], b: &[[f32; 8]; 3], mask: u32) -> u32 {
+        match &self.core {
+            #[cfg(target_arch = "x86_64")]
+            Some(Core::Bvh8(w)) => {
+                let _ = w.avx2;
+                // SAFETY: as in `intersect_lanes`
+                unsafe { traverse8::occluded_lanes(w, a, b, mask) }
+            }
+            _ => (0..8)
+                .filter(|i| mask & (1 << i) != 0)
+                .map(|i| {
+                    let lane = |v: &[[f32; 8]; 3]| Vec3::new(v[0][i], v[1][i], v[2][i]);
+                    u32::from(self.occluded(lane(a), lane(b))) << i
+                })
+                .sum(),
+        }
     }
 
     /// True when something blocks the ray within `[ray.tmin, ray.tmax)`.
@@ -587,7 +645,60 @@ mod tests {
         scene.add_mesh("soup", &pos, None, None, &idx, m, None);
         for accel in proptests::builds(&scene) {
             soup_rays_match_brute_force(&scene, &accel, &mut rng);
+            lanes_match_ray_by_ray(&accel, &mut rng);
         }
+    }
+
+    /// `intersect_lanes` and `occluded_lanes` give, lane by lane and bit for
+    /// bit, what `intersect` and `occluded` give ray by ray, and leave the
+    /// lanes outside the mask alone.
+    fn lanes_match_ray_by_ray(accel: &Accel, rng: &mut Pcg32) {
+        let (mut hits, mut blocked) = (0, 0);
+        for _ in 0..300 {
+            let mut o = [[0.0; 8]; 3];
+            let mut d = [[0.0; 8]; 3];
+            let mut b = [[0.0; 8]; 3];
+            for i in 0..8 {
+                let oi = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0;
+                let di = uniform_sphere(rng.next_2d());
+                let bi = oi + di * (rng.next_f32() * 3.0);
+                for c in 0..3 {
+                    (o[c][i], d[c][i], b[c][i]) = (oi[c], di[c], bi[c]);
+                }
+            }
+            let mask = rng.next_u32() & 0xff;
+            let untouched = Some(Hit {
+                t: -1.0,
+                tri: u32::MAX,
+                b1: 0.0,
+                b2: 0.0,
+            });
+            let mut out = [untouched; 8];
+            accel.intersect_lanes(&o, &d, mask, &mut out);
+            let occ = accel.occluded_lanes(&o, &b, mask);
+            assert_eq!(occ & !mask, 0);
+            for i in 0..8 {
+                let lane = |a: &[[f32; 8]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
+                let bits = |h: Option<Hit>| {
+                    h.map(|h| (h.t.to_bits(), h.tri, h.b1.to_bits(), h.b2.to_bits()))
+                };
+                if mask & (1 << i) == 0 {
+                    assert_eq!(bits(out[i]), bits(untouched));
+                    continue;
+                }
+                let want = accel.intersect(&Ray::new(lane(&o), lane(&d)));
+                assert_eq!(bits(out[i]), bits(want));
+                let want_occ = accel.occluded(lane(&o), lane(&b));
+                assert_eq!(occ & (1 << i) != 0, want_occ);
+                hits += usize::from(want.is_some());
+                blocked += usize::from(want_occ);
+            }
+        }
+        // both answers seen, many times
+        assert!(
+            hits > 100 && blocked > 100,
+            "{hits} hits, {blocked} blocked"
+        );
     }
 
     fn soup_rays_match_brute_force(scene: &Scene, accel: &Accel, rng: &mut Pcg32) {

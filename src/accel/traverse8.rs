@@ -13,8 +13,9 @@ use std::arch::x86_64::*;
 use glam::Vec3;
 
 use super::collapse::leaf_packs;
-use super::traverse::{better, visits, Count, SlotHit, Stack, FAR_SCALE};
+use super::traverse::{better, visits, Count, NoCount, SlotHit, Stack, FAR_SCALE};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
+use super::{Hit, OCCLUDED_TMAX};
 
 /// Takes the hits of leaf pack `p` that [`better`] prefers into `best`
 /// and `t_best`: the lanes set in `mask`, at distances `t` with
@@ -280,6 +281,62 @@ pub(super) fn any(
     unsafe { any_avx2(w, o, d, tmin, tmax, count) }
 }
 
+/// [`closest`] of the rays of the lanes of `mask` (bit i for lane i),
+/// one after another, lane i's ray starting at `o[·][i]` with direction
+/// `d[·][i]` over `[0, ∞)`; each answer goes to `out[i]` as a [`Hit`]
+/// (lanes outside `mask` are left as they were). One call for up to eight
+/// rays, whose origins and directions are read from the lanes' arrays
+/// component by component: called ray by ray through
+/// [`crate::accel::Accel::intersect`], each ray's fields were stored one
+/// by one and read back two at a time, and its answer likewise, which the
+/// CPU cannot forward from store to load.
+#[target_feature(enable = "avx2")]
+pub(super) fn closest_lanes(
+    w: &Wide8,
+    o: &[[f32; 8]; 3],
+    d: &[[f32; 8]; 3],
+    mask: u32,
+    out: &mut [Option<Hit>; 8],
+) {
+    let mut bits = mask & 0xff;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        let (oi, di) = (
+            Vec3::new(o[0][i], o[1][i], o[2][i]),
+            Vec3::new(d[0][i], d[1][i], d[2][i]),
+        );
+        // SAFETY: this function is compiled for AVX2
+        let h = unsafe { closest_in(w, oi, di, 0.0, f32::INFINITY, &mut NoCount) };
+        out[i] = h.map(|h| Hit {
+            t: h.t,
+            tri: w.ids[h.slot],
+            b1: h.b1,
+            b2: h.b2,
+        });
+    }
+}
+
+/// [`any`] of the segments of the lanes of `mask`, from `a[·][i]` to
+/// `b[·][i]` as [`crate::accel::Accel::occluded`] tests them; returns the
+/// lanes whose segment is blocked. One call for up to eight shadow rays,
+/// as [`closest_lanes`] is for closest hits.
+#[target_feature(enable = "avx2")]
+pub(super) fn occluded_lanes(w: &Wide8, a: &[[f32; 8]; 3], b: &[[f32; 8]; 3], mask: u32) -> u32 {
+    let mut blocked = 0;
+    let mut bits = mask & 0xff;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        let (ai, bi) = (
+            Vec3::new(a[0][i], a[1][i], a[2][i]),
+            Vec3::new(b[0][i], b[1][i], b[2][i]),
+        );
+        blocked |= u32::from(any_avx2(w, ai, bi - ai, 0.0, OCCLUDED_TMAX, &mut NoCount)) << i;
+    }
+    blocked
+}
+
 #[target_feature(enable = "avx2")]
 fn closest_avx2<C: Count>(
     w: &Wide8,
@@ -289,132 +346,159 @@ fn closest_avx2<C: Count>(
     tmax: f32,
     count: &mut C,
 ) -> Option<SlotHit> {
-    let ray = Prepared::new(o, d);
-    let vmin = _mm256_set1_ps(tmin);
-    let mut best: Option<SlotHit> = None;
-    let mut t_best = tmax;
-    let mut stack = Stack::<STACK>::new();
-    let mut r = w.root;
-    loop {
-        if r & LEAF_BIT == 0 {
-            // Test the eight children; descend into the nearest, push the others
-            let node = &w.nodes[r as usize];
-            count.node();
-            let (mask, t0) = ray.boxes(node, vmin, _mm256_set1_ps(t_best));
-            if mask != 0 {
-                if mask & (mask - 1) == 0 {
-                    r = node.child[mask.trailing_zeros() as usize];
-                    continue;
-                }
-                let mut t0a = [0f32; 8];
-                // SAFETY: `t0a` is eight writable f32s; no alignment needed
-                unsafe { _mm256_storeu_ps(t0a.as_mut_ptr(), t0) };
-                let rest = mask & (mask - 1);
-                if rest & (rest - 1) == 0 {
-                    // Two children need no sort: descend into the nearer
-                    // (the second on a tie, as the insertion below would)
-                    let (a, b) = (
-                        mask.trailing_zeros() as usize,
-                        rest.trailing_zeros() as usize,
-                    );
-                    let (near, far) = if t0a[b] <= t0a[a] { (b, a) } else { (a, b) };
-                    stack.set(stack.len, node.child[far], t0a[far]);
-                    stack.len += 1;
-                    r = node.child[near];
-                    continue;
-                }
-                if rest.count_ones() <= 3 {
-                    // Three or four children: a sorting network, whose
-                    // compare-exchanges need no branches (the insertion
-                    // below branches on each comparison, on distances the
-                    // predictor cannot guess). A key is the
-                    // entry distance's bits, which order as the distances
-                    // do when these are not negative (they are at least
-                    // `tmin`; a negative `tmin` could change the order of
-                    // visits, not the closest distance), above 7 − lane,
-                    // so that equal distances are popped last lane first,
-                    // as the insertion would; a missing fourth is u64::MAX
-                    // and sorts last.
-                    let key = |m: u32| {
-                        let i = m.trailing_zeros() as usize;
-                        (u64::from(t0a[i].to_bits()) << 32) | (7 - i) as u64
-                    };
-                    let (m1, m2) = (rest, rest & (rest - 1));
-                    let m3 = m2 & (m2 - 1);
-                    // (lane 7 stands in for a missing fourth, to read in bounds)
-                    let k3 = key(m3 | 0x80);
-                    let mut k = [
-                        key(mask),
-                        key(m1),
-                        key(m2),
-                        if m3 != 0 { k3 } else { u64::MAX },
-                    ];
-                    for (a, b) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
-                        let (lo, hi) = (k[a].min(k[b]), k[a].max(k[b]));
-                        (k[a], k[b]) = (lo, hi);
-                    }
-                    // Push the farthest first, as stack entries (the key's
-                    // distance above the child); without a fourth, the
-                    // third slot written is past the new top, unused
-                    let child = |k: u64| node.child[(k & 7) as usize ^ 7];
-                    let entry = |k: u64| (k & !0xffff_ffff) | u64::from(child(k));
-                    let (e1, e2, e3) = (entry(k[1]), entry(k[2]), entry(k[3]));
-                    let four = m3 != 0;
-                    stack.set3(
-                        stack.len,
-                        [if four { e3 } else { e2 }, if four { e2 } else { e1 }, e1],
-                    );
-                    stack.len += 2 + usize::from(four);
-                    r = child(k[0]);
-                    continue;
-                }
-                let base = stack.len;
-                let mut bits = mask;
-                while bits != 0 {
-                    let i = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    // Insertion keeps stack[base..] sorted farthest first
-                    let mut j = stack.len;
-                    while j > base {
-                        let (rj, dj) = stack.get(j - 1);
-                        if dj >= t0a[i] {
-                            break;
-                        }
-                        stack.set(j, rj, dj);
-                        j -= 1;
-                    }
-                    stack.set(j, node.child[i], t0a[i]);
-                    stack.len += 1;
-                }
-                // The nearest was pushed last: pop it and descend
-                r = stack.get(stack.len - 1).0;
-                stack.len -= 1;
-                continue;
-            }
-        } else {
-            // Test the leaf's triangles, eight at a time
-            for p in leaf_packs(r) {
-                count.pack();
-                let (mask, t, u, v) =
-                    ray.triangles::<true>(&w.packs[p], vmin, _mm256_set1_ps(t_best));
-                take_hits(mask, (t, u, v), p, &w.ids, &mut t_best, &mut best);
-            }
-        }
-        // Pop the nearest entry that may still hold a closer hit
+    // SAFETY: this function is compiled for AVX2
+    unsafe { closest_in(w, o, d, tmin, tmax, count) }
+}
+
+/// The body of [`closest_avx2`], inlined into it and into
+/// [`closest_lanes`], whose loop then keeps each answer in registers
+/// (a call returns it through memory, written field by field and read
+/// back two fields at a time, which the CPU cannot forward from store to
+/// load).
+///
+/// # Safety
+/// Only to be inlined into a function compiled for AVX2.
+#[inline(always)]
+unsafe fn closest_in<C: Count>(
+    w: &Wide8,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+    count: &mut C,
+) -> Option<SlotHit> {
+    // SAFETY: AVX2 intrinsics and AVX2 functions, in a caller compiled for
+    // AVX2 (this function's contract), and one unaligned store of eight
+    // f32 into `t0a`, which holds eight
+    unsafe {
+        let ray = Prepared::new(o, d);
+        let vmin = _mm256_set1_ps(tmin);
+        let mut best: Option<SlotHit> = None;
+        let mut t_best = tmax;
+        let mut stack = Stack::<STACK>::new();
+        let mut r = w.root;
         loop {
-            if stack.len == 0 {
-                return best;
+            if r & LEAF_BIT == 0 {
+                // Test the eight children; descend into the nearest, push the others
+                let node = &w.nodes[r as usize];
+                count.node();
+                let (mask, t0) = ray.boxes(node, vmin, _mm256_set1_ps(t_best));
+                if mask != 0 {
+                    if mask & (mask - 1) == 0 {
+                        r = node.child[mask.trailing_zeros() as usize];
+                        continue;
+                    }
+                    let mut t0a = [0f32; 8];
+                    // `t0a` is eight writable f32s; no alignment needed
+                    _mm256_storeu_ps(t0a.as_mut_ptr(), t0);
+                    let rest = mask & (mask - 1);
+                    if rest & (rest - 1) == 0 {
+                        // Two children need no sort: descend into the nearer
+                        // (the second on a tie, as the insertion below would)
+                        let (a, b) = (
+                            mask.trailing_zeros() as usize,
+                            rest.trailing_zeros() as usize,
+                        );
+                        let (near, far) = if t0a[b] <= t0a[a] { (b, a) } else { (a, b) };
+                        stack.set(stack.len, node.child[far], t0a[far]);
+                        stack.len += 1;
+                        r = node.child[near];
+                        continue;
+                    }
+                    if rest.count_ones() <= 3 {
+                        // Three or four children: a sorting network, whose
+                        // compare-exchanges need no branches (the insertion
+                        // below branches on each comparison, on distances the
+                        // predictor cannot guess). A key is the
+                        // entry distance's bits, which order as the distances
+                        // do when these are not negative (they are at least
+                        // `tmin`; a negative `tmin` could change the order of
+                        // visits, not the closest distance), above 7 − lane,
+                        // so that equal distances are popped last lane first,
+                        // as the insertion would; a missing fourth is u64::MAX
+                        // and sorts last.
+                        let key = |m: u32| {
+                            let i = m.trailing_zeros() as usize;
+                            (u64::from(t0a[i].to_bits()) << 32) | (7 - i) as u64
+                        };
+                        let (m1, m2) = (rest, rest & (rest - 1));
+                        let m3 = m2 & (m2 - 1);
+                        // (lane 7 stands in for a missing fourth, to read in bounds)
+                        let k3 = key(m3 | 0x80);
+                        let mut k = [
+                            key(mask),
+                            key(m1),
+                            key(m2),
+                            if m3 != 0 { k3 } else { u64::MAX },
+                        ];
+                        for (a, b) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
+                            let (lo, hi) = (k[a].min(k[b]), k[a].max(k[b]));
+                            (k[a], k[b]) = (lo, hi);
+                        }
+                        // Push the farthest first, as stack entries (the key's
+                        // distance above the child); without a fourth, the
+                        // third slot written is past the new top, unused
+                        let child = |k: u64| node.child[(k & 7) as usize ^ 7];
+                        let entry = |k: u64| (k & !0xffff_ffff) | u64::from(child(k));
+                        let (e1, e2, e3) = (entry(k[1]), entry(k[2]), entry(k[3]));
+                        let four = m3 != 0;
+                        stack.set3(
+                            stack.len,
+                            [if four { e3 } else { e2 }, if four { e2 } else { e1 }, e1],
+                        );
+                        stack.len += 2 + usize::from(four);
+                        r = child(k[0]);
+                        continue;
+                    }
+                    let base = stack.len;
+                    let mut bits = mask;
+                    while bits != 0 {
+                        let i = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        // Insertion keeps stack[base..] sorted farthest first
+                        let mut j = stack.len;
+                        while j > base {
+                            let (rj, dj) = stack.get(j - 1);
+                            if dj >= t0a[i] {
+                                break;
+                            }
+                            stack.set(j, rj, dj);
+                            j -= 1;
+                        }
+                        stack.set(j, node.child[i], t0a[i]);
+                        stack.len += 1;
+                    }
+                    // The nearest was pushed last: pop it and descend
+                    r = stack.get(stack.len - 1).0;
+                    stack.len -= 1;
+                    continue;
+                }
+            } else {
+                // Test the leaf's triangles, eight at a time
+                for p in leaf_packs(r) {
+                    count.pack();
+                    let (mask, t, u, v) =
+                        ray.triangles::<true>(&w.packs[p], vmin, _mm256_set1_ps(t_best));
+                    take_hits(mask, (t, u, v), p, &w.ids, &mut t_best, &mut best);
+                }
             }
-            let (cr, cd) = stack.get(stack.len - 1);
-            stack.len -= 1;
-            if visits(cd, t_best) {
-                r = cr;
-                break;
+            // Pop the nearest entry that may still hold a closer hit
+            loop {
+                if stack.len == 0 {
+                    return best;
+                }
+                let (cr, cd) = stack.get(stack.len - 1);
+                stack.len -= 1;
+                if visits(cd, t_best) {
+                    r = cr;
+                    break;
+                }
             }
         }
     }
 }
 
+#[inline]
 #[target_feature(enable = "avx2")]
 fn any_avx2<C: Count>(w: &Wide8, o: Vec3, d: Vec3, tmin: f32, tmax: f32, count: &mut C) -> bool {
     let ray = Prepared::new(o, d);
