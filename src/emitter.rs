@@ -318,6 +318,9 @@ pub struct Lights {
     /// environment if it has power.
     entries: Vec<Entry>,
     dist: Distribution1D,
+    /// `dist`'s probabilities as f32, as its `sample` gives them (for the
+    /// power selection, which takes one per choice).
+    pmf32: Vec<f32>,
     /// The emitting triangles for [`LightSelection::Spatial`]: light i of
     /// the tree is entry i.
     tree: LightTree,
@@ -484,6 +487,7 @@ impl Lights {
         };
         Lights {
             entries,
+            pmf32: dist.sample_pmfs_f32(),
             dist,
             tree_static: tree.is_static(),
             tree,
@@ -659,8 +663,9 @@ impl Lights {
         }
         match self.effective(selection) {
             LightSelection::Power => {
-                let (i, pmf, _) = self.dist.sample(u_sel as f64);
-                Some((i, pmf as f32))
+                // the pmf from the table (the same division, made once)
+                let (i, _, _) = self.dist.sample(u_sel as f64);
+                Some((i, self.pmf32[i]))
             }
             LightSelection::Spatial => {
                 // The environment and the punctual lights first, with their

@@ -275,6 +275,15 @@ impl Distribution1D {
         (self.cdf[i + 1] - self.cdf[i]) / self.total
     }
 
+    /// The probability [`Distribution1D::sample`] gives with each entry,
+    /// as f32: the same division, made once (where the total is zero too,
+    /// unlike [`Distribution1D::pmf`]'s guarded one).
+    pub fn sample_pmfs_f32(&self) -> Vec<f32> {
+        (0..self.len())
+            .map(|i| ((self.cdf[i + 1] - self.cdf[i]) / self.total) as f32)
+            .collect()
+    }
+
     /// Picks an entry for `u` in [0,1); returns it, its probability, and `u`
     /// rescaled to [0,1) within the entry (for reuse).
     #[inline(always)]
@@ -338,6 +347,25 @@ pub fn erfc(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The table of f32 probabilities holds, bit for bit, what `sample`
+    /// gives with each entry, zero-weight entries and a zero total too.
+    #[test]
+    fn sample_pmfs_are_the_probabilities_sample_gives() {
+        let mut rng = Pcg32::new(5, 5);
+        for weights in [vec![], vec![0.0, 0.0], vec![1.0, 0.0, 3.0, 1e-30, 7.5]] {
+            let dist = Distribution1D::new(&weights);
+            let table = dist.sample_pmfs_f32();
+            assert_eq!(table.len(), dist.len());
+            if dist.total() <= 0.0 {
+                continue;
+            }
+            for _ in 0..1000 {
+                let (i, pmf, _) = dist.sample(rng.next_f64());
+                assert_eq!(table[i].to_bits(), (pmf as f32).to_bits());
+            }
+        }
+    }
 
     #[test]
     fn pcg_floats_stay_below_one_and_keyed_streams_differ() {

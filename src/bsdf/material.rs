@@ -254,6 +254,24 @@ impl Material {
         }
     }
 
+    /// The reflectance `r` where [`Material::bsdf`] gives `Bsdf::Diffuse { r }`
+    /// at `uv`, else None: the same value, read without building the BSDF
+    /// for the common `diffuse` material. For the AVX lanes, which shade
+    /// only diffuse vertices: the `Bsdf` enum, built and matched, went
+    /// through memory in pieces of different widths, a stall of the
+    /// store-to-load forwarding at every vertex.
+    #[inline(always)]
+    pub fn diffuse_at(&self, uv: Vec2) -> Option<Rgb> {
+        match self.base() {
+            Material::Diffuse { reflectance } => Some(reflectance.eval(uv)),
+            Material::MetallicRoughness(p) => match p.bsdf(uv) {
+                Bsdf::Diffuse { r } => Some(r),
+                _ => None,
+            },
+            _ => None,
+        }
+    }
+
     /// Builds now the tables [`Material::bsdf`] would otherwise build on
     /// first use: the coat table of a `roughplastic` (about 1 G instructions,
     /// some 0.3 s, once per process and parameters). [`crate::world::World`]

@@ -11,7 +11,6 @@ use glam::{Vec2, Vec3};
 
 use super::{LaneSampler, LANES};
 use crate::accel::Hit;
-use crate::bsdf::Bsdf;
 use crate::emitter::TriLight;
 use crate::geometry::Ray;
 use crate::sampling::{sin_cos_quarter, Sampler};
@@ -327,9 +326,10 @@ pub(super) fn radiance_row<S: LaneSampler>(
         // The next segment of each path that goes on
         for i in lanes(alive) {
             paths.rays[i] += 1;
-            let ray = Ray::new(V3::lane(&paths.o, i), V3::lane(&paths.d, i));
-            found[i] = world.accel.intersect(&ray);
         }
+        world
+            .accel
+            .intersect_lanes(&paths.o, &paths.d, alive, &mut found);
     }
 }
 
@@ -486,9 +486,10 @@ fn shade_or_scatter<S: Sampler>(
         let material = &scene.materials[s.material as usize];
         let common = paths.depth[i] < max_depth && !lights.is_emitter_of(lh[i].tri, shape);
         let uv = Vec2::new(sp.uv[0][i], sp.uv[1][i]);
-        let diffuse = match common.then(|| material.bsdf(uv)) {
-            Some(Bsdf::Diffuse { r }) => Some(r),
-            _ => None,
+        let diffuse = if common {
+            material.diffuse_at(uv)
+        } else {
+            None
         };
         let Some(ri) = diffuse else {
             let mut path = paths.get(i);
@@ -781,14 +782,10 @@ fn trace_shadows(
     let shadow_bits = ne.shadow.bits() & vec;
     let origin = offset(sp.p, fr.ng_o, ne.wi_l).store();
     let target = offset(ne.q, ls.n, ne.wi_l.neg()).store();
-    let mut clear = 0u32;
     for i in lanes(shadow_bits) {
         paths.rays[i] += 1;
-        let blocked = world
-            .accel
-            .occluded(V3::lane(&origin, i), V3::lane(&target, i));
-        clear |= u32::from(!blocked) << i;
     }
+    let clear = shadow_bits & !world.accel.occluded_lanes(&origin, &target, shadow_bits);
     let c = ne.contrib;
     let lc = V3::new(l.x + c.x, l.y + c.y, l.z + c.z);
     put(&mut paths.l, V::mask(clear), lc);
