@@ -247,6 +247,40 @@ pub fn sobol_reversed(rindex: u32, dim: usize) -> u32 {
     x
 }
 
+/// Dimensions in a row of [`NIBBLES_BY_DIMENSION`]: the table's, then
+/// eight of zeros, so that eight consecutive dimensions can be read from
+/// any dimension up to [`SOBOL_DIMENSIONS`].
+pub(crate) const ROW_DIMENSIONS: usize = SOBOL_DIMENSIONS + 8;
+
+/// [`NIBBLES`] with the dimension innermost: `NIBBLES_BY_DIMENSION[k][n][d]
+/// = NIBBLES[d][k][n]` (zero past the last dimension). The AVX lanes draw a
+/// vertex's consecutive dimensions from it, eight per load (36 KB).
+static NIBBLES_BY_DIMENSION: [[[u32; ROW_DIMENSIONS]; 16]; 8] = nibbles_by_dimension();
+
+const fn nibbles_by_dimension() -> [[[u32; ROW_DIMENSIONS]; 16]; 8] {
+    let mut t = [[[0u32; ROW_DIMENSIONS]; 16]; 8];
+    let mut k = 0;
+    while k < 8 {
+        let mut n = 0;
+        while n < 16 {
+            let mut d = 0;
+            while d < SOBOL_DIMENSIONS {
+                t[k][n][d] = NIBBLES[d][k][n];
+                d += 1;
+            }
+            n += 1;
+        }
+        k += 1;
+    }
+    t
+}
+
+/// The table of the lanes' consecutive dimensions ([`NIBBLES_BY_DIMENSION`]).
+#[inline(always)]
+pub(crate) fn nibbles_by_dimension_table() -> &'static [[[u32; ROW_DIMENSIONS]; 16]; 8] {
+    &NIBBLES_BY_DIMENSION
+}
+
 /// The bit-reversed nibble tables as one flat array of u32 (`NIBBLES[d][k][n]` at
 /// `(d · 8 + k) · 16 + n`), for the lanes' gathers.
 #[inline(always)]

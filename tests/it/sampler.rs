@@ -356,8 +356,9 @@ fn assert_same_image_whatever_the_threads(
 /// checks for independent numbers: on scenes that mix diffuse surfaces
 /// with glass, mirrors and rough metal, with both light selections, with
 /// a depth limit and early Russian roulette, and with paths of 14 vertices
-/// that reach the hashed dimensions past the table; at passes 0, 1 and 37
-/// (the shuffled sample index). On a CPU without AVX2 both sides are the
+/// that reach the hashed dimensions past the table; at passes 0, 1, 37 and
+/// 300 (the shuffled sample index: one, two and three nibbles of the
+/// tables). On a CPU without AVX2 both sides are the
 /// scalar code and the test shows nothing.
 #[test]
 fn sobol_lanes_give_the_scalar_radiance_bit_for_bit() {
@@ -381,6 +382,7 @@ fn sobol_lanes_give_the_scalar_radiance_bit_for_bit() {
             (0, LightSelection::Spatial, None, 5),
             (1, LightSelection::Power, Some(4), 1),
             (37, LightSelection::Spatial, Some(14), 20),
+            (300, LightSelection::Power, None, 5),
         ] {
             let limits = DepthLimits {
                 max_depth,
