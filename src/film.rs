@@ -64,6 +64,33 @@ impl Film {
         }
     }
 
+    /// Asks the CPU to bring the pixel at film position `(px, py)` into its
+    /// cache, as [`Film::splat`] would find it; nothing else. For a splat
+    /// that waits on a visibility ray: the film of a light tracer is read
+    /// at random pixels, most of them outside the caches near the core, and
+    /// the ray's traversal hides the wait.
+    #[inline(always)]
+    pub fn prefetch(&self, px: f32, py: f32) {
+        if px >= 0.0 && py >= 0.0 {
+            let (x, y) = (px as u32, py as u32);
+            if x < self.width && y < self.height {
+                let i = y as usize * self.width as usize + x as usize;
+                let p = self.sum[i..].as_ptr().cast::<i8>();
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: a prefetch has no effect on memory or on the
+                // program's state; both addresses are inside pixel i's
+                // 24 bytes (which may cross a cache line)
+                unsafe {
+                    use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+                    _mm_prefetch::<_MM_HINT_T0>(p);
+                    _mm_prefetch::<_MM_HINT_T0>(p.add(23));
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                let _ = p;
+            }
+        }
+    }
+
     /// Adds `v` at continuous film position `(px, py)` in pixels (a splat).
     #[inline]
     pub fn splat(&mut self, px: f32, py: f32, v: Rgb) {

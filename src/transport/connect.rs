@@ -31,6 +31,20 @@ pub fn connect_to_camera(
     glossy_split: bool,
     rays: &mut u64,
 ) -> Option<(Vec2, Rgb)> {
+    connect_then(world, v, phi, glossy_split, rays, |_| {})
+}
+
+/// [`connect_to_camera`], calling `seen` with the film position just
+/// before the visibility ray is traced (for [`Film::prefetch`]).
+#[inline(always)]
+pub fn connect_then(
+    world: &World,
+    v: &Vertex,
+    phi: Rgb,
+    glossy_split: bool,
+    rays: &mut u64,
+    seen: impl FnOnce(Vec2),
+) -> Option<(Vec2, Rgb)> {
     let cam = world.camera.position();
     let p = v.sp.p;
     let (pix, g) = world.camera.project(p)?;
@@ -57,6 +71,7 @@ pub fn connect_to_camera(
         return None;
     }
     *rays += 1;
+    seen(pix);
     if world.accel.occluded(offset_point(p, v.ng, wc), cam) {
         return None;
     }
@@ -77,7 +92,8 @@ dispatched! {
         film: &mut Film,
     ) -> u64 {
         let mut rays = 0;
-        if let Some((pix, c)) = connect_to_camera(world, v, phi, glossy_split, &mut rays) {
+        let seen = |pix: Vec2| film.prefetch(pix.x, pix.y);
+        if let Some((pix, c)) = connect_then(world, v, phi, glossy_split, &mut rays, seen) {
             film.splat(pix.x, pix.y, c);
         }
         rays
@@ -98,6 +114,7 @@ pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mu
     if cos <= 0.0 {
         return 0;
     }
+    film.prefetch(pix.x, pix.y);
     if !world
         .accel
         .occluded(offset_point(p, n, d), world.camera.position())

@@ -7,7 +7,8 @@
 //!   with the shading-normal correction.
 //! - [`connect_to_camera`], [`connect_emission`], [`connect_emission_sample`]: the camera connections of
 //!   light paths, with the pixel weight g(x) of §2 of the
-//!   light-path-building paper.
+//!   light-path-building paper ([`connect_then`]: the first, telling its
+//!   caller the pixel before the visibility ray, to prefetch the film).
 //! - [`follow_delta_chain`]: power carried through mirrors and glass to the
 //!   first surface that can be measured, with a named depth limit
 //!   ([`DELTA_CHAIN_DEPTH_LIMIT`]).
@@ -43,7 +44,9 @@ mod radiance;
 mod vertex;
 mod walk;
 
-pub use connect::{connect_emission, connect_emission_sample, connect_to_camera, splat_to_camera};
+pub use connect::{
+    connect_emission, connect_emission_sample, connect_then, connect_to_camera, splat_to_camera,
+};
 pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};

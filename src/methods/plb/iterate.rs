@@ -18,7 +18,7 @@ use crate::sampling::Pcg32;
 use crate::scene::{luminance, Rgb};
 use crate::simd::dispatched;
 use crate::transport::{
-    connect_emission_sample, connect_to_camera, follow_delta_chain, Landing, Vertex,
+    connect_emission_sample, connect_then, follow_delta_chain, Landing, Vertex,
 };
 
 /// No parent: the hit was shot from a light.
@@ -445,7 +445,14 @@ fn trace(
     let mut contrib = Rgb::ZERO;
     let mut pix = Vec2::ZERO;
     if depth < max_depth && v.bsdf.has_smooth() {
-        if let Some((p, c)) = connect_to_camera(world, v, phi, form.glossy_split, rays) {
+        // the film is splatted at birth only (the guided default)
+        let film = &lane.hit_film;
+        let seen = |p: Vec2| {
+            if birth.is_some() {
+                film.prefetch(p.x, p.y);
+            }
+        };
+        if let Some((p, c)) = connect_then(world, v, phi, form.glossy_split, rays, seen) {
             contrib = c;
             pix = p;
         }
