@@ -43,6 +43,21 @@ pub struct Film {
     pub height: u32,
     /// Per-pixel sums.
     pub sum: Vec<DVec3>,
+    /// Splats on their way in ([`Film::splat_soon`]).
+    queue: Queue,
+}
+
+/// The splats a film holds back while queueing ([`Film::begin_queue`]).
+const QUEUE: usize = 8;
+
+/// Splats held back, as (pixel index, value), oldest at `head`; whether
+/// [`Film::splat_soon`] queues at all.
+#[derive(Clone, Debug, Default)]
+struct Queue {
+    on: bool,
+    slots: [(usize, Rgb); QUEUE],
+    head: usize,
+    len: usize,
 }
 
 impl Film {
@@ -52,15 +67,80 @@ impl Film {
             width,
             height,
             sum: vec![DVec3::ZERO; width as usize * height as usize],
+            queue: Queue::default(),
         }
     }
 
-    /// Adds `v` to pixel index `i`. Non-finite values are dropped, so that a
-    /// numerical accident can never poison a pixel with NaN.
+    /// Adds `v` to pixel index `i`, after any splats still queued (so that
+    /// every pixel receives its additions in the order they were made).
+    /// Non-finite values are dropped, so that a numerical accident can never
+    /// poison a pixel with NaN.
     #[inline]
     pub fn add_index(&mut self, i: usize, v: Rgb) {
+        if self.queue.len != 0 {
+            self.drain();
+        }
+        self.add_now(i, v);
+    }
+
+    #[inline(always)]
+    fn add_now(&mut self, i: usize, v: Rgb) {
         if v.is_finite() {
             self.sum[i] += v.as_dvec3();
+        }
+    }
+
+    /// From now until [`Film::settle`], [`Film::splat_soon`] holds splats
+    /// back: each pixel is prefetched when its splat is queued and added
+    /// `QUEUE` (8) splats later, so that the wait for a pixel outside the
+    /// caches overlaps the work of the next few splats (a light tracer's
+    /// film is read at random pixels). Every pixel receives the same
+    /// additions in the same order, so the sums are the same bits; the
+    /// film must be settled before it is read.
+    pub fn begin_queue(&mut self) {
+        self.queue.on = true;
+    }
+
+    /// Adds the splats still queued, oldest first, and stops queueing.
+    pub fn settle(&mut self) {
+        self.drain();
+        self.queue.on = false;
+    }
+
+    /// Adds the splats still queued, oldest first.
+    fn drain(&mut self) {
+        while self.queue.len != 0 {
+            let (i, v) = self.queue.slots[self.queue.head];
+            self.queue.head = (self.queue.head + 1) % QUEUE;
+            self.queue.len -= 1;
+            self.add_now(i, v);
+        }
+    }
+
+    /// [`Film::splat`], held back while the film queues
+    /// ([`Film::begin_queue`]).
+    #[inline]
+    pub fn splat_soon(&mut self, px: f32, py: f32, v: Rgb) {
+        if !self.queue.on {
+            self.splat(px, py, v);
+            return;
+        }
+        if px >= 0.0 && py >= 0.0 {
+            let (x, y) = (px as u32, py as u32);
+            if x < self.width && y < self.height {
+                let i = y as usize * self.width as usize + x as usize;
+                self.prefetch_index(i);
+                let q = &mut self.queue;
+                if q.len == QUEUE {
+                    let (j, w) = q.slots[q.head];
+                    q.head = (q.head + 1) % QUEUE;
+                    q.len -= 1;
+                    self.add_now(j, w);
+                }
+                let q = &mut self.queue;
+                q.slots[(q.head + q.len) % QUEUE] = (i, v);
+                q.len += 1;
+            }
         }
     }
 
@@ -74,21 +154,26 @@ impl Film {
         if px >= 0.0 && py >= 0.0 {
             let (x, y) = (px as u32, py as u32);
             if x < self.width && y < self.height {
-                let i = y as usize * self.width as usize + x as usize;
-                let p = self.sum[i..].as_ptr().cast::<i8>();
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: a prefetch has no effect on memory or on the
-                // program's state; both addresses are inside pixel i's
-                // 24 bytes (which may cross a cache line)
-                unsafe {
-                    use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-                    _mm_prefetch::<_MM_HINT_T0>(p);
-                    _mm_prefetch::<_MM_HINT_T0>(p.add(23));
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                let _ = p;
+                self.prefetch_index(y as usize * self.width as usize + x as usize);
             }
         }
+    }
+
+    /// [`Film::prefetch`] of pixel index `i`.
+    #[inline(always)]
+    fn prefetch_index(&self, i: usize) {
+        let p = self.sum[i..].as_ptr().cast::<i8>();
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: a prefetch has no effect on memory or on the program's
+        // state; both addresses are inside pixel i's 24 bytes (which may
+        // cross a cache line)
+        unsafe {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            _mm_prefetch::<_MM_HINT_T0>(p);
+            _mm_prefetch::<_MM_HINT_T0>(p.add(23));
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = p;
     }
 
     /// Adds `v` at continuous film position `(px, py)` in pixels (a splat).
@@ -107,6 +192,8 @@ impl Film {
 
     /// Adds another film, pixel by pixel.
     pub fn merge(&mut self, other: &Film) {
+        debug_assert!(other.queue.len == 0, "a film read with splats queued");
+        self.drain();
         for (a, b) in self.sum.iter_mut().zip(&other.sum) {
             *a += *b;
         }
@@ -119,10 +206,59 @@ impl Film {
 
     /// The image `sum · scale`.
     pub fn to_image(&self, scale: f64) -> Image {
+        debug_assert!(self.queue.len == 0, "a film read with splats queued");
         Image {
             width: self.width,
             height: self.height,
             data: self.sum.iter().map(|v| (*v * scale).as_vec3()).collect(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Pcg32;
+
+    /// Splats held back by the queue end in the same sums, bit for bit, as
+    /// splats made at once, in any mix with immediate splats (which add
+    /// after the queued ones), off-film positions and non-finite values;
+    /// a film not queueing splats at once.
+    #[test]
+    fn queued_splats_give_the_same_sums_as_immediate_ones() {
+        let mut rng = Pcg32::new(9, 9);
+        let (mut now, mut soon) = (Film::new(7, 5), Film::new(7, 5));
+        soon.begin_queue();
+        let mut longest = 0;
+        for k in 0..5000 {
+            let (px, py) = (rng.next_f32() * 8.0 - 0.5, rng.next_f32() * 6.0 - 0.5);
+            let v = match k % 97 {
+                0 => Rgb::splat(f32::NAN),
+                1 => Rgb::splat(f32::INFINITY),
+                _ => Rgb::new(rng.next_f32(), rng.next_f32() * 1e-3, rng.next_f32() * 1e3),
+            };
+            now.splat(px, py, v);
+            if k % 13 == 0 {
+                soon.splat(px, py, v);
+            } else {
+                soon.splat_soon(px, py, v);
+            }
+            longest = longest.max(soon.queue.len);
+        }
+        assert_eq!(longest, QUEUE, "the queue held splats back");
+        soon.settle();
+        let bits = |f: &Film| {
+            f.sum
+                .iter()
+                .map(|p| p.to_array().map(f64::to_bits))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&now), bits(&soon));
+        assert!(now.sum.iter().all(|p| p.is_finite()));
+        // settled, the film adds at once again
+        soon.splat_soon(3.5, 2.5, Rgb::ONE);
+        assert_eq!(soon.queue.len, 0);
+        let i = 2 * 7 + 3;
+        assert_eq!(soon.sum[i], now.sum[i] + DVec3::ONE);
     }
 }

@@ -487,6 +487,9 @@ dispatched! {
         // compiled for the baseline only
         let mut rng = rng;
         let mut rays = 0;
+        // The splats are held back a few at a time (same sums, bit for
+        // bit), and settled before the film is read
+        film.begin_queue();
         match (s.variant, s.sampler) {
             (Variant::Walk, SamplerKind::Independent) => {
                 for _ in 0..count {
@@ -505,6 +508,7 @@ dispatched! {
                 }
             }
         }
+        film.settle();
         rays
     }
 }

@@ -79,8 +79,9 @@ pub fn connect_then(
 }
 
 dispatched! {
-    /// [`connect_to_camera`] and the splat of its contribution into `film`;
-    /// returns the rays traced. Dispatched on its own, so that the light
+    /// [`connect_to_camera`] and the splat of its contribution into `film`
+    /// ([`Film::splat_soon`]: held back while the film queues); returns the
+    /// rays traced. Dispatched on its own, so that the light
     /// walk's per-vertex hook that calls it stays small enough to be inlined
     /// into the dispatched walk, and the connection runs in the x86-64-v3
     /// copy whatever walk calls it.
@@ -94,7 +95,7 @@ dispatched! {
         let mut rays = 0;
         let seen = |pix: Vec2| film.prefetch(pix.x, pix.y);
         if let Some((pix, c)) = connect_then(world, v, phi, glossy_split, &mut rays, seen) {
-            film.splat(pix.x, pix.y, c);
+            film.splat_soon(pix.x, pix.y, c);
         }
         rays
     }
@@ -102,8 +103,8 @@ dispatched! {
 
 /// Connects an emission vertex (point `p`, normal `n`) to the camera for
 /// diffuse emitters, whose directional profile is 1 on the front side:
-/// splats `phi_pos` · cos θ · g(x) when the segment is clear. Returns the
-/// rays traced (0 or 1).
+/// splats `phi_pos` · cos θ · g(x) when the segment is clear
+/// ([`Film::splat_soon`]). Returns the rays traced (0 or 1).
 #[inline(always)]
 pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
     let Some((pix, g)) = world.camera.project(p) else {
@@ -119,7 +120,7 @@ pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mu
         .accel
         .occluded(offset_point(p, n, d), world.camera.position())
     {
-        film.splat(pix.x, pix.y, phi_pos * (cos * g));
+        film.splat_soon(pix.x, pix.y, phi_pos * (cos * g));
     }
     1
 }

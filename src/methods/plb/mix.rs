@@ -411,9 +411,12 @@ dispatched! {
     ) -> u64 {
         let mut rng = rng;
         let mut rays = 0;
+        // splats held back a few at a time, as `light`'s (same bits)
+        film.begin_queue();
         for _ in 0..count {
             rays += walk(world, glossy_split, max_depth, &mut rng, film);
         }
+        film.settle();
         rays
     }
 }
