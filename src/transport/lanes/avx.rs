@@ -480,6 +480,7 @@ fn shade_or_scatter<S: Sampler>(
         r: [[0.0f32; LANES]; 3],
         ns: ng_a,
     };
+    let (mut raw, mut smooth) = ([[0.0f32; LANES]; 3], 0u32);
     for i in lanes(mask) {
         let shape = sp.shape[i];
         let s = &scene.shapes[shape as usize];
@@ -509,14 +510,25 @@ fn shade_or_scatter<S: Sampler>(
             // a normal map's frame is the scalar surface point's
             V3::set(&mut sh.ns, i, world.surface_point(&lh[i]).frame.n);
         } else if s.smooth {
-            let ng = V3::lane(&ng_a, i);
+            // interpolated here, normalised below in lanes
             let [i0, i1, i2] = scene.triangles[lh[i].tri as usize].map(|i| i as usize);
             let n = scene.normals[i0] * b0_a[i]
                 + scene.normals[i1] * lh[i].b1
                 + scene.normals[i2] * lh[i].b2;
-            let n = n.normalize_or(ng);
-            V3::set(&mut sh.ns, i, if n.dot(ng) < 0.0 { -n } else { n });
+            V3::set(&mut raw, i, n);
+            smooth |= 1 << i;
         }
+    }
+    if smooth != 0 {
+        // `normalize_or(ng)`, then facing ng, as the scalar surface point
+        // computes them (the same operations, eight lanes at once: a
+        // division a lane, lane by lane, was a stall)
+        let (n, ng) = (V3::load(&raw), sp.ng);
+        let rcp = V::splat(1.0) / n.dot(n).sqrt();
+        let unit = rcp.finite() & rcp.gt(V::splat(0.0));
+        let n = V3::select(unit, n.scale(rcp), ng);
+        let n = V3::select(n.dot(ng).lt(V::splat(0.0)), n.neg(), n);
+        put(&mut sh.ns, V::mask(smooth), n);
     }
     sh
 }
