@@ -50,6 +50,10 @@ pub struct Film {
 /// The splats a film holds back while queueing ([`Film::begin_queue`]).
 const QUEUE: usize = 8;
 
+/// The smallest film that queues its splats: 1 MiB of sums (43,691
+/// pixels), about a core's second-level cache today.
+pub const QUEUE_FROM_BYTES: usize = 1 << 20;
+
 /// Splats held back, as (pixel index, value), oldest at `head`; whether
 /// [`Film::splat_soon`] queues at all.
 #[derive(Clone, Debug, Default)]
@@ -96,9 +100,12 @@ impl Film {
     /// caches overlaps the work of the next few splats (a light tracer's
     /// film is read at random pixels). Every pixel receives the same
     /// additions in the same order, so the sums are the same bits; the
-    /// film must be settled before it is read.
+    /// film must be settled before it is read. A film smaller than
+    /// [`QUEUE_FROM_BYTES`] does not queue: its pixels stay near the core,
+    /// and the queue's own work only costs (light on two-rooms' 160 × 120
+    /// films ran 3–10 % slower with it, cbox's 256 × 256 faster).
     pub fn begin_queue(&mut self) {
-        self.queue.on = true;
+        self.queue.on = std::mem::size_of_val(&self.sum[..]) >= QUEUE_FROM_BYTES;
     }
 
     /// Adds the splats still queued, oldest first, and stops queueing.
@@ -119,7 +126,7 @@ impl Film {
 
     /// [`Film::splat`], held back while the film queues
     /// ([`Film::begin_queue`]).
-    #[inline]
+    #[inline(always)]
     pub fn splat_soon(&mut self, px: f32, py: f32, v: Rgb) {
         if !self.queue.on {
             self.splat(px, py, v);
@@ -223,15 +230,20 @@ mod tests {
     /// Splats held back by the queue end in the same sums, bit for bit, as
     /// splats made at once, in any mix with immediate splats (which add
     /// after the queued ones), off-film positions and non-finite values;
-    /// a film not queueing splats at once.
+    /// a film not queueing splats at once, and a small film never queues.
     #[test]
     fn queued_splats_give_the_same_sums_as_immediate_ones() {
         let mut rng = Pcg32::new(9, 9);
-        let (mut now, mut soon) = (Film::new(7, 5), Film::new(7, 5));
+        // a film large enough to queue, splatted in a corner of 8 × 6
+        // pixels (many splats to each pixel) and off it
+        let (mut now, mut soon) = (Film::new(256, 256), Film::new(256, 256));
         soon.begin_queue();
         let mut longest = 0;
         for k in 0..5000 {
-            let (px, py) = (rng.next_f32() * 8.0 - 0.5, rng.next_f32() * 6.0 - 0.5);
+            let (px, py) = match k % 31 {
+                0 => (300.0, 2.0),
+                _ => (rng.next_f32() * 8.0 - 0.5, rng.next_f32() * 6.0 - 0.5),
+            };
             let v = match k % 97 {
                 0 => Rgb::splat(f32::NAN),
                 1 => Rgb::splat(f32::INFINITY),
@@ -258,7 +270,13 @@ mod tests {
         // settled, the film adds at once again
         soon.splat_soon(3.5, 2.5, Rgb::ONE);
         assert_eq!(soon.queue.len, 0);
-        let i = 2 * 7 + 3;
+        let i = 2 * 256 + 3;
         assert_eq!(soon.sum[i], now.sum[i] + DVec3::ONE);
+        // a film that fits a core's caches does not queue
+        let mut small = Film::new(7, 5);
+        small.begin_queue();
+        small.splat_soon(3.5, 2.5, Rgb::ONE);
+        assert_eq!(small.queue.len, 0);
+        assert_eq!(small.sum[2 * 7 + 3], DVec3::ONE);
     }
 }
