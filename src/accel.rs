@@ -73,6 +73,12 @@ pub struct Hit {
     pub b2: f32,
 }
 
+/// Lane `i`'s vector of eight held by component.
+#[inline(always)]
+fn lane_vec(a: &[[f32; 8]; 3], i: usize) -> Vec3 {
+    Vec3::new(a[0][i], a[1][i], a[2][i])
+}
+
 /// The far end of [`Accel::occluded`]'s segment, as a fraction of its
 /// length: short of the end point, so that the surface there does not
 /// block it.
@@ -501,8 +507,7 @@ impl Accel {
             }
             _ => {
                 for i in (0..8).filter(|i| mask & (1 << i) != 0) {
-                    let lane = |a: &[[f32; 8]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
-                    out[i] = self.intersect(&Ray::new(lane(o), lane(d)));
+                    out[i] = self.intersect(&Ray::new(lane_vec(o, i), lane_vec(d, i)));
                 }
             }
         }
@@ -522,10 +527,7 @@ impl Accel {
             }
             _ => (0..8)
                 .filter(|i| mask & (1 << i) != 0)
-                .map(|i| {
-                    let lane = |v: &[[f32; 8]; 3]| Vec3::new(v[0][i], v[1][i], v[2][i]);
-                    u32::from(self.occluded(lane(a), lane(b))) << i
-                })
+                .map(|i| u32::from(self.occluded(lane_vec(a, i), lane_vec(b, i))) << i)
                 .sum(),
         }
     }
@@ -677,18 +679,17 @@ mod tests {
             accel.intersect_lanes(&o, &d, mask, &mut out);
             let occ = accel.occluded_lanes(&o, &b, mask);
             assert_eq!(occ & !mask, 0);
-            for i in 0..8 {
-                let lane = |a: &[[f32; 8]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
+            for (i, &got) in out.iter().enumerate() {
                 let bits = |h: Option<Hit>| {
                     h.map(|h| (h.t.to_bits(), h.tri, h.b1.to_bits(), h.b2.to_bits()))
                 };
                 if mask & (1 << i) == 0 {
-                    assert_eq!(bits(out[i]), bits(untouched));
+                    assert_eq!(bits(got), bits(untouched));
                     continue;
                 }
-                let want = accel.intersect(&Ray::new(lane(&o), lane(&d)));
-                assert_eq!(bits(out[i]), bits(want));
-                let want_occ = accel.occluded(lane(&o), lane(&b));
+                let want = accel.intersect(&Ray::new(lane_vec(&o, i), lane_vec(&d, i)));
+                assert_eq!(bits(got), bits(want));
+                let want_occ = accel.occluded(lane_vec(&o, i), lane_vec(&b, i));
                 assert_eq!(occ & (1 << i) != 0, want_occ);
                 hits += usize::from(want.is_some());
                 blocked += usize::from(want_occ);

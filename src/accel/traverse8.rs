@@ -15,7 +15,7 @@ use glam::Vec3;
 use super::collapse::leaf_packs;
 use super::traverse::{better, visits, Count, NoCount, SlotHit, Stack, FAR_SCALE};
 use super::wide8::{Node8, Pack8, Wide8, LEAF_BIT, STACK};
-use super::{Hit, OCCLUDED_TMAX};
+use super::{lane_vec, Hit, OCCLUDED_TMAX};
 
 /// Takes the hits of leaf pack `p` that [`better`] prefers into `best`
 /// and `t_best`: the lanes set in `mask`, at distances `t` with
@@ -302,10 +302,7 @@ pub(super) fn closest_lanes(
     while bits != 0 {
         let i = bits.trailing_zeros() as usize;
         bits &= bits - 1;
-        let (oi, di) = (
-            Vec3::new(o[0][i], o[1][i], o[2][i]),
-            Vec3::new(d[0][i], d[1][i], d[2][i]),
-        );
+        let (oi, di) = (lane_vec(o, i), lane_vec(d, i));
         // SAFETY: this function is compiled for AVX2
         let h = unsafe { closest_in(w, oi, di, 0.0, f32::INFINITY, &mut NoCount) };
         out[i] = h.map(|h| Hit {
@@ -328,10 +325,7 @@ pub(super) fn occluded_lanes(w: &Wide8, a: &[[f32; 8]; 3], b: &[[f32; 8]; 3], ma
     while bits != 0 {
         let i = bits.trailing_zeros() as usize;
         bits &= bits - 1;
-        let (ai, bi) = (
-            Vec3::new(a[0][i], a[1][i], a[2][i]),
-            Vec3::new(b[0][i], b[1][i], b[2][i]),
-        );
+        let (ai, bi) = (lane_vec(a, i), lane_vec(b, i));
         blocked |= u32::from(any_avx2(w, ai, bi - ai, 0.0, OCCLUDED_TMAX, &mut NoCount)) << i;
     }
     blocked
