@@ -117,11 +117,33 @@ impl Film {
     /// Adds the splats still queued, oldest first.
     fn drain(&mut self) {
         while self.queue.len != 0 {
-            let (i, v) = self.queue.slots[self.queue.head];
-            self.queue.head = (self.queue.head + 1) % QUEUE;
-            self.queue.len -= 1;
-            self.add_now(i, v);
+            self.add_oldest();
         }
+    }
+
+    /// Adds the oldest splat queued (the queue holds one).
+    #[inline(always)]
+    fn add_oldest(&mut self) {
+        let q = &mut self.queue;
+        let (i, v) = q.slots[q.head];
+        q.head = (q.head + 1) % QUEUE;
+        q.len -= 1;
+        self.add_now(i, v);
+    }
+
+    /// The index of the pixel at film position `(px, py)`, None off the
+    /// film. For px ≥ 0 the cast truncates to floor(px) (and saturates past
+    /// u32::MAX), so no `floor` is needed: on baseline x86-64 that is a
+    /// libm call. NaN fails the comparison.
+    #[inline(always)]
+    fn index(&self, px: f32, py: f32) -> Option<usize> {
+        if px >= 0.0 && py >= 0.0 {
+            let (x, y) = (px as u32, py as u32);
+            if x < self.width && y < self.height {
+                return Some(y as usize * self.width as usize + x as usize);
+            }
+        }
+        None
     }
 
     /// [`Film::splat`], held back while the film queues
@@ -132,22 +154,14 @@ impl Film {
             self.splat(px, py, v);
             return;
         }
-        if px >= 0.0 && py >= 0.0 {
-            let (x, y) = (px as u32, py as u32);
-            if x < self.width && y < self.height {
-                let i = y as usize * self.width as usize + x as usize;
-                self.prefetch_index(i);
-                let q = &mut self.queue;
-                if q.len == QUEUE {
-                    let (j, w) = q.slots[q.head];
-                    q.head = (q.head + 1) % QUEUE;
-                    q.len -= 1;
-                    self.add_now(j, w);
-                }
-                let q = &mut self.queue;
-                q.slots[(q.head + q.len) % QUEUE] = (i, v);
-                q.len += 1;
+        if let Some(i) = self.index(px, py) {
+            self.prefetch_index(i);
+            if self.queue.len == QUEUE {
+                self.add_oldest();
             }
+            let q = &mut self.queue;
+            q.slots[(q.head + q.len) % QUEUE] = (i, v);
+            q.len += 1;
         }
     }
 
@@ -158,11 +172,8 @@ impl Film {
     /// the ray's traversal hides the wait.
     #[inline(always)]
     pub fn prefetch(&self, px: f32, py: f32) {
-        if px >= 0.0 && py >= 0.0 {
-            let (x, y) = (px as u32, py as u32);
-            if x < self.width && y < self.height {
-                self.prefetch_index(y as usize * self.width as usize + x as usize);
-            }
+        if let Some(i) = self.index(px, py) {
+            self.prefetch_index(i);
         }
     }
 
@@ -186,14 +197,8 @@ impl Film {
     /// Adds `v` at continuous film position `(px, py)` in pixels (a splat).
     #[inline]
     pub fn splat(&mut self, px: f32, py: f32, v: Rgb) {
-        // For px ≥ 0 the cast truncates to floor(px) (and saturates past
-        // u32::MAX), so no `floor` is needed: on baseline x86-64 that is a
-        // libm call. NaN fails the comparison.
-        if px >= 0.0 && py >= 0.0 {
-            let (x, y) = (px as u32, py as u32);
-            if x < self.width && y < self.height {
-                self.add_index(y as usize * self.width as usize + x as usize, v);
-            }
+        if let Some(i) = self.index(px, py) {
+            self.add_index(i, v);
         }
     }
 
