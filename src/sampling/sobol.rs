@@ -281,15 +281,6 @@ pub(crate) fn nibbles_by_dimension_table() -> &'static [[[u32; ROW_DIMENSIONS]; 
     &NIBBLES_BY_DIMENSION
 }
 
-/// The bit-reversed nibble tables as one flat array of u32 (`NIBBLES[d][k][n]` at
-/// `(d · 8 + k) · 16 + n`), for the lanes' gathers.
-#[inline(always)]
-pub(crate) fn nibble_table() -> &'static [u32; SOBOL_DIMENSIONS * 8 * 16] {
-    // SAFETY: an array of arrays of u32 has the layout of the flat array
-    // of as many u32
-    unsafe { &*(&NIBBLES as *const [[[u32; 16]; 8]; SOBOL_DIMENSIONS]).cast() }
-}
-
 /// A nested uniform (Owen) scramble of the 32-bit binary fraction `x`,
 /// drawn from `seed`: each digit is flipped or not by a hash of the digits
 /// before it, so that every elementary interval maps onto one of the same

@@ -9,7 +9,7 @@ use std::arch::x86_64::*;
 
 use super::super::LANES;
 use super::{lanes, V};
-use crate::sampling::sobol::{nibble_table, nibbles_by_dimension_table, padding, SOBOL_DIMENSIONS};
+use crate::sampling::sobol::{nibbles_by_dimension_table, padding, SOBOL_DIMENSIONS};
 use crate::sampling::{Pcg32, Sampler, SobolSampler, PCG_MULT};
 
 /// The samplers of eight lanes: a lane that takes the scalar step takes
@@ -156,31 +156,19 @@ impl Lanes<SobolSampler> for SobolLanes {
             let old = _mm256_load_si256(dp);
             _mm256_store_si256(dp, _mm256_blendv_epi8(old, d, mask32(mask)));
         }
-        let x8 = self.coordinates_run(mask);
-        let mut x = [x8[0]; 6];
-        x.copy_from_slice(&x8[..6]);
-        self.draw_from(mask, x)
+        let x = self.coordinates_run(mask);
+        self.draw_from::<6>(mask, &x)
     }
 
     #[inline(always)]
     fn roulette(&mut self, mask: u32) -> __m256 {
-        let [u] = self.draw::<1>(mask);
+        let x = self.coordinates_run(mask);
+        let [u] = self.draw_from::<1>(mask, &x);
         u
     }
 }
 
 impl SobolLanes {
-    /// The next `N` draws of each lane of `mask`, all eight lanes at once,
-    /// their Sobol coordinates gathered ([`SobolLanes::coordinates`]).
-    #[inline(always)]
-    fn draw<const N: usize>(&mut self, mask: u32) -> [__m256; N] {
-        let mut x = [self.coordinates(mask, 0); N];
-        for (k, xk) in x.iter_mut().enumerate().skip(1) {
-            *xk = self.coordinates(mask, k);
-        }
-        self.draw_from(mask, x)
-    }
-
     /// The highest shuffled index of the lanes of `mask`: how many nibbles
     /// their coordinates take.
     #[inline(always)]
@@ -192,48 +180,15 @@ impl SobolLanes {
         top
     }
 
-    /// The unscrambled Sobol coordinates of each lane at its dimension + `k`
-    /// (bit-reversed), gathered from the bit-reversed nibble tables, as many nibbles
-    /// as the highest shuffled index of the lanes of `mask` has (the
-    /// indices come bit-reversed); a dimension past the table reads the
-    /// last one's (the draw pads it).
-    #[inline(always)]
-    fn coordinates(&self, mask: u32, k: usize) -> __m256i {
-        let table = nibble_table();
-        let top = self.top(mask);
-        // SAFETY: loads of eight u32 from the struct's 32-byte aligned
-        // arrays of eight, gathers of u32 at indices below the table's
-        // length (dimension at most 63, nibble position below 8, nibble
-        // below 16), register operations; only inlined into
-        // `radiance_row`, which runs where the CPU has AVX2
-        unsafe {
-            let dim = _mm256_load_si256(self.dim.as_ptr().cast());
-            let shuffled = _mm256_load_si256(self.shuffled.as_ptr().cast());
-            let last = _mm256_set1_epi32(SOBOL_DIMENSIONS as i32 - 1);
-            let d = _mm256_add_epi32(dim, _mm256_set1_epi32(k as i32));
-            // (d · 8 + nibble position) · 16 + nibble, d within the table
-            let mut row = _mm256_slli_epi32::<7>(_mm256_min_epu32(d, last));
-            let (mut x, mut v, mut t) = (_mm256_setzero_si256(), shuffled, top);
-            while t != 0 {
-                // the next nibble of the bit-reversed index, from the top
-                let n = _mm256_srli_epi32::<28>(v);
-                let g =
-                    _mm256_i32gather_epi32::<4>(table.as_ptr().cast(), _mm256_add_epi32(row, n));
-                x = _mm256_xor_si256(x, g);
-                v = _mm256_slli_epi32::<4>(v);
-                row = _mm256_add_epi32(row, _mm256_set1_epi32(16));
-                t <<= 4;
-            }
-            x
-        }
-    }
-
-    /// [`SobolLanes::coordinates`] at each lane's dimension + k for k in
-    /// 0..8 at once: per nibble position, each lane's eight consecutive
+    /// The unscrambled Sobol coordinates (bit-reversed) of each lane at its
+    /// dimension + k, for k in 0..8, from as many nibbles as the highest
+    /// shuffled index of the lanes of `mask` has (the indices come
+    /// bit-reversed): per nibble position, each lane's eight consecutive
     /// dimensions in one load from the table by dimension, the eight rows
     /// transposed into the eight dimensions. Past the table it reads zeros
-    /// (the draw pads those dimensions); the same bits within it. Eight
-    /// loads and a transpose instead of a gather for each dimension.
+    /// (the draw pads those dimensions). Eight loads and a transpose
+    /// instead of a gather for each dimension (which was the hottest line
+    /// of `radiance_row`).
     #[inline(always)]
     fn coordinates_run(&self, mask: u32) -> [__m256i; 8] {
         let table = nibbles_by_dimension_table();
@@ -264,13 +219,14 @@ impl SobolLanes {
         x.map(|v| unsafe { _mm256_castps_si256(v) })
     }
 
-    /// The next `N` draws of each lane of `mask`, all eight lanes at once,
-    /// from their unscrambled coordinates `x[k]` at dimension + k: the
+    /// The next `N` (at most 8) draws of each lane of `mask`, all eight
+    /// lanes at once, from their unscrambled coordinates `x[k]` at
+    /// dimension + k ([`SobolLanes::coordinates_run`]): the
     /// scramble seeds hashed ([`owen_seed8`]), the Owen scramble
     /// ([`crate::sampling::sobol::owen_scramble`]); the rare draws past the
     /// table are padded lane by lane.
     #[inline(always)]
-    fn draw_from<const N: usize>(&mut self, mask: u32, x: [__m256i; N]) -> [__m256; N] {
+    fn draw_from<const N: usize>(&mut self, mask: u32, x: &[__m256i; 8]) -> [__m256; N] {
         let live = mask32(mask);
         // SAFETY: loads and stores of eight u32 from and to the struct's
         // 32-byte aligned arrays of eight, register operations; only
