@@ -435,12 +435,7 @@ impl Accel {
                 &w.ids,
             ),
         };
-        Some(Hit {
-            t: h.t,
-            tri: ids[h.slot],
-            b1: h.b1,
-            b2: h.b2,
-        })
+        Some(h.hit(ids))
     }
 
     /// The closest hit of each ray of `rays` into `out` (of the same

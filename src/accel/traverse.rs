@@ -145,6 +145,19 @@ pub(super) struct SlotHit {
     pub b2: f32,
 }
 
+impl SlotHit {
+    /// The hit, its slot mapped to its triangle by the tree's `ids`.
+    #[inline(always)]
+    pub fn hit(self, ids: &[u32]) -> super::Hit {
+        super::Hit {
+            t: self.t,
+            tri: ids[self.slot],
+            b1: self.b1,
+            b2: self.b2,
+        }
+    }
+}
+
 /// A fixed stack of child references, each with the distance at which the
 /// ray enters it (in the high half, as f32 bits), and its length. Left
 /// uninitialised, and built in place: a struct literal with the array

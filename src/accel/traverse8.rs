@@ -305,12 +305,7 @@ pub(super) fn closest_lanes(
         let (oi, di) = (lane_vec(o, i), lane_vec(d, i));
         // SAFETY: this function is compiled for AVX2
         let h = unsafe { closest_in(w, oi, di, 0.0, f32::INFINITY, &mut NoCount) };
-        out[i] = h.map(|h| Hit {
-            t: h.t,
-            tri: w.ids[h.slot],
-            b1: h.b1,
-            b2: h.b2,
-        });
+        out[i] = h.map(|h| h.hit(&w.ids));
     }
 }
 
