@@ -15,17 +15,19 @@ use crate::scene::CameraDesc;
 /// A pinhole camera ready for rendering.
 #[derive(Clone, Debug)]
 pub struct Camera {
-    to_world: Mat4,
+    // The fields `ray` reads are the crate's, for the lanes that make eight
+    // camera rays at once (`transport::lanes`)
+    pub(crate) to_world: Mat4,
     to_camera: Mat4,
-    origin: Vec3,
-    forward: Vec3,
+    pub(crate) origin: Vec3,
+    pub(crate) forward: Vec3,
     /// tan of the half field of view along x and y.
-    tan_half: Vec2,
+    pub(crate) tan_half: Vec2,
     /// Film width in pixels.
     pub width: u32,
     /// Film height in pixels.
     pub height: u32,
-    near: f32,
+    pub(crate) near: f32,
     /// W·H / A, with A the image-plane area at unit distance: the pixel count
     /// per unit of image-plane area.
     pixels_per_area: f32,

@@ -29,11 +29,11 @@ use crate::emitter::LightSelection;
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
 use crate::memory::MemoryItem;
-use crate::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler};
+use crate::sampling::{Pcg32, SamplerKind, SobolSampler};
 use crate::scene::Rgb;
 use crate::simd::dispatched;
 use crate::state::{Shard, ShardKind, State};
-use crate::transport::lanes::radiance_row;
+use crate::transport::lanes::radiance_camera_row;
 use crate::transport::{radiance_from_hit, DepthLimits};
 use glam::DVec3;
 
@@ -246,31 +246,16 @@ dispatched! {
         let pixel = |x: usize| (y * w + x) as u64;
         match settings.sampler {
             SamplerKind::Independent => {
-                let start = |x: usize| {
-                    let rng = Pcg32::keyed(&[seed, pass, pixel(x)]);
-                    camera_ray(world, x, y, rng)
-                };
-                radiance_row(world, &limits, w, start, &mut finish);
+                let sampler = |x: usize| Pcg32::keyed(&[seed, pass, pixel(x)]);
+                radiance_camera_row(world, &limits, y, sampler, &mut finish);
             }
             SamplerKind::Sobol => {
-                let start = |x: usize| {
-                    let sampler = SobolSampler::new(seed, pixel(x), pass);
-                    camera_ray(world, x, y, sampler)
-                };
-                radiance_row(world, &limits, w, start, &mut finish);
+                let sampler = |x: usize| SobolSampler::new(seed, pixel(x), pass);
+                radiance_camera_row(world, &limits, y, sampler, &mut finish);
             }
         }
         rays
     }
-}
-
-/// The camera ray through pixel (x, y), jittered by the sampler's first
-/// 2D draw, and the sampler after it.
-#[inline(always)]
-fn camera_ray<S: Sampler>(world: &World, x: usize, y: usize, mut rng: S) -> (S, Ray) {
-    let jitter = rng.next_2d();
-    let ray = world.camera.ray(x as f32 + jitter.x, y as f32 + jitter.y);
-    (rng, ray)
 }
 
 /// The image of a render split into shards, from the states of shards 0 to

@@ -358,19 +358,20 @@ fn assert_same_image_whatever_the_threads(
 /// a depth limit and early Russian roulette, and with paths of 14 vertices
 /// that reach the hashed dimensions past the table; at passes 0, 1, 37 and
 /// 300 (the shuffled sample index: one, two and three nibbles of the
-/// tables). On a CPU without AVX2 both sides are the
-/// scalar code and the test shows nothing.
+/// tables). `lanes::radiance_camera_row`, which draws the jitters and
+/// makes the camera rays in lanes, gives the same bits. On a CPU without
+/// AVX2 both sides are the scalar code and the test shows nothing.
 #[test]
 fn sobol_lanes_give_the_scalar_radiance_bit_for_bit() {
     use kalos::emitter::LightSelection;
     use kalos::scene::Rgb;
-    use kalos::transport::lanes::radiance_row;
+    use kalos::transport::lanes::{radiance_camera_row, radiance_row};
     use kalos::transport::{radiance_from_hit, DepthLimits};
     use kalos::world::World;
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut deep = 0;
     for (name, res) in [
-        ("glass-mirror/scene.xml", 40),
+        ("glass-mirror/scene.xml", 37),
         ("teapot-room/scene.xml", 32),
         ("cbox/cbox.xml", 32),
     ] {
@@ -401,6 +402,14 @@ fn sobol_lanes_give_the_scalar_radiance_bit_for_bit() {
                     assert!(lanes[x].is_none(), "pixel {x} finished twice");
                     lanes[x] = Some((l.to_array().map(f32::to_bits), n));
                 });
+                // The same through `path`'s entry, whose camera rays are made
+                // in lanes too
+                let mut by_row = vec![None; w];
+                let sampler = |x: usize| SobolSampler::new(7, (y * w + x) as u64, pass);
+                radiance_camera_row(&world, &limits, y, sampler, |x, l, n| {
+                    by_row[x] = Some((l.to_array().map(f32::to_bits), n));
+                });
+                assert_eq!(by_row, lanes, "{name}: radiance_camera_row, row {y}");
                 for (x, got) in lanes.iter().enumerate() {
                     let (mut s, ray) = start(x);
                     let (l, n) = radiance_from_hit(&world, &limits, ray, None, &mut s, 1);

@@ -21,8 +21,10 @@ use crate::transport::{CameraPath, DepthLimits};
 use crate::world::World;
 
 mod draw;
+mod start;
 
 pub use draw::{Lanes, Rngs, SobolLanes};
+pub(super) use start::{ByPixel, CameraRow, Starts};
 
 // The records are read as sixteen f32 in field order: p (3 × 3), uv
 // (3 × 2), shape; corners (3 × 3), n, Le, area.
@@ -241,7 +243,7 @@ pub(super) fn radiance_row<S: LaneSampler>(
     world: &World,
     limits: &DepthLimits,
     w: usize,
-    mut start: impl FnMut(usize) -> (S, Ray),
+    mut start: impl Starts<S>,
     mut finish: impl FnMut(usize, Rgb, u64),
 ) {
     let mut paths = Paths {
@@ -273,14 +275,11 @@ pub(super) fn radiance_row<S: LaneSampler>(
         if next == chunk0 + chunk_n && next < w {
             chunk0 = next;
             chunk_n = CHUNK.min(w - next);
-            for (k, (rng, ray)) in chunk_rngs
-                .iter_mut()
-                .zip(&mut chunk_rays)
-                .take(chunk_n)
-                .enumerate()
-            {
-                (*rng, *ray) = start(chunk0 + k);
-            }
+            start.starts(
+                chunk0,
+                &mut chunk_rngs[..chunk_n],
+                &mut chunk_rays[..chunk_n],
+            );
             for (rays, hits) in chunk_rays[..chunk_n]
                 .chunks(LANES)
                 .zip(chunk_hits[..chunk_n].chunks_mut(LANES))

@@ -36,6 +36,9 @@ pub trait Lanes<S: Sampler> {
     /// Russian roulette's number of each lane of `mask`, the draw after
     /// [`Lanes::vertex`]'s.
     fn roulette(&mut self, mask: u32) -> __m256;
+    /// The first 2D draw of each lane of `mask` (`Sampler::next_2d` of a
+    /// fresh sampler): the camera ray's jitter.
+    fn jitter(&mut self, mask: u32) -> [__m256; 2];
 }
 
 /// The [`Pcg32`] of each lane, by field, so that the lanes that all draw
@@ -81,6 +84,11 @@ impl Lanes<Pcg32> for Rngs {
     fn roulette(&mut self, mask: u32) -> __m256 {
         let [u] = self.draw::<1>(mask);
         u.0
+    }
+
+    #[inline(always)]
+    fn jitter(&mut self, mask: u32) -> [__m256; 2] {
+        self.draw::<2>(mask).map(|u| u.0)
     }
 }
 
@@ -165,6 +173,12 @@ impl Lanes<SobolSampler> for SobolLanes {
         let x = self.coordinates_run(mask);
         let [u] = self.draw_from::<1>(mask, &x);
         u
+    }
+
+    #[inline(always)]
+    fn jitter(&mut self, mask: u32) -> [__m256; 2] {
+        let x = self.coordinates_run(mask);
+        self.draw_from::<2>(mask, &x)
     }
 }
 

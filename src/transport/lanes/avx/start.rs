@@ -1,0 +1,119 @@
+//! Where the lanes' paths start: each pixel's sampler and camera ray, for a
+//! run of pixels of one row ([`Starts`]). [`CameraRow`] makes the jitter
+//! and the camera rays of eight pixels at a time in lanes, with the
+//! operations of [`Camera::ray`] in their order, so the rays are the same
+//! bits as the scalar ones. Every `unsafe` block calls an intrinsic on
+//! register values; the functions run only inlined into
+//! [`super::radiance_row`], which is compiled for AVX2 and called where
+//! the CPU has it.
+
+use std::arch::x86_64::*;
+
+use glam::Vec3;
+
+use super::super::{LaneSampler, LANES};
+use super::{Lanes, V, V3};
+use crate::camera::Camera;
+use crate::geometry::Ray;
+
+/// The samplers and camera rays of a run of pixels of a row.
+pub(in crate::transport) trait Starts<S> {
+    /// Pixel `x0 + k`'s sampler (after the camera ray's draws) and camera
+    /// ray, in `rngs[k]` and `rays[k]`, for every k of `rays`.
+    fn starts(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray]);
+}
+
+/// Starts given pixel by pixel by a closure `x ↦ (sampler, ray)`.
+pub(in crate::transport) struct ByPixel<F>(pub F);
+
+impl<S, F: FnMut(usize) -> (S, Ray)> Starts<S> for ByPixel<F> {
+    #[inline(always)]
+    fn starts(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray]) {
+        for (k, (rng, ray)) in rngs.iter_mut().zip(rays.iter_mut()).enumerate() {
+            (*rng, *ray) = (self.0)(x0 + k);
+        }
+    }
+}
+
+/// The camera's row `y`: pixel x's sampler is `sampler(x)`, whose first
+/// 2D draw (u, v) jitters the camera ray through (x + u, y + v).
+pub(in crate::transport) struct CameraRow<'a, F> {
+    pub camera: &'a Camera,
+    pub y: usize,
+    pub sampler: F,
+}
+
+impl<S: LaneSampler, F: FnMut(usize) -> S> Starts<S> for CameraRow<'_, F> {
+    /// Eight pixels at a time: their samplers made one by one, put in
+    /// lanes for the jitter's draw and taken out again, then the eight
+    /// camera rays in lanes.
+    #[inline(always)]
+    fn starts(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray]) {
+        let n = rays.len().min(rngs.len());
+        for g in (0..n).step_by(LANES) {
+            let m = LANES.min(n - g);
+            let mask = (1u32 << m) - 1;
+            let mut lanes = S::Lanes::new();
+            for i in 0..m {
+                lanes.set(i, &(self.sampler)(x0 + g + i));
+            }
+            let [u, v] = lanes.jitter(mask);
+            for (i, rng) in rngs[g..g + m].iter_mut().enumerate() {
+                *rng = lanes.get(i);
+            }
+            // SAFETY: a register operation; only inlined into
+            // `radiance_row`, which runs where the CPU has AVX2
+            let px = V(unsafe {
+                _mm256_cvtepi32_ps(_mm256_add_epi32(
+                    _mm256_set1_epi32((x0 + g) as i32),
+                    _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                ))
+            });
+            let py = V::splat(self.y as f32);
+            let d = camera_directions(self.camera, px + V(u), py + V(v));
+            let (d, tmin) = (d.0.store(), d.1.store());
+            let o = self.camera.origin;
+            for (i, ray) in rays[g..g + m].iter_mut().enumerate() {
+                *ray = Ray {
+                    o,
+                    d: V3::lane(&d, i),
+                    tmin: tmin[i],
+                    tmax: f32::INFINITY,
+                };
+            }
+        }
+    }
+}
+
+/// [`Camera::ray`]'s direction and near distance through the film
+/// positions (`px`, `py`) of eight lanes, with its operations in their
+/// order: glam's `Mat4::transform_vector3` (x, then y added, then z
+/// added), `normalize` as the product with 1 / √(d·d), and the clamped
+/// cosine's `max` (`maxps` gives its second operand for NaN, as
+/// `f32::max` gives the number).
+#[inline(always)]
+fn camera_directions(cam: &Camera, px: V, py: V) -> (V3, V) {
+    let one = V::splat(1.0);
+    let two = V::splat(2.0);
+    let sx = px / V::splat(cam.width as f32);
+    let sy = py / V::splat(cam.height as f32);
+    let cx = (one - two * sx) * V::splat(cam.tan_half.x);
+    let cy = (one - two * sy) * V::splat(cam.tan_half.y);
+    let m = &cam.to_world;
+    let (ax, ay, az) = (axis(m.x_axis), axis(m.y_axis), axis(m.z_axis));
+    let d = V3::new(
+        az.x * one + (ay.x * cy + ax.x * cx),
+        az.y * one + (ay.y * cy + ax.y * cx),
+        az.z * one + (ay.z * cy + ax.z * cx),
+    );
+    let d = d.scale(one / d.dot(d).sqrt());
+    let cos = d.dot(V3::splat(cam.forward)).max(V::splat(1e-6));
+    (d, V::splat(cam.near) / cos)
+}
+
+/// A matrix column's xyz in every lane (a function, not a closure: a
+/// closure would not inherit the caller's AVX2).
+#[inline(always)]
+fn axis(a: glam::Vec4) -> V3 {
+    V3::splat(Vec3::new(a.x, a.y, a.z))
+}
