@@ -315,9 +315,12 @@ pub(super) fn iterate(world: &World, s: &Settings, rng: &mut Pcg32, lane: &mut L
         let h = &lane.hits[i];
         let s_i = (1.0 - p_light) * h.s / w_hits;
         if s_i > 0.0 {
+            let guide = lane.guide.as_deref().filter(|_| form.guided);
+            if let Some(g) = guide {
+                g.prefetch(h.cell);
+            }
             let sp = world.tris.surface_point(&world.scene, h.tri, h.b1, h.b2);
             let v = Vertex::new(world, sp, h.wo);
-            let guide = lane.guide.as_deref().filter(|_| form.guided);
             if let Some(g) = scatter_guided(&v, guide, h.cell, rng) {
                 if lane.grid.is_some() {
                     source = Some(Source {
