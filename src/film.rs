@@ -227,6 +227,27 @@ impl Film {
     }
 }
 
+/// Brings the sums of `row` toward the core, a cache line at a time:
+/// `path` calls it as a row starts, whose pixels then receive their
+/// samples out of order as the lanes' paths end, too sparsely in time for
+/// the hardware's stream prefetcher (their loads missed the cache: 4.7 %
+/// of the lanes' loop on cbox). No effect on what is computed.
+#[inline(always)]
+pub fn prefetch_row(row: &[DVec3]) {
+    let bytes = std::mem::size_of_val(row);
+    let p = row.as_ptr().cast::<i8>();
+    #[cfg(target_arch = "x86_64")]
+    for off in (0..bytes).step_by(64) {
+        // SAFETY: a prefetch has no effect on memory or on the program's
+        // state; the address is inside the row
+        unsafe {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            _mm_prefetch::<_MM_HINT_T0>(p.add(off));
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (p, bytes);
+}
 #[cfg(test)]
 mod tests {
     use super::*;

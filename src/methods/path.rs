@@ -234,6 +234,7 @@ dispatched! {
         row: &mut [DVec3],
     ) -> u64 {
         let w = row.len();
+        crate::film::prefetch_row(row);
         let mut rays = 0u64;
         let limits = limits(settings);
         let mut finish = |x: usize, l: Rgb, n: u64| {
