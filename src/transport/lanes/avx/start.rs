@@ -38,8 +38,11 @@ impl<S, F: FnMut(usize) -> (S, Ray)> Starts<S> for ByPixel<F> {
 /// The camera's row `y`: pixel x's sampler is `sampler(x)`, whose first
 /// 2D draw (u, v) jitters the camera ray through (x + u, y + v).
 pub(in crate::transport) struct CameraRow<'a, F> {
+    /// The camera whose rays these are.
     pub camera: &'a Camera,
+    /// The row.
     pub y: usize,
+    /// Pixel x's fresh sampler, `x ↦ S`.
     pub sampler: F,
 }
 
