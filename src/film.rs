@@ -4,6 +4,7 @@
 use glam::{DVec3, Vec3};
 
 use crate::color::Rgb;
+use crate::simd::prefetch;
 
 /// A finished image: linear RGB, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]
@@ -180,18 +181,11 @@ impl Film {
     /// [`Film::prefetch`] of pixel index `i`.
     #[inline(always)]
     fn prefetch_index(&self, i: usize) {
-        let p = self.sum[i..].as_ptr().cast::<i8>();
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: a prefetch has no effect on memory or on the program's
-        // state; both addresses are inside pixel i's 24 bytes (which may
-        // cross a cache line)
-        unsafe {
-            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            _mm_prefetch::<_MM_HINT_T0>(p);
-            _mm_prefetch::<_MM_HINT_T0>(p.add(23));
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = p;
+        // The first and the last byte of the pixel's 24 (which may cross a
+        // cache line)
+        let p = std::ptr::from_ref(&self.sum[i]).cast::<u8>();
+        prefetch(p);
+        prefetch(p.wrapping_add(23));
     }
 
     /// Adds `v` at continuous film position `(px, py)` in pixels (a splat).
@@ -234,20 +228,12 @@ impl Film {
 /// of the lanes' loop on cbox). No effect on what is computed.
 #[inline(always)]
 pub fn prefetch_row(row: &[DVec3]) {
-    let bytes = std::mem::size_of_val(row);
-    let p = row.as_ptr().cast::<i8>();
-    #[cfg(target_arch = "x86_64")]
-    for off in (0..bytes).step_by(64) {
-        // SAFETY: a prefetch has no effect on memory or on the program's
-        // state; the address is inside the row
-        unsafe {
-            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            _mm_prefetch::<_MM_HINT_T0>(p.add(off));
-        }
+    let p = row.as_ptr().cast::<u8>();
+    for off in (0..std::mem::size_of_val(row)).step_by(64) {
+        prefetch(p.wrapping_add(off));
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (p, bytes);
 }
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,12 +13,14 @@
 //!   AVX2 and run where [`dispatch::has_v3`] says yes.
 //! - `transpose8` (`transpose.rs`): the 8 × 8 transpose that loads records
 //!   by field.
+//! - `prefetch` (`prefetch.rs`): the cache hint.
 //!
 //! Every wrapper runs the one instruction its name says, so code written
 //! with them rounds exactly as the scalar code it mirrors does.
 
 pub mod dispatch;
 pub(crate) mod f4;
+mod prefetch;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx8;
@@ -28,6 +30,7 @@ mod transpose;
 pub(crate) use dispatch::dispatched;
 pub use dispatch::has_v3;
 pub(crate) use f4::{F4, M4};
+pub(crate) use prefetch::prefetch;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) use avx8::F8;

@@ -296,20 +296,11 @@ impl DirGuide {
     /// find them near.
     #[inline(always)]
     pub(super) fn prefetch(&self, cell: u32) {
-        let Some(c) = self.cdf_of(cell) else {
-            return;
-        };
-        #[cfg(target_arch = "x86_64")]
-        for line in c.chunks(16) {
-            // SAFETY: a prefetch has no effect on memory or on the
-            // program's state; the address is inside the cell's block
-            unsafe {
-                use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-                _mm_prefetch::<_MM_HINT_T0>(line.as_ptr().cast());
+        if let Some(c) = self.cdf_of(cell) {
+            for line in c.chunks(16) {
+                crate::simd::prefetch(line.as_ptr());
             }
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = c;
     }
 
     /// Whether `cell` guides.

@@ -5,6 +5,7 @@
 use super::raster::Visit;
 use super::{Band, Src, SweepInput, NONE, SKY};
 use crate::scene::Rgb;
+use crate::simd::prefetch;
 
 /// Layers of depth the painter keeps per pixel to repair the centroid
 /// sort (see `painter_band`).
@@ -136,20 +137,6 @@ pub(super) fn painter_band(
 const AHEAD_FAR: usize = 16;
 /// See [`AHEAD_FAR`].
 const AHEAD: usize = 8;
-
-/// Asks the cache for the line holding `x`: a hint that changes no value.
-#[inline(always)]
-fn prefetch<T>(x: &T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch reads nothing into the program and cannot fault,
-    // whatever the address; this one is a valid reference anyway.
-    unsafe {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        _mm_prefetch::<_MM_HINT_T0>((x as *const T).cast::<i8>());
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = x;
-}
 
 /// The painter's update of one pixel by one fragment of patch `cur`.
 struct Fragment<'a, 'b, 'c> {
