@@ -19,7 +19,7 @@
 //! same bits as [`radiance_from_hit`]'s. The camera rays of 64 pixels at a time are
 //! traced first, in packets of eight neighbours; a lane whose path ends
 //! takes the next of those pixels, so that the lanes stay full until the
-//! row runs out. `path`'s entry, [`radiance_camera_row`], also draws the
+//! row runs out. The entry, [`radiance_camera_row`], also draws the
 //! jitters and makes those camera rays eight at a time in lanes, with the
 //! operations of `Camera::ray` in their order: in a closure called pixel
 //! by pixel they took 7.9 % of a cbox run, compiled for the baseline CPU.
@@ -54,35 +54,16 @@ impl LaneSampler for SobolSampler {
     type Lanes = avx::SobolLanes;
 }
 
-/// Runs one camera path per pixel x of a row of `w`: `start(x)` gives the
-/// pixel's sampler (after it has drawn the camera ray's numbers) and its
-/// camera ray; `finish(x, L, rays)` takes the path's radiance and the rays
-/// it traced, [`radiance_from_hit`]'s answer at depth 1. Where the CPU has
-/// AVX2, eight paths run at a time in lanes, and a lane whose path ends
-/// takes the next pixel; elsewhere the camera rays of eight neighbouring
-/// pixels are traced together and each path then runs alone.
-#[inline(always)]
-pub fn radiance_row<S: LaneSampler>(
-    world: &World,
-    limits: &DepthLimits,
-    w: usize,
-    start: impl FnMut(usize) -> (S, Ray),
-    finish: impl FnMut(usize, Rgb, u64),
-) {
-    #[cfg(target_arch = "x86_64")]
-    if crate::simd::has_v3() && world.lights.triangles_only() {
-        // SAFETY: the CPU has AVX2 (checked by has_v3)
-        unsafe { avx::radiance_row(world, limits, w, avx::ByPixel(start), finish) };
-        return;
-    }
-    radiance_row_packets(world, limits, w, start, finish);
-}
-
-/// [`radiance_row`] for the camera's row `y`, `path`'s loop: pixel x's
-/// sampler is `sampler(x)`, whose first 2D draw (u, v) jitters the camera
-/// ray through (x + u, y + v) ([`crate::camera::Camera::ray`]). Where the
-/// lanes run, the jitters and the camera rays of eight pixels are made in
-/// lanes too, with the bits of the scalar ones.
+/// Runs one camera path per pixel x of the camera's row `y`, `path`'s
+/// loop: pixel x's sampler is `sampler(x)`, whose first 2D draw (u, v)
+/// jitters the camera ray through (x + u, y + v)
+/// ([`crate::camera::Camera::ray`]); `finish(x, L, rays)` takes the path's
+/// radiance and the rays it traced, [`radiance_from_hit`]'s answer at
+/// depth 1. Where the CPU has AVX2, eight paths run at a time in lanes, a
+/// lane whose path ends takes the next pixel, and the jitters and camera
+/// rays of eight pixels are made in lanes too, with the bits of the scalar
+/// ones; elsewhere the camera rays of eight neighbouring pixels are traced
+/// together and each path then runs alone.
 #[inline(always)]
 pub fn radiance_camera_row<S: LaneSampler>(
     world: &World,
@@ -108,7 +89,7 @@ pub fn radiance_camera_row<S: LaneSampler>(
     radiance_row_packets(world, limits, w, start, finish);
 }
 
-/// [`radiance_row`] without lanes, for any [`Sampler`]: the camera rays of
+/// [`radiance_camera_row`] without lanes, for any [`Sampler`]: the camera rays of
 /// eight neighbouring pixels are traced together, then each path runs
 /// alone through [`radiance_from_hit`]. The loop of CPUs without AVX2 and
 /// of scenes with lights other than triangles.

@@ -331,7 +331,7 @@ fn path_lanes_see_the_normal_map() {
     use kalos::emitter::LightSelection;
     use kalos::sampling::Pcg32;
     use kalos::scene::{EmitterDesc, Rgb};
-    use kalos::transport::lanes::radiance_row;
+    use kalos::transport::lanes::radiance_camera_row;
     use kalos::transport::{radiance_from_hit, DepthLimits};
     use kalos::world::World;
     let d = tmp();
@@ -378,13 +378,14 @@ fn path_lanes_see_the_normal_map() {
         let w = world.camera.width as usize;
         let mut sum = 0.0f64;
         for y in 0..world.camera.height as usize {
+            let sampler = |x: usize| Pcg32::keyed(&[5, y as u64, x as u64]);
             let start = |x: usize| {
-                let mut rng = Pcg32::keyed(&[5, y as u64, x as u64]);
+                let mut rng = sampler(x);
                 let j = rng.next_2d();
                 (rng, world.camera.ray(x as f32 + j.x, y as f32 + j.y))
             };
             let mut lanes = vec![None; w];
-            radiance_row(&world, &limits, w, start, |x, l, n| {
+            radiance_camera_row(&world, &limits, y, sampler, |x, l, n| {
                 lanes[x] = Some((l.to_array().map(f32::to_bits), n));
             });
             for (x, got) in lanes.iter().enumerate() {

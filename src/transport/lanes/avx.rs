@@ -1,4 +1,4 @@
-//! The lanes of [`super::radiance_row`] in AVX registers. Every
+//! The lanes of [`super::radiance_camera_row`] in AVX registers. Every
 //! `unsafe` block calls an intrinsic on register values or on an array of
 //! eight f32 it names; the functions run only inlined into
 //! [`radiance_row`], which is compiled for AVX2 and called where the CPU
@@ -24,7 +24,7 @@ mod draw;
 mod start;
 
 pub use draw::{Lanes, Rngs, SobolLanes};
-pub(super) use start::{ByPixel, CameraRow, Starts};
+pub(super) use start::CameraRow;
 
 // The records are read as sixteen f32 in field order: p (3 × 3), uv
 // (3 × 2), shape; corners (3 × 3), n, Le, area.
@@ -237,13 +237,13 @@ fn lerp(a: V, b: V, c: V, b0: V, b1: V, b2: V) -> V {
 /// Pixels whose camera rays are traced together before their paths run.
 const CHUNK: usize = 8 * LANES;
 
-/// [`super::radiance_row`] with the common case in AVX lanes.
+/// [`super::radiance_camera_row`] with the common case in AVX lanes.
 #[target_feature(enable = "avx2")]
 pub(super) fn radiance_row<S: LaneSampler>(
     world: &World,
     limits: &DepthLimits,
     w: usize,
-    mut start: impl Starts<S>,
+    mut start: CameraRow<'_, impl FnMut(usize) -> S>,
     mut finish: impl FnMut(usize, Rgb, u64),
 ) {
     let mut paths = Paths {

@@ -1,8 +1,8 @@
 //! Where the lanes' paths start: each pixel's sampler and camera ray, for a
-//! run of pixels of one row ([`Starts`]). [`CameraRow`] makes the jitter
-//! and the camera rays of eight pixels at a time in lanes, with the
-//! operations of [`Camera::ray`] in their order, so the rays are the same
-//! bits as the scalar ones. Every `unsafe` block calls an intrinsic on
+//! run of pixels of one row. [`CameraRow`] makes the jitter and the camera
+//! rays of eight pixels at a time in lanes, with the operations of
+//! [`Camera::ray`] in their order, so the rays are the same bits as the
+//! scalar ones. Every `unsafe` block calls an intrinsic on
 //! register values; the functions run only inlined into
 //! [`super::radiance_row`], which is compiled for AVX2 and called where
 //! the CPU has it.
@@ -16,25 +16,6 @@ use super::{Lanes, V, V3};
 use crate::camera::Camera;
 use crate::geometry::Ray;
 
-/// The samplers and camera rays of a run of pixels of a row.
-pub(in crate::transport) trait Starts<S> {
-    /// Pixel `x0 + k`'s sampler (after the camera ray's draws) and camera
-    /// ray, in `rngs[k]` and `rays[k]`, for every k of `rays`.
-    fn starts(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray]);
-}
-
-/// Starts given pixel by pixel by a closure `x ↦ (sampler, ray)`.
-pub(in crate::transport) struct ByPixel<F>(pub F);
-
-impl<S, F: FnMut(usize) -> (S, Ray)> Starts<S> for ByPixel<F> {
-    #[inline(always)]
-    fn starts(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray]) {
-        for (k, (rng, ray)) in rngs.iter_mut().zip(rays.iter_mut()).enumerate() {
-            (*rng, *ray) = (self.0)(x0 + k);
-        }
-    }
-}
-
 /// The camera's row `y`: pixel x's sampler is `sampler(x)`, whose first
 /// 2D draw (u, v) jitters the camera ray through (x + u, y + v).
 pub(in crate::transport) struct CameraRow<'a, F> {
@@ -46,12 +27,21 @@ pub(in crate::transport) struct CameraRow<'a, F> {
     pub sampler: F,
 }
 
-impl<S: LaneSampler, F: FnMut(usize) -> S> Starts<S> for CameraRow<'_, F> {
-    /// Eight pixels at a time: their samplers made one by one, put in
-    /// lanes for the jitter's draw and taken out again, then the eight
-    /// camera rays in lanes.
+impl<F> CameraRow<'_, F> {
+    /// Pixel `x0 + k`'s sampler (after the camera ray's draws) and camera
+    /// ray, in `rngs[k]` and `rays[k]`, for every k of `rays`. Eight pixels
+    /// at a time: their samplers made one by one, put in lanes for the
+    /// jitter's draw and taken out again, then the eight camera rays in
+    /// lanes.
     #[inline(always)]
-    fn starts(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray]) {
+    pub(in crate::transport) fn starts<S: LaneSampler>(
+        &mut self,
+        x0: usize,
+        rngs: &mut [S],
+        rays: &mut [Ray],
+    ) where
+        F: FnMut(usize) -> S,
+    {
         let n = rays.len().min(rngs.len());
         for g in (0..n).step_by(LANES) {
             let m = LANES.min(n - g);
