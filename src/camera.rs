@@ -15,10 +15,11 @@ use crate::scene::CameraDesc;
 /// A pinhole camera ready for rendering.
 #[derive(Clone, Debug)]
 pub struct Camera {
-    // The fields `ray` reads are the crate's, for the lanes that make eight
-    // camera rays at once (`transport::lanes`)
+    // The fields `ray` and `project` read are the crate's, for the lanes
+    // that make eight camera rays or project eight light-path vertices at
+    // once (`transport::lanes`)
     pub(crate) to_world: Mat4,
-    to_camera: Mat4,
+    pub(crate) to_camera: Mat4,
     pub(crate) origin: Vec3,
     pub(crate) forward: Vec3,
     /// tan of the half field of view along x and y.

@@ -50,8 +50,6 @@
 //! kalos render scenes/cbox/cbox.xml --method light --time 10 -o l.exr
 //! ```
 
-use std::ops::ControlFlow;
-
 use rayon::prelude::*;
 
 use super::{
@@ -61,14 +59,14 @@ use super::{
 use crate::film::{Film, Image};
 use crate::geometry::{offset_point, Ray};
 use crate::memory::MemoryItem;
-use crate::sampling::{Pcg32, Sampler, SamplerKind, SobolWalkSampler};
+use crate::sampling::{Pcg32, SamplerKind};
 use crate::scene::{luminance, Rgb};
 use crate::simd::dispatched;
 use crate::state::{Shard, ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 use crate::transport::{
-    connect_emission_sample, connect_to_camera, follow_delta_chain, light_walk, scatter,
-    splat_to_camera, Landing, Roulette, Spectrum,
+    connect_emission_sample, connect_to_camera, follow_delta_chain, lanes, light_tracing_walk,
+    scatter, Landing,
 };
 
 /// Which form of the method.
@@ -493,14 +491,12 @@ dispatched! {
         match (s.variant, s.sampler) {
             (Variant::Walk, SamplerKind::Independent) => {
                 for _ in 0..count {
-                    rays += trace_walk(world, s, &mut rng, film);
+                    rays += light_tracing_walk(world, s.max_depth, &mut rng, film);
                 }
             }
             (Variant::Walk, SamplerKind::Sobol) => {
-                for k in first..first + count {
-                    let mut sobol = SobolWalkSampler::new(s.seed, pass, k);
-                    rays += trace_walk(world, s, &mut sobol, film);
-                }
+                let walks = first..first + count;
+                rays += lanes::light_walks(world, s.max_depth, s.seed, pass, walks, film);
             }
             (Variant::Iteration, _) => {
                 for _ in 0..count {
@@ -511,36 +507,6 @@ dispatched! {
         film.settle();
         rays
     }
-}
-
-/// One light-tracing walk ([`light_walk`]), connected to the camera at its
-/// emission vertex and at every non-delta vertex; returns the rays traced.
-#[inline(always)]
-fn trace_walk<S: Sampler>(world: &World, s: &Settings, rng: &mut S, film: &mut Film) -> u64 {
-    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
-        return 0;
-    };
-    let mut rays = 0;
-    // Emitter points connect to the camera directly
-    rays += connect_emission_sample(world, &es, 1.0, film);
-    let walk = light_walk(
-        world,
-        es.ray(),
-        es.phi,
-        Spectrum::Rgb,
-        Roulette::Albedo,
-        s.max_depth,
-        rng,
-        |e| {
-            // Connect to the camera at every non-delta vertex
-            if e.vertex.bsdf.has_smooth() {
-                rays += splat_to_camera(world, e.vertex, e.beta, false, film);
-            }
-            ControlFlow::Continue(())
-        },
-    );
-    rays + walk
 }
 
 /// One step of the operator sequence of eq. (11): estimates M(Le) with its

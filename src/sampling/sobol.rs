@@ -479,6 +479,18 @@ impl SobolWalkSampler {
     pub fn dimension(&self) -> u32 {
         self.0.dim
     }
+
+    /// The point's sampler, for the AVX lanes that hold eight walks'.
+    #[inline(always)]
+    pub(crate) fn sampler(&self) -> &SobolSampler {
+        &self.0
+    }
+
+    /// The walk sampler of [`SobolWalkSampler::sampler`].
+    #[inline(always)]
+    pub(crate) fn from_sampler(s: SobolSampler) -> Self {
+        SobolWalkSampler(s)
+    }
 }
 
 impl Sampler for SobolWalkSampler {

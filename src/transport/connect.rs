@@ -3,14 +3,17 @@
 //! pixel weight g(x) of §2 of the light-path-building paper
 //! ([`crate::camera::Camera::project`]).
 
+use std::ops::ControlFlow;
+
 use glam::{Vec2, Vec3};
 
 use super::camera_pass::camera_share;
-use super::Vertex;
+use super::{light_walk, Roulette, Spectrum, Vertex};
 use crate::bsdf::{shading_normal_correction_over, Mode};
 use crate::emitter::EmissionSample;
 use crate::film::Film;
 use crate::geometry::offset_point;
+use crate::sampling::Sampler;
 use crate::scene::Rgb;
 use crate::simd::dispatched;
 use crate::world::World;
@@ -107,22 +110,42 @@ dispatched! {
 /// ([`Film::splat_soon`]). Returns the rays traced (0 or 1).
 #[inline(always)]
 pub fn connect_emission(world: &World, p: Vec3, n: Vec3, phi_pos: Rgb, film: &mut Film) -> u64 {
-    let Some((pix, g)) = world.camera.project(p) else {
-        return 0;
-    };
+    let mut rays = 0;
+    let seen = |pix: Vec2| film.prefetch(pix.x, pix.y);
+    if let Some((pix, c)) = emission_to_camera(world, p, n, phi_pos, &mut rays, seen) {
+        film.splat_soon(pix.x, pix.y, c);
+    }
+    rays
+}
+
+/// The film position and contribution of [`connect_emission`], None when
+/// the point is off the film, faces away or is blocked; calls `seen` with
+/// the film position just before the visibility ray is traced, and adds
+/// that ray to `rays`.
+#[inline(always)]
+pub fn emission_to_camera(
+    world: &World,
+    p: Vec3,
+    n: Vec3,
+    phi_pos: Rgb,
+    rays: &mut u64,
+    seen: impl FnOnce(Vec2),
+) -> Option<(Vec2, Rgb)> {
+    let (pix, g) = world.camera.project(p)?;
     let d = world.camera.position() - p;
     let cos = d.dot(n) / d.length();
     if cos <= 0.0 {
-        return 0;
+        return None;
     }
-    film.prefetch(pix.x, pix.y);
-    if !world
+    *rays += 1;
+    seen(pix);
+    if world
         .accel
         .occluded(offset_point(p, n, d), world.camera.position())
     {
-        film.splat_soon(pix.x, pix.y, phi_pos * (cos * g));
+        return None;
     }
-    1
+    Some((pix, phi_pos * (cos * g)))
 }
 
 /// Connects the emission vertex of `es` to the camera, into `film`, as
@@ -144,4 +167,57 @@ pub fn connect_emission_sample(
         return 0;
     }
     connect_emission(world, es.p, es.n, es.phi_pos * scale, film)
+}
+
+/// [`connect_emission_sample`] with `scale` 1, answered as
+/// [`emission_to_camera`] answers instead of splatted.
+#[inline(always)]
+pub fn emission_sample_to_camera(
+    world: &World,
+    es: &EmissionSample,
+    rays: &mut u64,
+) -> Option<(Vec2, Rgb)> {
+    if es.is_env || es.punctual != u32::MAX {
+        return None;
+    }
+    emission_to_camera(world, es.p, es.n, es.phi_pos * 1.0, rays, |_| {})
+}
+
+/// One light-tracing walk, `light --variant walk`'s: an emission sample
+/// (one number for the light, two for the point, two for the direction),
+/// joined to the camera ([`connect_emission_sample`]), then a
+/// [`light_walk`] with Russian roulette on the albedo, joined to the
+/// camera at every non-delta vertex ([`splat_to_camera`]). Returns the
+/// rays traced.
+#[inline(always)]
+pub fn light_tracing_walk<S: Sampler>(
+    world: &World,
+    max_depth: Option<u32>,
+    rng: &mut S,
+    film: &mut Film,
+) -> u64 {
+    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
+        return 0;
+    };
+    let mut rays = 0;
+    // Emitter points connect to the camera directly
+    rays += connect_emission_sample(world, &es, 1.0, film);
+    let walk = light_walk(
+        world,
+        es.ray(),
+        es.phi,
+        Spectrum::Rgb,
+        Roulette::Albedo,
+        max_depth,
+        rng,
+        |e| {
+            // Connect to the camera at every non-delta vertex
+            if e.vertex.bsdf.has_smooth() {
+                rays += splat_to_camera(world, e.vertex, e.beta, false, film);
+            }
+            ControlFlow::Continue(())
+        },
+    );
+    rays + walk
 }

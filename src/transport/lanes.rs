@@ -24,12 +24,13 @@
 //! operations of `Camera::ray` in their order: in a closure called pixel
 //! by pixel they took 7.9 % of a cbox run, compiled for the baseline CPU.
 
+use crate::film::Film;
 use crate::geometry::Ray;
-use crate::sampling::{Pcg32, Sampler, SobolSampler};
+use crate::sampling::{Pcg32, Sampler, SobolSampler, SobolWalkSampler};
 use crate::scene::Rgb;
 use crate::world::World;
 
-use super::{radiance_from_hit, DepthLimits};
+use super::{light_tracing_walk, radiance_from_hit, DepthLimits};
 
 /// Paths advanced together.
 pub const LANES: usize = 8;
@@ -117,6 +118,37 @@ pub fn radiance_row_packets<S: Sampler>(
             finish(x0 + i, l, rays);
         }
     }
+}
+
+/// `light --variant walk`'s walks `walks` of pass `pass` under `seed`,
+/// each with its Sobol points ([`SobolWalkSampler`]), splatted into `film`
+/// as [`light_tracing_walk`] splats them one walk after another: the same
+/// splats in the same order, so the film's sums are the same bits. Returns
+/// the rays traced. Where the CPU has AVX2, eight walks run at a time in
+/// lanes, a vertex with a diffuse BSDF (below the depth limit) is shaded,
+/// joined to the camera and scattered in lanes, every other vertex takes
+/// [`super::LightWalk::step`], and a walk's splats wait until the walks
+/// before it have ended.
+#[inline(always)]
+pub fn light_walks(
+    world: &World,
+    max_depth: Option<u32>,
+    seed: u64,
+    pass: u64,
+    walks: std::ops::Range<u64>,
+    film: &mut Film,
+) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::has_v3() {
+        // SAFETY: the CPU has AVX2 (checked by has_v3)
+        return unsafe { avx::light_walks(world, max_depth, seed, pass, walks, film) };
+    }
+    let mut rays = 0;
+    for k in walks {
+        let mut sobol = SobolWalkSampler::new(seed, pass, k);
+        rays += light_tracing_walk(world, max_depth, &mut sobol, film);
+    }
+    rays
 }
 
 #[cfg(target_arch = "x86_64")]

@@ -45,13 +45,14 @@ mod vertex;
 mod walk;
 
 pub use connect::{
-    connect_emission, connect_emission_sample, connect_then, connect_to_camera, splat_to_camera,
+    connect_emission, connect_emission_sample, connect_then, connect_to_camera,
+    emission_sample_to_camera, emission_to_camera, light_tracing_walk, splat_to_camera,
 };
 pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};
 pub use walk::{
-    follow_delta_chain, light_walk, Landing, LightVertex, Roulette, Spectrum,
+    follow_delta_chain, light_walk, Landing, LightVertex, LightWalk, Roulette, Spectrum,
     DELTA_CHAIN_DEPTH_LIMIT,
 };
 

@@ -155,46 +155,107 @@ pub struct LightVertex<'a> {
 #[allow(clippy::too_many_arguments)]
 pub fn light_walk<S: Sampler>(
     world: &World,
-    mut ray: Ray,
-    mut beta: Rgb,
+    ray: Ray,
+    beta: Rgb,
     spectrum: Spectrum,
     roulette: Roulette,
     max_depth: Option<u32>,
     rng: &mut S,
     mut on_vertex: impl FnMut(&LightVertex) -> ControlFlow<()>,
 ) -> u64 {
-    let max_depth = max_depth.unwrap_or(u32::MAX);
-    let emitted = beta;
+    let mut walk = LightWalk::new(ray, beta, spectrum, roulette, max_depth);
     let mut rays = 0;
-    let mut depth = 1u32;
     loop {
         rays += 1;
-        let Some(hit) = world.accel.intersect(&ray) else {
+        let Some(hit) = world.accel.intersect(&walk.ray) else {
             break;
         };
-        let vertex = world.vertex(&ray, &hit);
+        if !walk.step(world, &hit, rng, &mut on_vertex) {
+            break;
+        }
+    }
+    rays
+}
+
+/// The state of a [`light_walk`] between its vertices: the AVX lanes of
+/// [`super::lanes::light_walks`] carry eight, and hand a vertex they do
+/// not shade to [`LightWalk::step`].
+#[derive(Clone, Copy, Debug)]
+pub struct LightWalk {
+    /// The segment being traced.
+    pub ray: Ray,
+    /// The power it carries.
+    pub beta: Rgb,
+    /// The power emitted (for [`Roulette::Throughput`]).
+    pub emitted: Rgb,
+    /// Segments of the light path up to and including `ray`.
+    pub depth: u32,
+    /// The channels carried.
+    pub spectrum: Spectrum,
+    /// The roulette played.
+    pub roulette: Roulette,
+    /// The depth limit (`u32::MAX`: none).
+    pub max_depth: u32,
+}
+
+impl LightWalk {
+    /// A walk whose first segment `ray` carries the emitted power `beta`.
+    #[inline(always)]
+    pub fn new(
+        ray: Ray,
+        beta: Rgb,
+        spectrum: Spectrum,
+        roulette: Roulette,
+        max_depth: Option<u32>,
+    ) -> Self {
+        LightWalk {
+            ray,
+            beta,
+            emitted: beta,
+            depth: 1,
+            spectrum,
+            roulette,
+            max_depth: max_depth.unwrap_or(u32::MAX),
+        }
+    }
+
+    /// The vertex at `hit`, the closest hit of `self.ray`: measured by
+    /// `on_vertex`, then Russian roulette and the next segment, as
+    /// [`light_walk`] describes. Returns whether the walk goes on (along
+    /// the new `self.ray`, which the caller traces and counts).
+    #[inline(always)]
+    pub fn step<S: Sampler>(
+        &mut self,
+        world: &World,
+        hit: &Hit,
+        rng: &mut S,
+        mut on_vertex: impl FnMut(&LightVertex) -> ControlFlow<()>,
+    ) -> bool {
+        let (max_depth, depth) = (self.max_depth, self.depth);
+        let vertex = world.vertex(&self.ray, hit);
 
         // Measure the vertex while its path can still reach the eye
         if depth < max_depth {
             let event = LightVertex {
                 vertex: &vertex,
-                hit: &hit,
-                beta,
+                hit,
+                beta: self.beta,
                 depth,
             };
             if on_vertex(&event).is_break() {
-                break;
+                return false;
             }
         }
         if depth + 1 >= max_depth {
-            break;
+            return false;
         }
 
         // Terminate the walk by Russian roulette (`roulette`), its
         // probability capped below 1 so that every walk ends
         rng.start_vertex(depth);
         let u_rr = rng.next_f32();
-        let (wi, w) = match roulette {
+        let spectrum = self.spectrum;
+        let (wi, w) = match self.roulette {
             Roulette::Albedo => {
                 let albedo = vertex.bsdf.albedo(vertex.wo_local);
                 let a = match spectrum {
@@ -203,35 +264,36 @@ pub fn light_walk<S: Sampler>(
                 }
                 .clamp(0.0, 0.99);
                 if u_rr >= a {
-                    break;
+                    return false;
                 }
                 let Some((wi, w)) = scatter(&vertex, rng) else {
-                    break;
+                    return false;
                 };
                 (wi, w / a)
             }
             Roulette::Throughput => {
                 let Some((wi, w)) = scatter(&vertex, rng) else {
-                    break;
+                    return false;
                 };
-                let q = relative_throughput(beta * w, emitted, spectrum).min(0.95);
+                let q = relative_throughput(self.beta * w, self.emitted, spectrum).min(0.95);
                 if u_rr >= q {
-                    break;
+                    return false;
                 }
                 (wi, w / q)
             }
         };
-        beta *= w;
+        let mut beta = self.beta * w;
         if let Spectrum::Channel(k) = spectrum {
             let keep = beta[k];
             beta = Rgb::ZERO;
             beta[k] = keep;
         }
         if !(beta.max_element() > 0.0 && beta.is_finite()) {
-            break;
+            return false;
         }
-        ray = Ray::new(offset_point(vertex.sp.p, vertex.sp.ng, wi), wi);
-        depth += 1;
+        self.beta = beta;
+        self.ray = Ray::new(offset_point(vertex.sp.p, vertex.sp.ng, wi), wi);
+        self.depth = depth + 1;
+        true
     }
-    rays
 }

@@ -1,8 +1,9 @@
-//! The lanes of [`super::radiance_camera_row`] in AVX registers. Every
-//! `unsafe` block calls an intrinsic on register values or on an array of
-//! eight f32 it names; the functions run only inlined into
-//! [`radiance_row`], which is compiled for AVX2 and called where the CPU
-//! has it.
+//! The lanes of [`super::radiance_camera_row`] and of
+//! [`super::light_walks`] in AVX registers. Every `unsafe` block calls an
+//! intrinsic on register values or on an array of eight f32 it names; the
+//! functions run only inlined into [`radiance_row`] or
+//! [`walks::light_walks`], which are compiled for AVX2 and called where the
+//! CPU has it.
 
 use std::arch::x86_64::*;
 use std::f32::consts::{FRAC_1_PI, PI};
@@ -22,9 +23,11 @@ use crate::world::World;
 
 mod draw;
 mod start;
+mod walks;
 
 pub use draw::{Lanes, Rngs, SobolLanes};
 pub(super) use start::CameraRow;
+pub(super) use walks::light_walks;
 
 // The records are read as sixteen f32 in field order: p (3 × 3), uv
 // (3 × 2), shape; corners (3 × 3), n, Le, area.
@@ -356,7 +359,25 @@ fn vertices<S: Sampler>(
         })
     });
     let sp = surface_points(world.tris.records(), &lh);
-    let sh = shade_or_scatter(world, limits, paths, rngs, &lh, &sp, mask);
+    // The common case: below the depth limit, on a surface that does not
+    // emit
+    let (max_depth, mut common) = (limits.max_depth.unwrap_or(u32::MAX), 0);
+    for i in lanes(mask) {
+        let c = paths.depth[i] < max_depth && !world.lights.is_emitter_of(lh[i].tri, sp.shape[i]);
+        common |= u32::from(c) << i;
+    }
+    let mut sh = shade(world, &lh, &sp, mask, common);
+    // Every other vertex takes the scalar step
+    for i in lanes(mask & !sh.vec) {
+        let mut path = paths.get(i);
+        let spi = world.surface_point(&lh[i]);
+        let mut rng = rngs.get(i);
+        if !path.scatter(world, limits, &spi, &mut rng) {
+            sh.alive &= !(1 << i);
+        }
+        rngs.set(i, &rng);
+        paths.set(i, &path);
+    }
     if sh.vec == 0 {
         return sh.alive;
     }
@@ -453,23 +474,14 @@ struct Shaded {
     ns: [[f32; LANES]; 3],
 }
 
-/// Which vertices the lanes shade: the common case (a diffuse BSDF on a
-/// surface that does not emit, below the depth limit); every other vertex
-/// takes the scalar step here. A shaded lane's reflectance and shading
-/// normal (interpolated for smooth shapes, lane by lane; a normal-mapped
-/// shape's is the scalar surface point's).
+/// Which vertices of `mask` the lanes shade: those of `common` whose
+/// material is diffuse there; the caller takes every other vertex's scalar
+/// step. A shaded lane's reflectance and shading normal (interpolated for
+/// smooth shapes, lane by lane; a normal-mapped shape's is the scalar
+/// surface point's).
 #[inline(always)]
-fn shade_or_scatter<S: Sampler>(
-    world: &World,
-    limits: &DepthLimits,
-    paths: &mut Paths,
-    rngs: &mut impl Lanes<S>,
-    lh: &[Hit; LANES],
-    sp: &Surface,
-    mask: u32,
-) -> Shaded {
-    let (scene, lights) = (&world.scene, &world.lights);
-    let max_depth = limits.max_depth.unwrap_or(u32::MAX);
+fn shade(world: &World, lh: &[Hit; LANES], sp: &Surface, mask: u32, common: u32) -> Shaded {
+    let scene = &world.scene;
     let ng_a = sp.ng.store();
     let b0_a = sp.b0.store();
     let mut sh = Shaded {
@@ -480,26 +492,12 @@ fn shade_or_scatter<S: Sampler>(
         ns: ng_a,
     };
     let (mut raw, mut smooth) = ([[0.0f32; LANES]; 3], 0u32);
-    for i in lanes(mask) {
+    for i in lanes(mask & common) {
         let shape = sp.shape[i];
         let s = &scene.shapes[shape as usize];
         let material = &scene.materials[s.material as usize];
-        let common = paths.depth[i] < max_depth && !lights.is_emitter_of(lh[i].tri, shape);
         let uv = Vec2::new(sp.uv[0][i], sp.uv[1][i]);
-        let diffuse = if common {
-            material.diffuse_at(uv)
-        } else {
-            None
-        };
-        let Some(ri) = diffuse else {
-            let mut path = paths.get(i);
-            let spi = world.surface_point(&lh[i]);
-            let mut rng = rngs.get(i);
-            if !path.scatter(world, limits, &spi, &mut rng) {
-                sh.alive &= !(1 << i);
-            }
-            rngs.set(i, &rng);
-            paths.set(i, &path);
+        let Some(ri) = material.diffuse_at(uv) else {
             continue;
         };
         sh.vec |= 1 << i;
@@ -734,27 +732,11 @@ struct BsdfSample {
 /// threshold.
 #[inline(always)]
 fn sample_bsdf(paths: &Paths, sh: &Shaded, fr: &Frame8, u: [V; 2]) -> BsdfSample {
-    let (zero, one) = (V::splat(0.0), V::splat(1.0));
-    let (fs, ft, fn_) = (fr.fs, fr.ft, fr.fn_);
-    let wol_z = fr.wo.dot(fn_);
+    let zero = V::splat(0.0);
+    let wol_z = fr.wo.dot(fr.fn_);
     let fr_ = V3::load(&sh.r).scale(V::splat(FRAC_1_PI));
     let beta = V3::load(&paths.beta);
-    let (ox, oy) = (V::splat(2.0) * u[0] - one, V::splat(2.0) * u[1] - one);
-    let centre = ox.eq(zero) & oy.eq(zero);
-    let wide = ox.abs().gt(oy.abs());
-    let rad = wide.select(ox, oy);
-    let phi = V::splat(PI / 4.0) * wide.select(oy / ox, ox / oy);
-    let (sin, cos) = sin_cos_quarter(phi, V::splat);
-    let dx = centre.select(zero, rad * wide.select(cos, sin));
-    let dy = centre.select(zero, rad * wide.select(sin, cos));
-    let z = (one - (dx * dx + dy * dy)).max0().sqrt();
-    let spdf = z.max0() / V::splat(PI);
-    let swi = V3::new(dx, dy, z);
-    let wiw = V3::new(
-        fs.x * swi.x + ft.x * swi.y + fn_.x * swi.z,
-        fs.y * swi.x + ft.y * swi.y + fn_.y * swi.z,
-        fs.z * swi.x + ft.z * swi.y + fn_.z * swi.z,
-    );
+    let (z, spdf, wiw) = cosine_sample(fr, u);
     let kb = z.abs() / spdf;
     let nbeta = V3::new(
         beta.x * (fr_.x * kb),
@@ -775,6 +757,32 @@ fn sample_bsdf(paths: &Paths, sh: &Shaded, fr: &Frame8, u: [V; 2]) -> BsdfSample
         goes_on,
         qrr,
     }
+}
+
+/// A direction from the numbers `u` by the cosine's density
+/// (`cosine_hemisphere`: concentric_disk's polynomial in lanes): its
+/// cosine in the frame, its density, and the direction in world space.
+#[inline(always)]
+fn cosine_sample(fr: &Frame8, u: [V; 2]) -> (V, V, V3) {
+    let (zero, one) = (V::splat(0.0), V::splat(1.0));
+    let (fs, ft, fn_) = (fr.fs, fr.ft, fr.fn_);
+    let (ox, oy) = (V::splat(2.0) * u[0] - one, V::splat(2.0) * u[1] - one);
+    let centre = ox.eq(zero) & oy.eq(zero);
+    let wide = ox.abs().gt(oy.abs());
+    let rad = wide.select(ox, oy);
+    let phi = V::splat(PI / 4.0) * wide.select(oy / ox, ox / oy);
+    let (sin, cos) = sin_cos_quarter(phi, V::splat);
+    let dx = centre.select(zero, rad * wide.select(cos, sin));
+    let dy = centre.select(zero, rad * wide.select(sin, cos));
+    let z = (one - (dx * dx + dy * dy)).max0().sqrt();
+    let spdf = z.max0() / V::splat(PI);
+    let swi = V3::new(dx, dy, z);
+    let wiw = V3::new(
+        fs.x * swi.x + ft.x * swi.y + fn_.x * swi.z,
+        fs.y * swi.x + ft.y * swi.y + fn_.y * swi.z,
+        fs.z * swi.x + ft.z * swi.y + fn_.z * swi.z,
+    );
+    (z, spdf, wiw)
 }
 
 /// Traces the shadow rays of next-event estimation, lane by lane, and adds

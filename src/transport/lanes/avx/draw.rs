@@ -183,6 +183,36 @@ impl Lanes<SobolSampler> for SobolLanes {
 }
 
 impl SobolLanes {
+    /// The four numbers of the vertex at `depth` of each light walk of
+    /// `mask` whose [`crate::sampling::SobolWalkSampler`] the lanes hold:
+    /// dimensions from `walk_vertex_dimension(depth)`, that is
+    /// 5 + 4 (min(max(depth, 1) − 1, u32::MAX / 8)), as its
+    /// `start_vertex` sets them, then the roulette's, the lobe's and the
+    /// direction's draws.
+    #[inline(always)]
+    pub(super) fn walk_vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 4] {
+        // SAFETY: loads and stores of eight u32 from and to arrays of
+        // eight, register operations; only inlined into `light_walks`,
+        // which runs where the CPU has AVX2
+        unsafe {
+            let d = _mm256_loadu_si256(depth.as_ptr().cast());
+            let d = _mm256_sub_epi32(
+                _mm256_max_epu32(d, _mm256_set1_epi32(1)),
+                _mm256_set1_epi32(1),
+            );
+            let d = _mm256_min_epu32(d, _mm256_set1_epi32((u32::MAX / 8) as i32));
+            let d = _mm256_add_epi32(
+                _mm256_mullo_epi32(d, _mm256_set1_epi32(4)),
+                _mm256_set1_epi32(5),
+            );
+            let dp = self.dim.as_mut_ptr().cast::<__m256i>();
+            let old = _mm256_load_si256(dp);
+            _mm256_store_si256(dp, _mm256_blendv_epi8(old, d, mask32(mask)));
+        }
+        let x = self.coordinates_run(mask);
+        self.draw_from::<4>(mask, &x)
+    }
+
     /// The highest shuffled index of the lanes of `mask`: how many nibbles
     /// their coordinates take.
     #[inline(always)]
