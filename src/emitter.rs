@@ -640,6 +640,19 @@ impl Lights {
         Some((&self.tri_lights[i], pmf))
     }
 
+    /// The emitting triangle [`Lights::sample_emission`] chooses for
+    /// `u_sel` (by power), when [`Lights::triangles_only`], and the
+    /// probability of the choice as it computes it; None when there is no
+    /// light.
+    #[inline(always)]
+    pub(crate) fn emission_tri(&self, u_sel: f32) -> Option<(&TriLight, f32)> {
+        if self.is_empty() {
+            return None;
+        }
+        let (i, pmf, _) = self.dist.sample(u_sel as f64);
+        Some((&self.tri_lights[i], pmf as f32))
+    }
+
     /// Probability of choosing entry `e`, a triangle.
     #[inline]
     fn entry_pmf(&self, selection: LightSelection, p: Vec3, n: Vec3, e: usize) -> f32 {

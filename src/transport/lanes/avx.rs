@@ -549,6 +549,20 @@ struct Frame8 {
 #[inline(always)]
 fn frame(sh: &Shaded, ng: V3, wo: V3) -> Frame8 {
     let nn = V3::load(&sh.ns);
+    let (fs, ft) = tangents(nn);
+    let flip = V::mask(sh.two_sided) & ng.dot(wo).lt(V::splat(0.0));
+    Frame8 {
+        fs,
+        ft: V3::select(flip, ft.neg(), ft),
+        fn_: V3::select(flip, nn.neg(), nn),
+        wo,
+        ng_o: V3::select(flip, ng.neg(), ng),
+    }
+}
+
+/// The tangents of `Frame::from_normal(nn)`.
+#[inline(always)]
+fn tangents(nn: V3) -> (V3, V3) {
     let sign = (nn.z & V::splat(-0.0)) | V::splat(1.0);
     let a = V::splat(-1.0) / (sign + nn.z);
     let b = nn.x * nn.y * a;
@@ -558,14 +572,7 @@ fn frame(sh: &Shaded, ng: V3, wo: V3) -> Frame8 {
         -sign * nn.x,
     );
     let ft = V3::new(b, sign + nn.y * nn.y * a, -nn.y);
-    let flip = V::mask(sh.two_sided) & ng.dot(wo).lt(V::splat(0.0));
-    Frame8 {
-        fs,
-        ft: V3::select(flip, ft.neg(), ft),
-        fn_: V3::select(flip, nn.neg(), nn),
-        wo,
-        ng_o: V3::select(flip, ng.neg(), ng),
-    }
+    (fs, ft)
 }
 
 /// The lights the lanes chose, by field.
@@ -608,13 +615,19 @@ fn choose_lights(
             (light[i], pmf[i]) = (tl, pm);
         }
     }
-    // The lights chosen, by field: corners, normal, Le, area
+    gather_lights(&light, chosen, pmf)
+}
+
+/// The lights `light`, by field: corners, normal, Le, area.
+#[inline(always)]
+fn gather_lights(light: &[&TriLight; LANES], chosen: u32, pmf: [f32; LANES]) -> Chosen {
     let mut lo = [V::splat(0.0).0; 8];
     let mut hi = lo;
     for (i, tl) in light.iter().enumerate() {
         let ptr = (*tl as *const TriLight).cast::<f32>();
         // SAFETY: a TriLight is 64 bytes of f32, 64-aligned; only inlined
-        // into `radiance_row`, which runs where the CPU has AVX2
+        // into `radiance_row` or `light_walks`, which run where the CPU
+        // has AVX2
         unsafe {
             lo[i] = _mm256_load_ps(ptr);
             hi[i] = _mm256_load_ps(ptr.add(8));

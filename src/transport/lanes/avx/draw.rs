@@ -213,6 +213,18 @@ impl SobolLanes {
         self.draw_from::<4>(mask, &x)
     }
 
+    /// The five numbers of the emission of each light walk of `mask`
+    /// whose sampler the lanes hold, from dimension 0: the light's choice,
+    /// the point's two, the direction's two.
+    #[inline(always)]
+    pub(super) fn walk_emission(&mut self, mask: u32) -> [__m256; 5] {
+        for i in lanes(mask) {
+            self.dim[i] = 0;
+        }
+        let x = self.coordinates_run(mask);
+        self.draw_from::<5>(mask, &x)
+    }
+
     /// The highest shuffled index of the lanes of `mask`: how many nibbles
     /// their coordinates take.
     #[inline(always)]

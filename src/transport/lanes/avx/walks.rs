@@ -16,11 +16,12 @@ use std::ops::{ControlFlow, Range};
 use glam::{Vec2, Vec3};
 
 use super::{
-    cosine_sample, frame, lanes, offset, put, shade, surface_points, Frame8, Lanes, Shaded,
-    SobolLanes, Surface, V, V3,
+    cosine_sample, frame, gather_lights, lanes, lerp, offset, put, shade, surface_points, tangents,
+    Frame8, Lanes, Shaded, SobolLanes, Surface, NO_LIGHT, V, V3,
 };
 use crate::accel::Hit;
 use crate::camera::Camera;
+use crate::emitter::TriLight;
 use crate::film::Film;
 use crate::geometry::Ray;
 use crate::sampling::{Sampler, SobolWalkSampler};
@@ -135,22 +136,31 @@ pub(in crate::transport::lanes) fn light_walks(
     let mut alive = 0u32;
     let mut found = [None; LANES];
     loop {
-        // A free lane begins the next walk that leaves a light
+        // The free lanes begin the next walks
+        let mut fresh = 0u32;
         for i in lanes(!alive & ((1 << LANES) - 1)) {
-            while next < walks.end {
-                let k = next;
-                next += 1;
-                w.k[i] = k;
-                w.splats[i] = pending.begin(k);
-                if begin(world, seed, pass, &mut w, i, &mut rays) {
-                    alive |= 1 << i;
-                    break;
-                }
-                pending.end(k, std::mem::take(&mut w.splats[i]), film);
+            if next == walks.end {
+                break;
             }
+            w.k[i] = next;
+            w.splats[i] = pending.begin(next);
+            w.rngs
+                .set(i, SobolWalkSampler::new(seed, pass, next).sampler());
+            fresh |= 1 << i;
+            next += 1;
+        }
+        if fresh != 0 {
+            let left = begin(world, &mut w, fresh, &mut rays);
+            for i in lanes(fresh & !left) {
+                pending.end(w.k[i], std::mem::take(&mut w.splats[i]), film);
+            }
+            alive |= left;
         }
         if alive == 0 {
-            return rays;
+            if next == walks.end {
+                return rays;
+            }
+            continue;
         }
         rays += u64::from(alive.count_ones());
         world.accel.intersect_lanes(&w.o, &w.d, alive, &mut found);
@@ -170,23 +180,129 @@ pub(in crate::transport::lanes) fn light_walks(
     }
 }
 
-/// Begins walk `w.k[i]` in lane `i`, as `light_tracing_walk` does: its
-/// emission sample and that point's camera connection; returns whether a
-/// walk leaves the light.
+/// Begins the walks of `fresh`, as `light_tracing_walk` does: the emission
+/// samples and those points' camera connections; returns the lanes whose
+/// walk leaves a light. Where every light is a triangle, in lanes
+/// (`Lights::sample_emission`'s triangle branch and `emission_to_camera`,
+/// their operations in order); otherwise lane by lane.
 #[inline(always)]
-fn begin(world: &World, seed: u64, pass: u64, w: &mut Walks, i: usize, rays: &mut u64) -> bool {
-    let mut rng = SobolWalkSampler::new(seed, pass, w.k[i]);
-    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
-        return false;
-    };
-    if let Some(s) = emission_sample_to_camera(world, &es, rays) {
-        w.splats[i].push(s);
+fn begin(world: &World, w: &mut Walks, fresh: u32, rays: &mut u64) -> u32 {
+    let lights = &world.lights;
+    if !lights.triangles_only() {
+        let mut left = 0;
+        for i in lanes(fresh) {
+            let mut rng = SobolWalkSampler::from_sampler(w.rngs.get(i));
+            let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
+            w.rngs.set(i, rng.sampler());
+            let Some(es) = lights.sample_emission(u_sel, u_pos, u_dir) else {
+                continue;
+            };
+            if let Some(s) = emission_sample_to_camera(world, &es, rays) {
+                w.splats[i].push(s);
+            }
+            let walk = LightWalk::new(es.ray(), es.phi, Spectrum::Rgb, Roulette::Albedo, None);
+            w.set(i, &walk);
+            left |= 1 << i;
+        }
+        return left;
     }
-    w.rngs.set(i, rng.sampler());
-    let walk = LightWalk::new(es.ray(), es.phi, Spectrum::Rgb, Roulette::Albedo, None);
-    w.set(i, &walk);
-    true
+    let [u_sel, ux, uy, dx, dy] = w.rngs.walk_emission(fresh);
+    let u_sel = V(u_sel).store();
+    let mut light: [&TriLight; LANES] = [&NO_LIGHT; LANES];
+    let mut pmf = [0.0f32; LANES];
+    let mut left = 0u32;
+    for i in lanes(fresh) {
+        if let Some((tl, pm)) = lights.emission_tri(u_sel[i]) {
+            (light[i], pmf[i]) = (tl, pm);
+            left |= 1 << i;
+        }
+    }
+    if left == 0 {
+        return 0;
+    }
+    let ls = gather_lights(&light, left, pmf);
+    let (one, zero) = (V::splat(1.0), V::splat(0.0));
+    // uniform_triangle, then the point
+    let su = V(ux).sqrt();
+    let (bx, by) = (one - su, V(uy) * su);
+    let b0 = one - bx - by;
+    let [qa, qb, qc] = ls.q;
+    let p = V3::new(
+        lerp(qa.x, qb.x, qc.x, b0, bx, by),
+        lerp(qa.y, qb.y, qc.y, b0, bx, by),
+        lerp(qa.z, qb.z, qc.z, b0, bx, by),
+    );
+    // Frame::from_normal(n).to_world(cosine_hemisphere(u_dir))
+    let (fs, ft) = tangents(ls.n);
+    let fr = Frame8 {
+        fs,
+        ft,
+        fn_: ls.n,
+        wo: ls.n,
+        ng_o: ls.n,
+    };
+    let (_, _, d) = cosine_sample(&fr, [V(dx), V(dy)]);
+    let pdf_pos = V::load(&ls.pmf) / ls.area;
+    let k = V::splat(std::f32::consts::PI) / pdf_pos;
+    let phi = V3::new(ls.le.x * k, ls.le.y * k, ls.le.z * k);
+    let phi_pos = V3::new(ls.le.x / pdf_pos, ls.le.y / pdf_pos, ls.le.z / pdf_pos);
+    // emission_to_camera: the point seen from the pinhole, facing it
+    let cam = &world.camera;
+    let (ok, px, py, g) = project(cam, p);
+    let origin = V3::splat(cam.origin);
+    let dc = V3::new(origin.x - p.x, origin.y - p.y, origin.z - p.z);
+    let cos = dc.dot(ls.n) / dc.dot(dc).sqrt();
+    let ok = (ok & cos.nle(zero)).bits() & left;
+    if ok != 0 {
+        *rays += u64::from(ok.count_ones());
+        let from = offset(p, ls.n, dc).store();
+        let clear = ok & !world.accel.occluded_lanes(&from, &origin.store(), ok);
+        let kc = cos * g;
+        let c = V3::new(phi_pos.x * kc, phi_pos.y * kc, phi_pos.z * kc).store();
+        let (px, py) = (px.store(), py.store());
+        for i in lanes(clear) {
+            w.splats[i].push((Vec2::new(px[i], py[i]), V3::lane(&c, i)));
+        }
+    }
+    // es.ray(): the point moved off the light, the direction
+    let m = V::mask(left);
+    put(&mut w.o, m, offset(p, ls.n, d));
+    put(&mut w.d, m, d);
+    put(&mut w.beta, m, phi);
+    for i in lanes(left) {
+        w.depth[i] = 1;
+    }
+    left
+}
+
+/// `Camera::project` of eight points: the lanes that land on the film,
+/// their film position and their pixel weight g.
+#[inline(always)]
+fn project(cam: &Camera, p: V3) -> (V, V, V, V) {
+    let (zero, one) = (V::splat(0.0), V::splat(1.0));
+    // glam's transform_point3: x, then y added, then z, then w
+    let m = &cam.to_camera;
+    let col = |a: glam::Vec4| V3::splat(Vec3::new(a.x, a.y, a.z));
+    let (ax, ay, az, aw) = (col(m.x_axis), col(m.y_axis), col(m.z_axis), col(m.w_axis));
+    let pc = V3::new(
+        aw.x + (az.x * p.z + (ay.x * p.y + ax.x * p.x)),
+        aw.y + (az.y * p.z + (ay.y * p.y + ax.y * p.x)),
+        aw.z + (az.z * p.z + (ay.z * p.y + ax.z * p.x)),
+    );
+    let mut ok = pc.z.nle(V::splat(cam.near)) & pc.z.nle(zero);
+    let half = V::splat(0.5);
+    let sx = half * (one - pc.x / (pc.z * V::splat(cam.tan_half.x)));
+    let sy = half * (one - pc.y / (pc.z * V::splat(cam.tan_half.y)));
+    ok = ok & sx.ge(zero) & sx.lt(one) & sy.ge(zero) & sy.lt(one);
+    let origin = V3::splat(cam.origin);
+    let d = V3::new(p.x - origin.x, p.y - origin.y, p.z - origin.z);
+    let r2 = d.dot(d);
+    let cos_c = d.dot(V3::splat(cam.forward)) / r2.sqrt();
+    ok = ok & cos_c.nle(zero);
+    let g = V::splat(cam.pixels_per_area()) / (cos_c * cos_c * cos_c * r2);
+    let px = sx * V::splat(cam.width as f32);
+    let py = sy * V::splat(cam.height as f32);
+    (ok, px, py, g)
 }
 
 /// One vertex of each walk of `mask`, whose rays hit at `hits`; returns
@@ -255,29 +371,8 @@ fn to_camera(world: &World, w: &mut Walks, sp: &Surface, sh: &Shaded, fr: &Frame
     let cam: &Camera = &world.camera;
     let (zero, one) = (V::splat(0.0), V::splat(1.0));
     let p = sp.p;
-    // Camera::project: glam's transform_point3 (x, then y added, then z,
-    // then w)
-    let m = &cam.to_camera;
-    let col = |a: glam::Vec4| V3::splat(Vec3::new(a.x, a.y, a.z));
-    let (ax, ay, az, aw) = (col(m.x_axis), col(m.y_axis), col(m.z_axis), col(m.w_axis));
-    let pc = V3::new(
-        aw.x + (az.x * p.z + (ay.x * p.y + ax.x * p.x)),
-        aw.y + (az.y * p.z + (ay.y * p.y + ax.y * p.x)),
-        aw.z + (az.z * p.z + (ay.z * p.y + ax.z * p.x)),
-    );
-    let mut ok = pc.z.nle(V::splat(cam.near)) & pc.z.nle(zero);
-    let half = V::splat(0.5);
-    let sx = half * (one - pc.x / (pc.z * V::splat(cam.tan_half.x)));
-    let sy = half * (one - pc.y / (pc.z * V::splat(cam.tan_half.y)));
-    ok = ok & sx.ge(zero) & sx.lt(one) & sy.ge(zero) & sy.lt(one);
+    let (mut ok, px, py, g) = project(cam, p);
     let origin = V3::splat(cam.origin);
-    let d = V3::new(p.x - origin.x, p.y - origin.y, p.z - origin.z);
-    let r2 = d.dot(d);
-    let cos_c = d.dot(V3::splat(cam.forward)) / r2.sqrt();
-    ok = ok & cos_c.nle(zero);
-    let g = V::splat(cam.pixels_per_area()) / (cos_c * cos_c * cos_c * r2);
-    let px = sx * V::splat(cam.width as f32);
-    let py = sy * V::splat(cam.height as f32);
     // connect_then: the direction to the eye, on the side the BSDF says
     let dc = V3::new(origin.x - p.x, origin.y - p.y, origin.z - p.z);
     let dist = dc.dot(dc).sqrt();
