@@ -39,8 +39,8 @@ it, every Mitsuba variant runs once per listed sampler type (independent,
 multijitter, ldsampler, orthogonal, stratified): the scene's `<sampler>`
 elements (includes inlined; one is added to a sensor that has none) get that
 type and keep their other parameters, and the sample count is --spp as
-before. --kalos-samplers runs kalos `path` once per `--sampler` value
-(`light` has no sampler option and runs once). All these configurations
+before. --kalos-samplers runs kalos `path` and `light` once per `--sampler`
+value. All these configurations
 still run alternately within each repeat. Each pair then prints, per
 Mitsuba variant, the best kalos configuration over the best Mitsuba one
 (best: the lowest median time to relMSE 1e-3).
@@ -199,7 +199,7 @@ def main():
                     help="comma-separated Mitsuba sampler types, each run per variant "
                          "(default: the scene file's sampler)")
     ap.add_argument("--kalos-samplers", default="",
-                    help="comma-separated kalos --sampler values for `path` (default: kalos's default)")
+                    help="comma-separated kalos --sampler values for `path` and `light` (default: kalos's default)")
     ap.add_argument("--ensure-only", action="store_true",
                     help="only install Mitsuba into bench/.venv (if missing) and exit")
     args = ap.parse_args()
@@ -237,7 +237,7 @@ def main():
     kalos_samplers = [s for s in args.kalos_samplers.split(",") if s] or [""]
     for method in args.pairs.split(","):
         mi_integ = MI_INTEGRATOR[method]
-        ks = kalos_samplers if method == "path" else [""]
+        ks = kalos_samplers if method in ("path", "light") else [""]
         runners, kalos_runners = [], {}  # kalos_runners: binary label -> its runner labels
         for label, b in kalos_bins:
             for ksamp in ks:

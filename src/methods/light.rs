@@ -32,13 +32,17 @@
 //! stream keyed by (seed, pass, lane); lanes are merged in order, so a seed
 //! gives the same image whatever the thread count.
 //!
-//! Numbers (`--sampler`): independent PCG32 streams per lane, or
-//! Owen-scrambled Sobol points. With `sobol`, walk k of a pass (counted
-//! over all lanes, lane l's walks a contiguous range whatever the thread
-//! count) is point k of a Sobol sequence randomised by (seed, pass)
+//! Numbers (`--sampler`): Owen-scrambled Sobol points (the default), or
+//! independent PCG32 streams per lane. With `sobol`, walk k of a pass
+//! (counted over all lanes, lane l's walks a contiguous range whatever the
+//! thread count) is point k of a Sobol sequence randomised by (seed, pass)
 //! ([`crate::sampling::SobolWalkSampler`]: the emission in dimensions
 //! 0–4, four per vertex after), and the camera pass draws per (seed,
-//! pixel, pass) ([`crate::transport::camera_pass`]). The iteration variant's
+//! pixel, pass) ([`crate::transport::camera_pass`]). Where the CPU has
+//! AVX2, the Sobol walks run eight at a time in lanes
+//! ([`crate::transport::lanes::light_walks`]), to the same bits as one by
+//! one; the independent walks share a lane's stream one after another and
+//! run one by one. The iteration variant's
 //! steps always draw from PCG32: a lane's steps form one Markov chain (each
 //! step starts from the point the last one landed on, chosen by the
 //! chain's state), so the steps are not independent samples of one
@@ -111,16 +115,19 @@ pub struct Settings {
     /// on, or off for the raw method.
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     pub camera_pass: bool,
-    /// The numbers the walks and the camera pass draw: independent ones
-    /// (PCG32 streams, the default), or Owen-scrambled Sobol points, walk
-    /// k of a pass taking point k of a sequence randomised per pass (the
-    /// iteration variant's steps stay independent). Per walk sobol's
-    /// relMSE is 0.94–1.00 of independent's at 256 walks per pixel (cbox,
-    /// the baffle, glass-mirror, big-room-textured), at 1.12–1.21× the
-    /// instructions, so it loses at equal time (docs/notebook/light.md). A
-    /// partial-result file without the field was written with independent
-    /// numbers.
-    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "independent"))]
+    /// The numbers the walks and the camera pass draw: Owen-scrambled
+    /// Sobol points (the default), walk k of a pass taking point k of a
+    /// sequence randomised per pass, or independent ones (PCG32 streams;
+    /// the iteration variant's steps are always independent). Per walk
+    /// sobol's relMSE is 0.94–1.00 of independent's at 256 walks per pixel
+    /// (cbox, the baffle, glass-mirror, big-room-textured); its walks run
+    /// eight at a time in AVX lanes ([`crate::transport::lanes::light_walks`]),
+    /// so at equal time (8 s, three seeds) its relMSE is 0.74 of
+    /// independent's on cbox, 0.80 on the baffle, 0.98 on glass-mirror and
+    /// 0.88 on big-room-textured (docs/notebook/light.md). A partial-result
+    /// file without the field was written with independent numbers
+    /// ([`SamplerKind`]'s own default).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "sobol"))]
     #[serde(default, skip_serializing_if = "SamplerKind::is_independent")]
     pub sampler: SamplerKind,
 }
@@ -135,7 +142,7 @@ impl Default for Settings {
             paths_per_pass: 0,
             discard: 0,
             camera_pass: true,
-            sampler: SamplerKind::Independent,
+            sampler: SamplerKind::Sobol,
         }
     }
 }
