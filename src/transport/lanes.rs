@@ -23,6 +23,13 @@
 //! jitters and makes those camera rays eight at a time in lanes, with the
 //! operations of `Camera::ray` in their order: in a closure called pixel
 //! by pixel they took 7.9 % of a cbox run, compiled for the baseline CPU.
+//!
+//! [`light_walks`] does the same for `light --sampler sobol`'s walks: eight
+//! at a time, the emission from triangle lights and the common vertex (a
+//! diffuse BSDF below the depth limit: its camera connection, roulette and
+//! scatter) in lanes, every other vertex by [`super::LightWalk::step`]; a
+//! walk's splats are added in walk order, so the film's sums are the bits
+//! of the walks run one by one.
 
 use crate::film::Film;
 use crate::geometry::Ray;

@@ -5,23 +5,29 @@
 //!   two-sided materials ([`orient`]), and `wo`.
 //! - [`scatter`]: the next direction of a light path, in importance mode,
 //!   with the shading-normal correction.
-//! - [`connect_to_camera`], [`connect_emission`], [`connect_emission_sample`]: the camera connections of
-//!   light paths, with the pixel weight g(x) of §2 of the
-//!   light-path-building paper ([`connect_then`]: the first, telling its
-//!   caller the pixel before the visibility ray, to prefetch the film).
+//! - [`connect_to_camera`], [`connect_emission`],
+//!   [`connect_emission_sample`]: the camera connections of light paths,
+//!   with the pixel weight g(x) of §2 of the light-path-building paper
+//!   ([`connect_then`] and [`emission_to_camera`]: the contribution and
+//!   its pixel, told before the visibility ray, to prefetch the film).
+//! - [`light_tracing_walk`]: `light`'s walk, an emission sample and a
+//!   [`light_walk`] joined to the camera at every non-delta vertex.
 //! - [`follow_delta_chain`]: power carried through mirrors and glass to the
 //!   first surface that can be measured, with a named depth limit
 //!   ([`DELTA_CHAIN_DEPTH_LIMIT`]).
 //! - [`light_walk`]: the one light-path walk (Russian roulette on the
 //!   albedo), with a per-vertex hook; `light`, `density` and the diagnostics
-//!   put their own measurement in the hook.
+//!   put their own measurement in the hook. [`LightWalk::step`] is its loop
+//!   body, for the lanes.
 //! - [`direct_light`], [`shadow_clear`]: next-event estimation alone (one
 //!   light sample, no MIS), for bundle's first shot.
 //! - [`radiance_from`]: the camera-side estimator (next-event estimation
 //!   with MIS), which `path` is and the camera pass uses.
 //! - [`lanes`]: that estimator for eight of `path`'s camera paths at a
 //!   time, bounce by bounce, the common vertex shaded in AVX lanes and the
-//!   rest by the same step ([`CameraPath::scatter`]) lane by lane.
+//!   rest by the same step ([`CameraPath::scatter`]) lane by lane; and
+//!   eight of `light`'s Sobol walks at a time, likewise
+//!   ([`lanes::light_walks`]).
 //! - [`camera_pass`]: the part of path space that light paths cannot reach,
 //!   estimated from the camera for `light` and `plb`.
 //!

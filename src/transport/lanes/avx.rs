@@ -98,8 +98,7 @@ impl V3 {
 /// eight columns (`r[j]` then holds field j of every lane).
 #[inline(always)]
 fn transpose(r: [__m256; 8]) -> [V; 8] {
-    // SAFETY: only inlined into `radiance_row`, which runs where the CPU
-    // has AVX2
+    // SAFETY: only inlined into `radiance_row` or `light_walks`, which run where the CPU has AVX2
     unsafe { crate::simd::transpose8(r) }.map(V)
 }
 
@@ -193,8 +192,8 @@ fn offset(p: V3, ng: V3, dir: V3) -> V3 {
 /// One coordinate of [`offset`], `n` facing the side to move to.
 #[inline(always)]
 fn offset_c(p: V, n: V) -> V {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         // (256 n) as i32, saturating as Rust casts
         let sn = _mm256_mul_ps(_mm256_set1_ps(256.0), n.0);
@@ -418,8 +417,7 @@ fn surface_points(recs: &[TriRecord], lh: &[Hit; LANES]) -> Surface {
         shape[i] = r.shape;
         let ptr = (r as *const TriRecord).cast::<f32>();
         // SAFETY: a record is 64 bytes of f32-sized fields, 64-aligned;
-        // only inlined into `radiance_row`, which runs where the CPU has
-        // AVX2
+        // only inlined into `radiance_row` or `light_walks`, which run where the CPU has AVX2
         unsafe {
             lo[i] = _mm256_load_ps(ptr);
             hi[i] = _mm256_load_ps(ptr.add(8));

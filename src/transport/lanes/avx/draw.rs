@@ -1,9 +1,10 @@
-//! The samplers of the AVX lanes ([`super::radiance_row`]): eight
-//! [`Pcg32`] streams or eight [`SobolSampler`]s, each lane drawing what the
-//! scalar step would draw, in registers. Every `unsafe` block calls an
-//! intrinsic on register values or on arrays it names; the functions run
-//! only inlined into `radiance_row`, which is compiled for AVX2 and called
-//! where the CPU has it.
+//! The samplers of the AVX lanes ([`super::radiance_row`],
+//! [`super::light_walks`]): eight [`Pcg32`] streams or eight
+//! [`SobolSampler`]s, each lane drawing what the scalar step would draw, in
+//! registers. Every `unsafe` block calls an intrinsic on register values or
+//! on arrays it names; the functions run only inlined into `radiance_row`
+//! or `light_walks`, which are compiled for AVX2 and called where the CPU
+//! has it.
 
 use std::arch::x86_64::*;
 
@@ -146,8 +147,8 @@ impl Lanes<SobolSampler> for SobolLanes {
     #[inline(always)]
     fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6] {
         // SAFETY: loads and stores of eight u32 from and to arrays of
-        // eight, register operations; only inlined into `radiance_row`,
-        // which runs where the CPU has AVX2
+        // eight, register operations; only inlined into `radiance_row` or
+        // `light_walks`, which run where the CPU has AVX2
         unsafe {
             // vertex_dimension: 2 + 7 (min(max(depth, 1) − 1, u32::MAX / 8))
             let d = _mm256_loadu_si256(depth.as_ptr().cast());
@@ -258,8 +259,8 @@ impl SobolLanes {
                 let d = (self.dim[i] as usize).min(SOBOL_DIMENSIONS);
                 let row = &table[pos][n][d..d + 8];
                 // SAFETY: eight u32 of the row, read as f32 bits (no
-                // alignment needed); only inlined into `radiance_row`,
-                // which runs where the CPU has AVX2
+                // alignment needed); only inlined into `radiance_row` or
+                // `light_walks`, which run where the CPU has AVX2
                 *r = unsafe { _mm256_loadu_ps(row.as_ptr().cast()) };
             }
             // SAFETY: as above
@@ -325,8 +326,8 @@ impl SobolLanes {
 /// The u32 lanes of `mask` as all-ones lanes.
 #[inline(always)]
 fn mask32(mask: u32) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
         let set = _mm256_set1_epi32(mask as i32);
@@ -338,8 +339,8 @@ fn mask32(mask: u32) -> __m256i {
 /// dimensions, the same operations on 32-bit lanes.
 #[inline(always)]
 fn owen_seed8(key: __m256i, d: __m256i) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let mut x = _mm256_xor_si256(
             key,
@@ -357,8 +358,8 @@ fn owen_seed8(key: __m256i, d: __m256i) -> __m256i {
 /// byte's nibbles looked up reversed and swapped.
 #[inline(always)]
 fn reverse_bits8(x: __m256i) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         #[rustfmt::skip]
         let bswap = _mm256_setr_epi8(
@@ -395,8 +396,8 @@ fn reverse_bits8(x: __m256i) -> __m256i {
 /// operations on 32-bit lanes after the first reversal.
 #[inline(always)]
 fn owen_scramble8(x: __m256i, seed: __m256i) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let mut x = x;
         x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x3d20_adea)));
@@ -451,8 +452,8 @@ impl Rngs {
 /// 16 for lanes 4–7), as all-ones lanes.
 #[inline(always)]
 fn mask64(mask: u32, bits: i64) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let lane = _mm256_setr_epi64x(bits, bits << 1, bits << 2, bits << 3);
         let set = _mm256_set1_epi64x(i64::from(mask));
@@ -465,8 +466,8 @@ fn mask64(mask: u32, bits: i64) -> __m256i {
 /// falls outside 64 bits).
 #[inline(always)]
 fn step(state: __m256i, inc: __m256i) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let lo = _mm256_set1_epi64x((PCG_MULT & 0xFFFF_FFFF) as i64);
         let hi = _mm256_set1_epi64x((PCG_MULT >> 32) as i64);
@@ -482,8 +483,8 @@ fn step(state: __m256i, inc: __m256i) -> __m256i {
 /// lane.
 #[inline(always)]
 fn xsh_rr(old: __m256i) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let x = _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old));
         let rot = _mm256_srli_epi64::<59>(old);
@@ -497,8 +498,8 @@ fn xsh_rr(old: __m256i) -> __m256i {
 /// as eight u32 in lane order.
 #[inline(always)]
 fn pack32(a: __m256i, b: __m256i) -> __m256i {
-    // SAFETY: register operations only; only inlined into `radiance_row`,
-    // which runs where the CPU has AVX2
+    // SAFETY: register operations only; only inlined into `radiance_row` or
+    // `light_walks`, which run where the CPU has AVX2
     unsafe {
         let a = _mm256_shuffle_epi32::<0b10_00_10_00>(a);
         let b = _mm256_shuffle_epi32::<0b10_00_10_00>(b);

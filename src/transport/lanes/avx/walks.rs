@@ -1,12 +1,18 @@
-//! `light --variant walk`'s walks eight at a time ([`light_walks`]): the
-//! common vertex (a diffuse BSDF below the depth limit) is joined to the
-//! camera and scattered in lanes, with the scalar operations in their
-//! order ([`crate::camera::Camera::project`], `connect_then`, `scatter` of
-//! Diffuse in importance mode and the albedo's roulette of `LightWalk::step`),
-//! so a walk's splats and rays are the same bits as
-//! [`light_tracing_walk`]'s. Each walk's splats are held until the walks
-//! begun before it have ended, then added in walk order: the film's sums
-//! are those of the walks run one after another.
+//! `light --variant walk`'s Sobol walks eight at a time ([`light_walks`]):
+//! the emission from triangle lights and its camera connection, and the
+//! common vertex (a diffuse BSDF below the depth limit), joined to the
+//! camera and scattered, run in lanes, with the scalar operations in their
+//! order (`Lights::sample_emission`, `emission_to_camera`,
+//! [`crate::camera::Camera::project`], `connect_then`, `scatter` of Diffuse
+//! in importance mode and the albedo's roulette of `LightWalk::step`), so a
+//! walk's splats and rays are the same bits as [`light_tracing_walk`]'s.
+//! Every other vertex takes `LightWalk::step` itself. No `unsafe` here:
+//! the intrinsics are in the helpers of the parent module, whose contract
+//! this entry keeps (compiled for AVX2, called where the CPU has it).
+//!
+//! Each walk's splats are held until the walks begun before it have ended,
+//! then added in walk order: the film's sums are those of the walks run one
+//! after another.
 //!
 //! [`light_tracing_walk`]: crate::transport::light_tracing_walk
 
