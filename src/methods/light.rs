@@ -70,7 +70,7 @@ use crate::state::{Shard, ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
 use crate::transport::{
     connect_emission_sample, connect_to_camera, follow_delta_chain, lanes, light_tracing_walk,
-    scatter, Landing,
+    scatter, Landing, Roulette, WalkKind,
 };
 
 /// Which form of the method.
@@ -495,15 +495,20 @@ dispatched! {
         // The splats are held back a few at a time (same sums, bit for
         // bit), and settled before the film is read
         film.begin_queue();
+        let kind = WalkKind {
+            max_depth: s.max_depth,
+            roulette: Roulette::Albedo,
+            glossy_split: false,
+        };
         match (s.variant, s.sampler) {
             (Variant::Walk, SamplerKind::Independent) => {
                 for _ in 0..count {
-                    rays += light_tracing_walk(world, s.max_depth, &mut rng, film);
+                    rays += light_tracing_walk(world, &kind, &mut rng, film);
                 }
             }
             (Variant::Walk, SamplerKind::Sobol) => {
                 let walks = first..first + count;
-                rays += lanes::light_walks(world, s.max_depth, s.seed, pass, walks, film);
+                rays += lanes::light_walks(world, &kind, s.seed, pass, walks, film);
             }
             (Variant::Iteration, _) => {
                 for _ in 0..count {

@@ -8,7 +8,7 @@ use std::ops::ControlFlow;
 use glam::{Vec2, Vec3};
 
 use super::camera_pass::camera_share;
-use super::{light_walk, Roulette, Spectrum, Vertex};
+use super::{light_walk, Spectrum, Vertex, WalkKind};
 use crate::bsdf::{shading_normal_correction_over, Mode};
 use crate::emitter::EmissionSample;
 use crate::film::Film;
@@ -183,16 +183,16 @@ pub fn emission_sample_to_camera(
     emission_to_camera(world, es.p, es.n, es.phi_pos * 1.0, rays, |_| {})
 }
 
-/// One light-tracing walk, `light --variant walk`'s: an emission sample
-/// (one number for the light, two for the point, two for the direction),
-/// joined to the camera ([`connect_emission_sample`]), then a
-/// [`light_walk`] with Russian roulette on the albedo, joined to the
-/// camera at every non-delta vertex ([`splat_to_camera`]). Returns the
-/// rays traced.
+/// One light-tracing walk of the form `kind`: an emission sample (one
+/// number for the light, two for the point, two for the direction), joined
+/// to the camera ([`connect_emission_sample`]), then a [`light_walk`],
+/// joined to the camera at every non-delta vertex ([`splat_to_camera`]).
+/// `light --variant walk`'s walk, and plb's mixture walk. Returns the rays
+/// traced.
 #[inline(always)]
 pub fn light_tracing_walk<S: Sampler>(
     world: &World,
-    max_depth: Option<u32>,
+    kind: &WalkKind,
     rng: &mut S,
     film: &mut Film,
 ) -> u64 {
@@ -203,18 +203,19 @@ pub fn light_tracing_walk<S: Sampler>(
     let mut rays = 0;
     // Emitter points connect to the camera directly
     rays += connect_emission_sample(world, &es, 1.0, film);
+    let split = kind.glossy_split;
     let walk = light_walk(
         world,
         es.ray(),
         es.phi,
         Spectrum::Rgb,
-        Roulette::Albedo,
-        max_depth,
+        kind.roulette,
+        kind.max_depth,
         rng,
         |e| {
             // Connect to the camera at every non-delta vertex
             if e.vertex.bsdf.has_smooth() {
-                rays += splat_to_camera(world, e.vertex, e.beta, false, film);
+                rays += splat_to_camera(world, e.vertex, e.beta, split, film);
             }
             ControlFlow::Continue(())
         },

@@ -37,7 +37,7 @@ use crate::sampling::{Pcg32, Sampler, SobolSampler, SobolWalkSampler};
 use crate::scene::Rgb;
 use crate::world::World;
 
-use super::{light_tracing_walk, radiance_from_hit, DepthLimits};
+use super::{light_tracing_walk, radiance_from_hit, DepthLimits, WalkKind};
 
 /// Paths advanced together.
 pub const LANES: usize = 8;
@@ -127,9 +127,10 @@ pub fn radiance_row_packets<S: Sampler>(
     }
 }
 
-/// `light --variant walk`'s walks `walks` of pass `pass` under `seed`,
-/// each with its Sobol points ([`SobolWalkSampler`]), splatted into `film`
-/// as [`light_tracing_walk`] splats them one walk after another: the same
+/// The light-tracing walks `walks` of pass `pass` under `seed`, of the
+/// form `kind` (`light --variant walk`'s, or plb's mixture walks), each
+/// with its Sobol points ([`SobolWalkSampler`]), splatted into `film` as
+/// [`light_tracing_walk`] splats them one walk after another: the same
 /// splats in the same order, so the film's sums are the same bits. Returns
 /// the rays traced. Where the CPU has AVX2, eight walks run at a time in
 /// lanes, a vertex with a diffuse BSDF (below the depth limit) is shaded,
@@ -139,7 +140,7 @@ pub fn radiance_row_packets<S: Sampler>(
 #[inline(always)]
 pub fn light_walks(
     world: &World,
-    max_depth: Option<u32>,
+    kind: &WalkKind,
     seed: u64,
     pass: u64,
     walks: std::ops::Range<u64>,
@@ -148,12 +149,12 @@ pub fn light_walks(
     #[cfg(target_arch = "x86_64")]
     if crate::simd::has_v3() {
         // SAFETY: the CPU has AVX2 (checked by has_v3)
-        return unsafe { avx::light_walks(world, max_depth, seed, pass, walks, film) };
+        return unsafe { avx::light_walks(world, kind, seed, pass, walks, film) };
     }
     let mut rays = 0;
     for k in walks {
         let mut sobol = SobolWalkSampler::new(seed, pass, k);
-        rays += light_tracing_walk(world, max_depth, &mut sobol, film);
+        rays += light_tracing_walk(world, kind, &mut sobol, film);
     }
     rays
 }

@@ -58,7 +58,7 @@ pub use direct::{direct_light, shadow_clear};
 pub use radiance::{radiance_from, radiance_from_hit, CameraPath, DepthLimits};
 pub use vertex::{orient, scatter, Shading, Vertex};
 pub use walk::{
-    follow_delta_chain, light_walk, Landing, LightVertex, LightWalk, Roulette, Spectrum,
+    follow_delta_chain, light_walk, Landing, LightVertex, LightWalk, Roulette, Spectrum, WalkKind,
     DELTA_CHAIN_DEPTH_LIMIT,
 };
 

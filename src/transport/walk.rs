@@ -102,6 +102,21 @@ pub enum Roulette {
     Throughput,
 }
 
+/// The form of a light-tracing walk ([`super::light_tracing_walk`], and
+/// eight at a time [`super::lanes::light_walks`]): `light`'s, with the
+/// albedo's roulette and no glossy split, or `plb`'s mixture walks, with
+/// the throughput's roulette and the glossy split of its camera pass.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WalkKind {
+    /// The depth limit (None: unlimited).
+    pub max_depth: Option<u32>,
+    /// The roulette played after each vertex.
+    pub roulette: Roulette,
+    /// Camera connections carry the light side's MIS weight against the
+    /// glossy camera pass ([`super::connect_to_camera`]).
+    pub glossy_split: bool,
+}
+
 /// The largest channel of `beta` relative to the emitted power `emitted`,
 /// over the channels the walk carries (those emitted with power).
 #[inline(always)]

@@ -376,19 +376,21 @@ fn lanes_give_the_scalar_radiance_bit_for_bit() {
     }
 }
 
-/// `light`'s Sobol walks in AVX lanes ([`kalos::transport::lanes::light_walks`])
-/// splat what the walks run one by one ([`kalos::transport::light_tracing_walk`])
-/// splat, in the same order: the film's sums and the rays are the same
-/// bits. Scenes with glass and mirrors (glass-mirror), a glossy floor and
-/// smooth normals, whose vertices take the scalar step, and with a depth
-/// limit. On a CPU without AVX2 both sides are the scalar code and the
-/// test shows nothing.
+/// Light-tracing walks with Sobol points in AVX lanes
+/// ([`kalos::transport::lanes::light_walks`]) splat what the walks run one
+/// by one ([`kalos::transport::light_tracing_walk`]) splat, in the same
+/// order: the film's sums and the rays are the same bits. Both forms:
+/// `light`'s (the albedo's roulette) and plb's mixture walks (the
+/// throughput's roulette, the glossy split). Scenes with glass and mirrors
+/// (glass-mirror), a glossy floor and smooth normals, whose vertices take
+/// the scalar step, and with a depth limit. On a CPU without AVX2 both
+/// sides are the scalar code and the test shows nothing.
 #[test]
 fn light_walk_lanes_give_the_scalar_splats_bit_for_bit() {
     use kalos::film::Film;
     use kalos::sampling::SobolWalkSampler;
     use kalos::transport::lanes::light_walks;
-    use kalos::transport::light_tracing_walk;
+    use kalos::transport::{light_tracing_walk, WalkKind};
     // (scene, the share of pixels the walks must light: the glossy
     // floor's room is lit through a door, and most of it stays dark)
     for (name, lit_share) in [
@@ -399,17 +401,26 @@ fn light_walk_lanes_give_the_scalar_splats_bit_for_bit() {
     ] {
         let world = World::new(load(name, 24));
         let (w, h) = (world.camera.width, world.camera.height);
-        for max_depth in [None, Some(3)] {
+        for (max_depth, roulette, glossy_split) in [
+            (None, Roulette::Albedo, false),
+            (Some(3), Roulette::Albedo, false),
+            (None, Roulette::Throughput, true),
+        ] {
+            let kind = WalkKind {
+                max_depth,
+                roulette,
+                glossy_split,
+            };
             let (seed, pass, walks) = (11, 2, 500..30_500);
             let mut lanes = Film::new(w, h);
-            let rays_lanes = light_walks(&world, max_depth, seed, pass, walks.clone(), &mut lanes);
+            let rays_lanes = light_walks(&world, &kind, seed, pass, walks.clone(), &mut lanes);
             let mut one = Film::new(w, h);
             let mut rays_one = 0;
             for k in walks {
                 let mut rng = SobolWalkSampler::new(seed, pass, k);
-                rays_one += light_tracing_walk(&world, max_depth, &mut rng, &mut one);
+                rays_one += light_tracing_walk(&world, &kind, &mut rng, &mut one);
             }
-            assert_eq!(rays_lanes, rays_one, "{name}, {max_depth:?}: rays");
+            assert_eq!(rays_lanes, rays_one, "{name}, {kind:?}: rays");
             let bits = |f: &Film| -> Vec<[u64; 3]> {
                 f.sum
                     .iter()
@@ -421,10 +432,7 @@ fn light_walk_lanes_give_the_scalar_splats_bit_for_bit() {
                 lit > (w * h / lit_share) as usize,
                 "{name}: {lit} pixels lit"
             );
-            assert!(
-                bits(&lanes) == bits(&one),
-                "{name}, {max_depth:?}: sums differ"
-            );
+            assert!(bits(&lanes) == bits(&one), "{name}, {kind:?}: sums differ");
         }
     }
 }

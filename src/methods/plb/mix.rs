@@ -44,16 +44,14 @@
 //! the weights' own noise times the correlation between a pixel and the
 //! weights, which pool all pixels, far below the noise.
 
-use std::ops::ControlFlow;
-
 use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::film::{Film, Image};
 use crate::methods::World;
-use crate::sampling::Pcg32;
+use crate::sampling::{Pcg32, SamplerKind};
 use crate::simd::dispatched;
-use crate::transport::{connect_emission_sample, light_walk, splat_to_camera, Roulette, Spectrum};
+use crate::transport::{lanes, light_tracing_walk, WalkKind};
 
 /// Independent walk lanes (films and streams), fixed so that results do not
 /// depend on the thread count.
@@ -399,60 +397,42 @@ fn measure_tile_row(
 }
 
 dispatched! {
-    /// `count` light-tracing walks of one lane into `film`; returns the rays
-    /// traced. Compiled for x86-64-v3 by runtime dispatch, as `light`'s.
+    /// Lane `lane`'s `count` light-tracing walks of pass `pass` into
+    /// `film` ([`light_tracing_walk`] of the form `kind`); returns the rays
+    /// traced. With Sobol points the walks are indices `lane · count ..
+    /// (lane + 1) · count` of the pass's sequence, eight at a time in AVX
+    /// lanes ([`lanes::light_walks`]); otherwise they draw from the lane's
+    /// PCG32 stream, keyed by (seed, pass, lane). Compiled for x86-64-v3 by
+    /// runtime dispatch, as `light`'s.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn run_walks(
         world: &World,
-        glossy_split: bool,
-        max_depth: Option<u32>,
-        rng: Pcg32,
+        kind: &WalkKind,
+        sampler: SamplerKind,
+        seed: u64,
+        pass: u64,
+        lane: u64,
         count: u64,
         film: &mut Film,
     ) -> u64 {
-        let mut rng = rng;
         let mut rays = 0;
         // splats held back a few at a time, as `light`'s (same bits)
         film.begin_queue();
-        for _ in 0..count {
-            rays += walk(world, glossy_split, max_depth, &mut rng, film);
+        match sampler {
+            SamplerKind::Independent => {
+                let mut rng = Pcg32::keyed(&[seed, pass, lane, 0x3a1]);
+                for _ in 0..count {
+                    rays += light_tracing_walk(world, kind, &mut rng, film);
+                }
+            }
+            SamplerKind::Sobol => {
+                let walks = lane * count..(lane + 1) * count;
+                rays += lanes::light_walks(world, kind, seed, pass, walks, film);
+            }
         }
         film.settle();
         rays
     }
-}
-
-/// One light-tracing walk, connected to the camera at its emission vertex
-/// and at every non-delta vertex, with plb's glossy MIS split
-/// ([`splat_to_camera`]); returns the rays traced.
-#[inline(always)]
-fn walk(
-    world: &World,
-    glossy_split: bool,
-    max_depth: Option<u32>,
-    rng: &mut Pcg32,
-    film: &mut Film,
-) -> u64 {
-    let (u_sel, u_pos, u_dir) = (rng.next_f32(), rng.next_2d(), rng.next_2d());
-    let Some(es) = world.lights.sample_emission(u_sel, u_pos, u_dir) else {
-        return 0;
-    };
-    let mut rays = connect_emission_sample(world, &es, 1.0, film);
-    let walk = light_walk(
-        world,
-        es.ray(),
-        es.phi,
-        Spectrum::Rgb,
-        Roulette::Throughput,
-        max_depth,
-        rng,
-        |e| {
-            if e.vertex.bsdf.has_smooth() {
-                rays += splat_to_camera(world, e.vertex, e.beta, glossy_split, film);
-            }
-            ControlFlow::Continue(())
-        },
-    );
-    rays + walk
 }
 
 #[cfg(test)]

@@ -116,6 +116,7 @@ use crate::memory::MemoryItem;
 use crate::sampling::{Pcg32, SamplerKind};
 use crate::state::{ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
+use crate::transport::{Roulette, WalkKind};
 
 mod guide;
 mod importance;
@@ -531,14 +532,18 @@ impl Method for Plb {
         if let Some(mix) = self.mix.as_mut() {
             let steps = n * self.lanes.len() as u64;
             let count = mix.walks_per_lane_for(full * self.lanes.len() as u64);
-            let glossy_split = Form::of(s).glossy_split;
+            let kind = WalkKind {
+                max_depth: s.max_depth,
+                roulette: Roulette::Throughput,
+                glossy_split: Form::of(s).glossy_split,
+            };
             let walk_rays = mix
                 .films
                 .par_iter_mut()
                 .enumerate()
                 .map(|(i, film)| {
-                    let rng = Pcg32::keyed(&[s.seed, pass, i as u64, 0x3a1]);
-                    run_walks(world, glossy_split, s.max_depth, rng, count, film)
+                    let (seed, lane) = (s.seed, i as u64);
+                    run_walks(world, &kind, s.sampler, seed, pass, lane, count, film)
                 })
                 .sum::<u64>();
             mix.walks_per_lane += count;

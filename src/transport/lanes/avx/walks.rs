@@ -34,7 +34,7 @@ use crate::sampling::{Sampler, SobolWalkSampler};
 use crate::scene::Rgb;
 use crate::transport::lanes::LANES;
 use crate::transport::{
-    connect_to_camera, emission_sample_to_camera, LightWalk, Roulette, Spectrum,
+    connect_to_camera, emission_sample_to_camera, LightWalk, Roulette, Spectrum, WalkKind,
 };
 use crate::world::World;
 
@@ -83,6 +83,8 @@ struct Walks {
     o: [[f32; LANES]; 3],
     d: [[f32; LANES]; 3],
     beta: [[f32; LANES]; 3],
+    /// The power each walk was emitted with (for [`Roulette::Throughput`]).
+    emitted: [[f32; LANES]; 3],
     depth: [u32; LANES],
     /// Each lane's walk index.
     k: [u64; LANES],
@@ -92,12 +94,13 @@ struct Walks {
 }
 
 impl Walks {
-    /// Walk `i` as a [`LightWalk`] of `light_tracing_walk`.
+    /// Walk `i` as a [`LightWalk`] with `roulette`.
     #[inline(always)]
-    fn get(&self, i: usize, max_depth: u32) -> LightWalk {
+    fn get(&self, i: usize, max_depth: u32, roulette: Roulette) -> LightWalk {
         let ray = Ray::new(V3::lane(&self.o, i), V3::lane(&self.d, i));
         let beta = V3::lane(&self.beta, i);
-        let mut w = LightWalk::new(ray, beta, Spectrum::Rgb, Roulette::Albedo, None);
+        let mut w = LightWalk::new(ray, beta, Spectrum::Rgb, roulette, None);
+        w.emitted = V3::lane(&self.emitted, i);
         (w.depth, w.max_depth) = (self.depth[i], max_depth);
         w
     }
@@ -108,6 +111,7 @@ impl Walks {
         V3::set(&mut self.o, i, w.ray.o);
         V3::set(&mut self.d, i, w.ray.d);
         V3::set(&mut self.beta, i, w.beta);
+        V3::set(&mut self.emitted, i, w.emitted);
         self.depth[i] = w.depth;
     }
 }
@@ -116,17 +120,18 @@ impl Walks {
 #[target_feature(enable = "avx2")]
 pub(in crate::transport::lanes) fn light_walks(
     world: &World,
-    max_depth: Option<u32>,
+    walk: &WalkKind,
     seed: u64,
     pass: u64,
     walks: Range<u64>,
     film: &mut Film,
 ) -> u64 {
-    let max_depth = max_depth.unwrap_or(u32::MAX);
+    let max_depth = walk.max_depth.unwrap_or(u32::MAX);
     let mut w = Walks {
         o: [[0.0; LANES]; 3],
         d: [[0.0; LANES]; 3],
         beta: [[0.0; LANES]; 3],
+        emitted: [[0.0; LANES]; 3],
         depth: [0; LANES],
         k: [0; LANES],
         rngs: SobolLanes::new(),
@@ -175,7 +180,15 @@ pub(in crate::transport::lanes) fn light_walks(
             hit |= u32::from(found[i].is_some()) << i;
         }
         let goes_on = if alive & hit != 0 {
-            vertices(world, max_depth, &mut w, &found, alive & hit, &mut rays)
+            vertices(
+                world,
+                walk,
+                max_depth,
+                &mut w,
+                &found,
+                alive & hit,
+                &mut rays,
+            )
         } else {
             0
         };
@@ -275,6 +288,7 @@ fn begin(world: &World, w: &mut Walks, fresh: u32, rays: &mut u64) -> u32 {
     put(&mut w.o, m, offset(p, ls.n, d));
     put(&mut w.d, m, d);
     put(&mut w.beta, m, phi);
+    put(&mut w.emitted, m, phi);
     for i in lanes(left) {
         w.depth[i] = 1;
     }
@@ -316,6 +330,7 @@ fn project(cam: &Camera, p: V3) -> (V, V, V, V) {
 #[inline(always)]
 fn vertices(
     world: &World,
+    walk: &WalkKind,
     max_depth: u32,
     w: &mut Walks,
     hits: &[Option<Hit>; LANES],
@@ -343,19 +358,20 @@ fn vertices(
     let mut sh = shade(world, &lh, &sp, mask, common);
     // Every other vertex takes the scalar step
     for i in lanes(mask & !sh.vec) {
-        let mut walk = w.get(i, max_depth);
+        let mut lw = w.get(i, max_depth, walk.roulette);
         let splats = &mut w.splats[i];
+        let split = walk.glossy_split;
         let on_vertex = |e: &crate::transport::LightVertex| {
             if e.vertex.bsdf.has_smooth() {
-                if let Some(s) = connect_to_camera(world, e.vertex, e.beta, false, rays) {
+                if let Some(s) = connect_to_camera(world, e.vertex, e.beta, split, rays) {
                     splats.push(s);
                 }
             }
             ControlFlow::Continue(())
         };
         let mut rng = SobolWalkSampler::from_sampler(w.rngs.get(i));
-        if walk.step(world, &lh[i], &mut rng, on_vertex) {
-            w.set(i, &walk);
+        if lw.step(world, &lh[i], &mut rng, on_vertex) {
+            w.set(i, &lw);
         } else {
             sh.alive &= !(1 << i);
         }
@@ -366,7 +382,7 @@ fn vertices(
     }
     let fr = frame(&sh, sp.ng, V3::load(&w.d).neg());
     to_camera(world, w, &sp, &sh, &fr, rays);
-    scatter(w, &sp, &sh, &fr)
+    scatter(w, walk.roulette, &sp, &sh, &fr)
 }
 
 /// Joins the vertices of `sh.vec` to the camera (`connect_then` of a
@@ -419,22 +435,15 @@ fn to_camera(world: &World, w: &mut Walks, sp: &Surface, sh: &Shaded, fr: &Frame
     }
 }
 
-/// Russian roulette on the albedo and the next segment by `scatter` of a
+/// Russian roulette (`roulette`) and the next segment by `scatter` of a
 /// Diffuse BSDF in importance mode, for the vertices of `sh.vec`, as
 /// `LightWalk::step` plays them; returns the walks that go on.
 #[inline(always)]
-fn scatter(w: &mut Walks, sp: &Surface, sh: &Shaded, fr: &Frame8) -> u32 {
+fn scatter(w: &mut Walks, roulette: Roulette, sp: &Surface, sh: &Shaded, fr: &Frame8) -> u32 {
     let zero = V::splat(0.0);
     // The lanes' numbers: the roulette's, the lobe's, the direction's
     let [u_rr, _lobe, u0, u1] = w.rngs.walk_vertex(sh.vec, &w.depth).map(V);
-    // The albedo's largest channel, clamped to [0, 0.99]
     let r = V3::load(&sh.r);
-    let m = r.y.gt(r.z).select(r.y, r.z);
-    let m = r.x.gt(m).select(r.x, m);
-    let a = m
-        .lt(zero)
-        .select(zero, m.gt(V::splat(0.99)).select(V::splat(0.99), m));
-    let survive = !u_rr.ge(a);
     // Diffuse::sample, then scatter's checks and weight
     let wol_z = fr.wo.dot(fr.fn_);
     let (z, spdf, wiw) = cosine_sample(fr, [u0, u1]);
@@ -449,10 +458,34 @@ fn scatter(w: &mut Walks, sp: &Surface, sh: &Shaded, fr: &Frame8) -> u32 {
     let wt = V3::new(r.x * k_pi * k, r.y * k_pi * k, r.z * k_pi * k);
     let w_ok = k.ne(zero) & wt.x.finite() & wt.y.finite() & wt.z.finite();
     let beta = V3::load(&w.beta);
+    // The roulette's probability of going on
+    let q = match roulette {
+        Roulette::Albedo => {
+            // the albedo's largest channel, clamped to [0, 0.99]
+            let m = r.y.gt(r.z).select(r.y, r.z);
+            let m = r.x.gt(m).select(r.x, m);
+            m.lt(zero)
+                .select(zero, m.gt(V::splat(0.99)).select(V::splat(0.99), m))
+        }
+        Roulette::Throughput => {
+            // relative_throughput(β w, β0), then min(·, 0.95)
+            let e = V3::load(&w.emitted);
+            let mut q = zero;
+            for (b, w, e) in [
+                (beta.x, wt.x, e.x),
+                (beta.y, wt.y, e.y),
+                (beta.z, wt.z, e.z),
+            ] {
+                q = e.gt(zero).select((b * w / e).max(q), q);
+            }
+            q.min(V::splat(0.95))
+        }
+    };
+    let survive = !u_rr.ge(q);
     let nb = V3::new(
-        beta.x * (wt.x / a),
-        beta.y * (wt.y / a),
-        beta.z * (wt.z / a),
+        beta.x * (wt.x / q),
+        beta.y * (wt.y / q),
+        beta.z * (wt.z / q),
     );
     let mb = nb.y.gt(nb.z).select(nb.y, nb.z);
     let mb = nb.x.gt(mb).select(nb.x, mb);
