@@ -34,11 +34,18 @@
 //!   camera pass reaches, 20 % dark in two seeds' mean).
 //!
 //! - *The walks' Russian roulette* is on the throughput
-//!   ([`Roulette::Throughput`]), not on the albedo as `light`'s (the
-//!   papers'): the walks carry the image where light arrives easily, and
-//!   there (cbox) it gives 7–9 % less error per ray; where light arrives
-//!   through a gap, which the throughput's roulette serves worse, the
-//!   population carries the image and the walks get [`FLOOR`] of the work.
+//!   ([`crate::transport::Roulette::Throughput`]), not on the albedo as
+//!   `light`'s (the papers'): the walks carry the image where light
+//!   arrives easily, and there (cbox) it gives 7–9 % less error per ray;
+//!   where light arrives through a gap, which the throughput's roulette
+//!   serves worse, the population carries the image and the walks get
+//!   [`FLOOR`] of the work.
+//! - *The walks' numbers* (`--sampler`): Sobol points by default, walk k
+//!   of a pass taking point k, eight walks at a time in AVX lanes as
+//!   `light`'s ([`crate::transport::lanes::light_walks`]); on cbox that
+//!   took plb from 1.22× light's error at equal time to 1.01×
+//!   (docs/notebook/plb.md). `--sampler independent` draws PCG32 streams
+//!   per (seed, pass, lane), one walk after another, as before.
 //!
 //! Both estimates are unbiased; the combined one has a bias of the order of
 //! the weights' own noise times the correlation between a pixel and the
