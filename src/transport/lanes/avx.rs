@@ -345,18 +345,7 @@ fn vertices<S: Sampler>(
     rngs: &mut impl Lanes<S>,
     mask: u32,
 ) -> u32 {
-    // Each lane's hit (lanes outside the mask repeat the first lane's, and
-    // are not written back)
-    let first = mask.trailing_zeros() as usize;
-    let lh: [Hit; LANES] = std::array::from_fn(|i| {
-        let h = hits[if mask & (1 << i) != 0 { i } else { first }];
-        h.unwrap_or(Hit {
-            t: 0.0,
-            tri: 0,
-            b1: 0.0,
-            b2: 0.0,
-        })
-    });
+    let lh = lane_hits(hits, mask);
     let sp = surface_points(world.tris.records(), &lh);
     // The common case: below the depth limit, on a surface that does not
     // emit
@@ -389,6 +378,22 @@ fn vertices<S: Sampler>(
     let bs = sample_bsdf(paths, &sh, &fr, [u[4], u[5]]);
     trace_shadows(world, paths, &sp, &fr, &ls, &ne, sh.vec);
     next_segment(limits, paths, rngs, &sp, &fr, &bs, sh)
+}
+
+/// Each lane's hit, of the lanes of `mask`, which hit; lanes outside the
+/// mask repeat the first lane's (and are not written back).
+#[inline(always)]
+fn lane_hits(hits: &[Option<Hit>; LANES], mask: u32) -> [Hit; LANES] {
+    let first = mask.trailing_zeros() as usize;
+    std::array::from_fn(|i| {
+        let h = hits[if mask & (1 << i) != 0 { i } else { first }];
+        h.unwrap_or(Hit {
+            t: 0.0,
+            tri: 0,
+            b1: 0.0,
+            b2: 0.0,
+        })
+    })
 }
 
 /// The surface points of eight hits, by lane.

@@ -146,25 +146,8 @@ impl Lanes<SobolSampler> for SobolLanes {
 
     #[inline(always)]
     fn vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 6] {
-        // SAFETY: loads and stores of eight u32 from and to arrays of
-        // eight, register operations; only inlined into `radiance_row` or
-        // `light_walks`, which run where the CPU has AVX2
-        unsafe {
-            // vertex_dimension: 2 + 7 (min(max(depth, 1) − 1, u32::MAX / 8))
-            let d = _mm256_loadu_si256(depth.as_ptr().cast());
-            let d = _mm256_sub_epi32(
-                _mm256_max_epu32(d, _mm256_set1_epi32(1)),
-                _mm256_set1_epi32(1),
-            );
-            let d = _mm256_min_epu32(d, _mm256_set1_epi32((u32::MAX / 8) as i32));
-            let d = _mm256_add_epi32(
-                _mm256_mullo_epi32(d, _mm256_set1_epi32(7)),
-                _mm256_set1_epi32(2),
-            );
-            let dp = self.dim.as_mut_ptr().cast::<__m256i>();
-            let old = _mm256_load_si256(dp);
-            _mm256_store_si256(dp, _mm256_blendv_epi8(old, d, mask32(mask)));
-        }
+        // vertex_dimension
+        self.start_vertices(mask, depth, 7, 2);
         let x = self.coordinates_run(mask);
         self.draw_from::<6>(mask, &x)
     }
@@ -192,9 +175,20 @@ impl SobolLanes {
     /// direction's draws.
     #[inline(always)]
     pub(super) fn walk_vertex(&mut self, mask: u32, depth: &[u32; LANES]) -> [__m256; 4] {
+        self.start_vertices(mask, depth, 4, 5);
+        let x = self.coordinates_run(mask);
+        self.draw_from::<4>(mask, &x)
+    }
+
+    /// Sets the dimension of each lane of `mask` to its vertex's first,
+    /// `first + per · (min(max(depth, 1) − 1, u32::MAX / 8))`: a camera
+    /// path's `vertex_dimension` (7, 2) or a light walk's
+    /// `walk_vertex_dimension` (4, 5), as `start_vertex` sets them.
+    #[inline(always)]
+    fn start_vertices(&mut self, mask: u32, depth: &[u32; LANES], per: i32, first: i32) {
         // SAFETY: loads and stores of eight u32 from and to arrays of
-        // eight, register operations; only inlined into `light_walks`,
-        // which runs where the CPU has AVX2
+        // eight, register operations; only inlined into `radiance_row` or
+        // `light_walks`, which run where the CPU has AVX2
         unsafe {
             let d = _mm256_loadu_si256(depth.as_ptr().cast());
             let d = _mm256_sub_epi32(
@@ -203,15 +197,13 @@ impl SobolLanes {
             );
             let d = _mm256_min_epu32(d, _mm256_set1_epi32((u32::MAX / 8) as i32));
             let d = _mm256_add_epi32(
-                _mm256_mullo_epi32(d, _mm256_set1_epi32(4)),
-                _mm256_set1_epi32(5),
+                _mm256_mullo_epi32(d, _mm256_set1_epi32(per)),
+                _mm256_set1_epi32(first),
             );
             let dp = self.dim.as_mut_ptr().cast::<__m256i>();
             let old = _mm256_load_si256(dp);
             _mm256_store_si256(dp, _mm256_blendv_epi8(old, d, mask32(mask)));
         }
-        let x = self.coordinates_run(mask);
-        self.draw_from::<4>(mask, &x)
     }
 
     /// The five numbers of the emission of each light walk of `mask`

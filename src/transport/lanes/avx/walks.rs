@@ -22,8 +22,8 @@ use std::ops::{ControlFlow, Range};
 use glam::{Vec2, Vec3};
 
 use super::{
-    cosine_sample, frame, gather_lights, lanes, lerp, offset, put, shade, surface_points, tangents,
-    Frame8, Lanes, Shaded, SobolLanes, Surface, NO_LIGHT, V, V3,
+    cosine_sample, frame, gather_lights, lane_hits, lanes, lerp, offset, put, shade,
+    surface_points, tangents, Frame8, Lanes, Shaded, SobolLanes, Surface, NO_LIGHT, V, V3,
 };
 use crate::accel::Hit;
 use crate::camera::Camera;
@@ -337,18 +337,7 @@ fn vertices(
     mask: u32,
     rays: &mut u64,
 ) -> u32 {
-    // Each lane's hit (lanes outside the mask repeat the first lane's, and
-    // are not written back)
-    let first = mask.trailing_zeros() as usize;
-    let lh: [Hit; LANES] = std::array::from_fn(|i| {
-        let h = hits[if mask & (1 << i) != 0 { i } else { first }];
-        h.unwrap_or(Hit {
-            t: 0.0,
-            tri: 0,
-            b1: 0.0,
-            b2: 0.0,
-        })
-    });
+    let lh = lane_hits(hits, mask);
     let sp = surface_points(world.tris.records(), &lh);
     // The common case: measured and scattered (depth + 1 below the limit)
     let mut common = 0u32;
