@@ -163,10 +163,17 @@ pub fn connect_emission_sample(
     scale: f32,
     film: &mut Film,
 ) -> u64 {
-    if es.is_env || es.punctual != u32::MAX {
+    if !joins_the_camera(es) {
         return 0;
     }
     connect_emission(world, es.p, es.n, es.phi_pos * scale, film)
+}
+
+/// Whether the emission vertex of `es` is joined to the camera: an area
+/// light's ([`connect_emission_sample`] says why the others are not).
+#[inline(always)]
+fn joins_the_camera(es: &EmissionSample) -> bool {
+    !es.is_env && es.punctual == u32::MAX
 }
 
 /// [`connect_emission_sample`] with `scale` 1, answered as
@@ -177,7 +184,7 @@ pub fn emission_sample_to_camera(
     es: &EmissionSample,
     rays: &mut u64,
 ) -> Option<(Vec2, Rgb)> {
-    if es.is_env || es.punctual != u32::MAX {
+    if !joins_the_camera(es) {
         return None;
     }
     emission_to_camera(world, es.p, es.n, es.phi_pos * 1.0, rays, |_| {})

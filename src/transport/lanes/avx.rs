@@ -94,6 +94,13 @@ impl V3 {
     }
 }
 
+/// A matrix column's xyz in every lane (a function, not a closure: a
+/// closure would not inherit the caller's AVX2).
+#[inline(always)]
+fn axis(a: glam::Vec4) -> V3 {
+    V3::splat(Vec3::new(a.x, a.y, a.z))
+}
+
 /// Transposes eight rows of eight f32 (`r[i]` is lane i's row) into
 /// eight columns (`r[j]` then holds field j of every lane).
 #[inline(always)]

@@ -9,10 +9,8 @@
 
 use std::arch::x86_64::*;
 
-use glam::Vec3;
-
 use super::super::{LaneSampler, LANES};
-use super::{Lanes, V, V3};
+use super::{axis, Lanes, V, V3};
 use crate::camera::Camera;
 use crate::geometry::Ray;
 
@@ -102,11 +100,4 @@ fn camera_directions(cam: &Camera, px: V, py: V) -> (V3, V) {
     let d = d.scale(one / d.dot(d).sqrt());
     let cos = d.dot(V3::splat(cam.forward)).max(V::splat(1e-6));
     (d, V::splat(cam.near) / cos)
-}
-
-/// A matrix column's xyz in every lane (a function, not a closure: a
-/// closure would not inherit the caller's AVX2).
-#[inline(always)]
-fn axis(a: glam::Vec4) -> V3 {
-    V3::splat(Vec3::new(a.x, a.y, a.z))
 }

@@ -19,10 +19,10 @@
 use std::collections::VecDeque;
 use std::ops::{ControlFlow, Range};
 
-use glam::{Vec2, Vec3};
+use glam::Vec2;
 
 use super::{
-    cosine_sample, frame, gather_lights, lane_hits, lanes, lerp, offset, put, shade,
+    axis, cosine_sample, frame, gather_lights, lane_hits, lanes, lerp, offset, put, shade,
     surface_points, tangents, Frame8, Lanes, Shaded, SobolLanes, Surface, NO_LIGHT, V, V3,
 };
 use crate::accel::Hit;
@@ -126,7 +126,6 @@ pub(in crate::transport::lanes) fn light_walks(
     walks: Range<u64>,
     film: &mut Film,
 ) -> u64 {
-    let max_depth = walk.max_depth.unwrap_or(u32::MAX);
     let mut w = Walks {
         o: [[0.0; LANES]; 3],
         d: [[0.0; LANES]; 3],
@@ -180,15 +179,7 @@ pub(in crate::transport::lanes) fn light_walks(
             hit |= u32::from(found[i].is_some()) << i;
         }
         let goes_on = if alive & hit != 0 {
-            vertices(
-                world,
-                walk,
-                max_depth,
-                &mut w,
-                &found,
-                alive & hit,
-                &mut rays,
-            )
+            vertices(world, walk, &mut w, &found, alive & hit, &mut rays)
         } else {
             0
         };
@@ -219,8 +210,12 @@ fn begin(world: &World, w: &mut Walks, fresh: u32, rays: &mut u64) -> u32 {
             if let Some(s) = emission_sample_to_camera(world, &es, rays) {
                 w.splats[i].push(s);
             }
-            let walk = LightWalk::new(es.ray(), es.phi, Spectrum::Rgb, Roulette::Albedo, None);
-            w.set(i, &walk);
+            let ray = es.ray();
+            V3::set(&mut w.o, i, ray.o);
+            V3::set(&mut w.d, i, ray.d);
+            V3::set(&mut w.beta, i, es.phi);
+            V3::set(&mut w.emitted, i, es.phi);
+            w.depth[i] = 1;
             left |= 1 << i;
         }
         return left;
@@ -302,8 +297,12 @@ fn project(cam: &Camera, p: V3) -> (V, V, V, V) {
     let (zero, one) = (V::splat(0.0), V::splat(1.0));
     // glam's transform_point3: x, then y added, then z, then w
     let m = &cam.to_camera;
-    let col = |a: glam::Vec4| V3::splat(Vec3::new(a.x, a.y, a.z));
-    let (ax, ay, az, aw) = (col(m.x_axis), col(m.y_axis), col(m.z_axis), col(m.w_axis));
+    let (ax, ay, az, aw) = (
+        axis(m.x_axis),
+        axis(m.y_axis),
+        axis(m.z_axis),
+        axis(m.w_axis),
+    );
     let pc = V3::new(
         aw.x + (az.x * p.z + (ay.x * p.y + ax.x * p.x)),
         aw.y + (az.y * p.z + (ay.y * p.y + ax.y * p.x)),
@@ -331,7 +330,6 @@ fn project(cam: &Camera, p: V3) -> (V, V, V, V) {
 fn vertices(
     world: &World,
     walk: &WalkKind,
-    max_depth: u32,
     w: &mut Walks,
     hits: &[Option<Hit>; LANES],
     mask: u32,
@@ -340,6 +338,7 @@ fn vertices(
     let lh = lane_hits(hits, mask);
     let sp = surface_points(world.tris.records(), &lh);
     // The common case: measured and scattered (depth + 1 below the limit)
+    let max_depth = walk.max_depth.unwrap_or(u32::MAX);
     let mut common = 0u32;
     for i in lanes(mask) {
         common |= u32::from(w.depth[i] + 1 < max_depth) << i;
