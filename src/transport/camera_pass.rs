@@ -61,7 +61,7 @@
 //! sequence ([`SobolSampler`], keyed by (seed, pixel, pass) as `path`'s),
 //! with its own layout: dimensions 0–1 the camera jitter, 2 the lobe and
 //! 3–4 the direction at x₁, then from the vertex at depth 2 on `path`'s
-//! seven per vertex ([`radiance_from`] moves there). An unmarked pixel's
+//! seven per vertex ([`super::radiance_from`] moves there). An unmarked pixel's
 //! coin is drawn from the PCG32 stream either way, so both samplers visit
 //! the same pixels, and an unmarked pixel's samples are the points of the
 //! passes that drew it (unbiased, not stratified).
@@ -71,7 +71,8 @@ use rayon::prelude::*;
 
 use glam::Vec3;
 
-use super::{radiance_from, DepthLimits};
+use super::lanes::{radiance_continued, LaneSampler};
+use super::DepthLimits;
 use crate::bsdf::{Bsdf, Mode};
 use crate::emitter::LightSelection;
 use crate::film::Image;
@@ -299,67 +300,120 @@ dispatched! {
         y: usize,
         row: &mut [DVec3],
     ) -> u64 {
-        let w = row.len();
+        let pixels = Pixels { world, glossy, marked, seed, pass, y };
+        match sampler {
+            SamplerKind::Independent => pixels.sample(limits, row, |_, rng| rng),
+            SamplerKind::Sobol => {
+                pixels.sample(limits, row, |i, _| SobolSampler::new(seed, i, pass))
+            }
+        }
+    }
+}
+
+/// The pixels of one row of a pass.
+struct Pixels<'a> {
+    world: &'a World,
+    glossy: bool,
+    marked: &'a [bool],
+    seed: u64,
+    pass: u64,
+    y: usize,
+}
+
+impl Pixels<'_> {
+    /// One sample for each pixel of the row that draws one, into `row`;
+    /// pixel i's numbers come from `sampler(i, rng)`, `rng` the PCG32
+    /// stream that drew its coin. Every pixel's first vertex is taken
+    /// first ([`first_vertex`]); the paths that go on then run together,
+    /// eight at a time in AVX lanes where the CPU has them
+    /// ([`radiance_continued`], the bits of [`super::radiance_from`]).
+    /// Returns the rays traced.
+    #[inline(always)]
+    fn sample<S: LaneSampler>(
+        &self,
+        limits: &DepthLimits,
+        row: &mut [DVec3],
+        sampler: impl Fn(u64, Pcg32) -> S,
+    ) -> u64 {
+        let (world, w) = (self.world, row.len());
         let mut rays = 0;
+        let mut go: Vec<(S, Ray)> = Vec::with_capacity(w);
+        // Each path's pixel and the factor its radiance is multiplied by
+        let mut scale: Vec<(usize, Rgb, f32)> = Vec::with_capacity(w);
         for (x, acc) in row.iter_mut().enumerate() {
-            let i = y * w + x;
-            let mut rng = Pcg32::keyed(&[seed, pass, i as u64, 0xCA]);
-            let weight = if marked[i] {
+            let i = self.y * w + x;
+            let mut rng = Pcg32::keyed(&[self.seed, self.pass, i as u64, 0xCA]);
+            let weight = if self.marked[i] {
                 1.0
             } else if rng.next_f32() < UNMARKED_PROB {
                 1.0 / UNMARKED_PROB
             } else {
                 continue;
             };
-            let (l, r) = match sampler {
-                SamplerKind::Independent => sample_pixel(world, limits, glossy, x, y, &mut rng),
-                SamplerKind::Sobol => {
-                    let mut s = SobolSampler::new(seed, i as u64, pass);
-                    sample_pixel(world, limits, glossy, x, y, &mut s)
+            let mut s = sampler(i as u64, rng);
+            match first_vertex(world, self.glossy, x, self.y, &mut s) {
+                First::Done(l) => {
+                    rays += 1;
+                    add(acc, l * weight);
                 }
-            };
-            rays += r;
-            let v = l * weight;
-            if v.is_finite() {
-                *acc += v.as_dvec3();
+                First::Next { beta, ray } => {
+                    go.push((s, ray));
+                    scale.push((x, beta, weight));
+                }
             }
         }
+        radiance_continued(world, limits, 2, &mut go, |k, l, r| {
+            let (x, beta, weight) = scale[k];
+            rays += 1 + r;
+            add(&mut row[x], beta * l * weight);
+        });
         rays
     }
 }
 
-/// The camera-pass estimate for one sample of pixel (x, y): the environment
-/// seen directly, or what arrives through a delta lobe at the first hit
-/// (and, with `glossy`, through a glossy BSDF's other lobes, weighted by
-/// [`camera_share`]).
+/// Adds a sample `v` to a pixel's sum, unless it is not finite.
 #[inline(always)]
-fn sample_pixel<S: Sampler>(
-    world: &World,
-    limits: &DepthLimits,
-    glossy: bool,
-    x: usize,
-    y: usize,
-    rng: &mut S,
-) -> (Rgb, u64) {
+fn add(acc: &mut DVec3, v: Rgb) {
+    if v.is_finite() {
+        *acc += v.as_dvec3();
+    }
+}
+
+/// What a camera-pass sample's first vertex leaves.
+enum First {
+    /// The estimate, made (one ray traced).
+    Done(Rgb),
+    /// The path goes on along `ray` (untraced) with throughput `beta`.
+    Next { beta: Rgb, ray: Ray },
+}
+
+/// The first vertex of a camera-pass sample of pixel (x, y): the
+/// environment seen directly, nothing, or the throughput and the next
+/// segment through a delta lobe at the first hit (and, with `glossy`,
+/// through a glossy BSDF's other lobes, weighted by [`camera_share`]);
+/// the estimate is then β times [`super::radiance_from`] that segment at
+/// depth 2.
+#[inline(always)]
+fn first_vertex<S: Sampler>(world: &World, glossy: bool, x: usize, y: usize, rng: &mut S) -> First {
     let j = rng.next_2d();
     let ray = world.camera.ray(x as f32 + j.x, y as f32 + j.y);
     let Some(hit) = world.accel.intersect(&ray) else {
-        return (world.lights.le_env(ray.d), 1);
+        return First::Done(world.lights.le_env(ray.d));
     };
     let v = world.vertex(&ray, &hit);
     let glossy = glossy && v.bsdf.has_glossy();
     if !v.bsdf.has_delta() && !glossy {
-        return (Rgb::ZERO, 1);
+        return First::Done(Rgb::ZERO);
     }
     let uc = rng.next_f32();
     let u = rng.next_2d();
     // Keep delta lobes, and glossy ones with their MIS weight: the rest
     // belongs to the light method
     let Some(s) = v.bsdf.sample(v.wo_local, uc, u, Mode::Radiance) else {
-        return (Rgb::ZERO, 1);
+        return First::Done(Rgb::ZERO);
     };
     if s.pdf <= 0.0 {
-        return (Rgb::ZERO, 1);
+        return First::Done(Rgb::ZERO);
     }
     let share = if s.delta {
         1.0
@@ -369,14 +423,13 @@ fn sample_pixel<S: Sampler>(
         0.0
     };
     if share <= 0.0 {
-        return (Rgb::ZERO, 1);
+        return First::Done(Rgb::ZERO);
     }
     let wi = v.frame.to_world(s.wi);
     if wi.dot(v.ng) * s.wi.z <= 0.0 {
-        return (Rgb::ZERO, 1);
+        return First::Done(Rgb::ZERO);
     }
     let beta = s.f * (s.wi.z.abs() / s.pdf * share);
-    let next = Ray::new(offset_point(v.sp.p, v.sp.ng, wi), wi);
-    let (l, r) = radiance_from(world, limits, next, rng, 2);
-    (beta * l, 1 + r)
+    let ray = Ray::new(offset_point(v.sp.p, v.sp.ng, wi), wi);
+    First::Next { beta, ray }
 }

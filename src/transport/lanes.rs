@@ -24,6 +24,10 @@
 //! operations of `Camera::ray` in their order: in a closure called pixel
 //! by pixel they took 7.9 % of a cbox run, compiled for the baseline CPU.
 //!
+//! [`radiance_continued`] runs the same lanes from paths begun elsewhere
+//! (the camera pass's, after their first vertex), whose first segments the
+//! lanes trace.
+//!
 //! [`light_walks`] does the same for `light --sampler sobol`'s walks: eight
 //! at a time, the emission from triangle lights and the common vertex (a
 //! diffuse BSDF below the depth limit: its camera connection, roulette and
@@ -86,7 +90,7 @@ pub fn radiance_camera_row<S: LaneSampler>(
     if crate::simd::has_v3() && world.lights.triangles_only() {
         let start = avx::CameraRow { camera, y, sampler };
         // SAFETY: the CPU has AVX2 (checked by has_v3)
-        unsafe { avx::radiance_row(world, limits, w, start, finish) };
+        unsafe { avx::radiance_row(world, limits, start, finish) };
         return;
     }
     let start = |x: usize| {
@@ -124,6 +128,34 @@ pub fn radiance_row_packets<S: Sampler>(
             let (l, rays) = radiance_from_hit(world, limits, cam[i], Some(h), rng, 1);
             finish(x0 + i, l, rays);
         }
+    }
+}
+
+/// [`super::radiance_from`] of each of `paths`, whose `depth`-th segments
+/// are `paths[k].1` (a `Ray::new` ray, not yet traced) and whose samplers
+/// drew them: `finish(k, L, rays)` takes path k's answer. Where the CPU
+/// has AVX2 and the scene's lights are all triangles, eight paths run at a
+/// time in the lanes of [`radiance_camera_row`], with the same bits;
+/// elsewhere one by one. The camera pass continues its paths here after
+/// their first vertex.
+#[inline(always)]
+pub fn radiance_continued<S: LaneSampler>(
+    world: &World,
+    limits: &DepthLimits,
+    depth: u32,
+    paths: &mut [(S, Ray)],
+    mut finish: impl FnMut(usize, Rgb, u64),
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::has_v3() && world.lights.triangles_only() {
+        let start = avx::Continued { paths, depth };
+        // SAFETY: the CPU has AVX2 (checked by has_v3)
+        unsafe { avx::radiance_row(world, limits, start, finish) };
+        return;
+    }
+    for (k, (rng, ray)) in paths.iter_mut().enumerate() {
+        let (l, rays) = super::radiance_from(world, limits, *ray, rng, depth);
+        finish(k, l, rays);
     }
 }
 

@@ -376,6 +376,101 @@ fn lanes_give_the_scalar_radiance_bit_for_bit() {
     }
 }
 
+/// Paths begun elsewhere and continued in AVX lanes
+/// ([`kalos::transport::lanes::radiance_continued`], the camera pass's
+/// paths after their first vertex) give what [`radiance_from`] gives one by
+/// one: the same radiance bits and rays, for both samplers, from samplers
+/// that have already drawn (as the camera pass's first vertex draws). The
+/// paths leave the first hits of a grid of camera rays in cosine-sampled
+/// directions; 37 × 37 of them, so chunks of 64 and a last group of fewer
+/// than eight are crossed.
+#[test]
+fn continued_lanes_give_the_scalar_radiance_bit_for_bit() {
+    use kalos::emitter::LightSelection;
+    use kalos::geometry::{offset_point, Ray};
+    use kalos::sampling::{cosine_hemisphere, Sampler, SobolSampler};
+    use kalos::transport::lanes::{radiance_continued, LaneSampler};
+    use kalos::transport::{radiance_from, DepthLimits};
+
+    /// Checks `paths` in lanes against one by one; returns how many
+    /// carried light.
+    fn check<S: LaneSampler>(
+        world: &World,
+        limits: &DepthLimits,
+        paths: &[(S, Ray)],
+        what: &str,
+    ) -> usize {
+        let mut lanes = vec![None; paths.len()];
+        let mut moved = paths.to_vec();
+        radiance_continued(world, limits, 2, &mut moved, |k, l, n| {
+            assert!(lanes[k].is_none(), "{what}: path {k} finished twice");
+            lanes[k] = Some((l.to_array().map(f32::to_bits), n));
+        });
+        let mut lit = 0;
+        for (k, (s, ray)) in paths.iter().enumerate() {
+            let mut s = s.clone();
+            let (l, n) = radiance_from(world, limits, *ray, &mut s, 2);
+            lit += usize::from(l != Rgb::ZERO);
+            let want = Some((l.to_array().map(f32::to_bits), n));
+            assert_eq!(lanes[k], want, "{what}, path {k}");
+        }
+        lit
+    }
+
+    let res = 37;
+    for name in [
+        "glass-mirror/scene.xml",
+        "teapot-room/scene.xml",
+        "two-rooms/glossy-floor.xml",
+    ] {
+        let world = World::new(load(name, res));
+        let limits = DepthLimits {
+            max_depth: None,
+            rr_depth: 3,
+            light_selection: LightSelection::Power,
+        };
+        // The second segments: from each pixel's first hit, a cosine
+        // direction about the normal that faces the camera
+        let mut rays = Vec::new();
+        for k in 0..(res * res) as u64 {
+            let (x, y) = ((k % res as u64) as f32 + 0.5, (k / res as u64) as f32 + 0.5);
+            let ray = world.camera.ray(x, y);
+            let Some(hit) = world.accel.intersect(&ray) else {
+                continue;
+            };
+            let v = world.vertex(&ray, &hit);
+            let mut u = Pcg32::keyed(&[11, k]);
+            let wi = v.frame.to_world(cosine_hemisphere(u.next_2d()));
+            rays.push((k, Ray::new(offset_point(v.sp.p, v.sp.ng, wi), wi)));
+        }
+        assert!(rays.len() > 500, "{name}: {} paths", rays.len());
+        let pcg: Vec<_> = rays
+            .iter()
+            .map(|&(k, r)| {
+                let mut s = Pcg32::keyed(&[5, k]);
+                // the first vertex's draws
+                let _ = (s.next_f32(), s.next_2d());
+                (s, r)
+            })
+            .collect();
+        let sobol: Vec<_> = rays
+            .iter()
+            .map(|&(k, r)| {
+                let mut s = SobolSampler::new(5, k, 3);
+                // the camera pass's draws before its second vertex
+                let _ = (s.next_2d(), s.next_f32(), s.next_2d());
+                (s, r)
+            })
+            .collect();
+        // Some paths must carry light (glass-mirror's small lamp lights
+        // about one in twenty of them)
+        let lit = check(&world, &limits, &pcg, &format!("{name}, independent"));
+        assert!(lit > rays.len() / 50, "{name}: {lit} lit paths");
+        let lit = check(&world, &limits, &sobol, &format!("{name}, sobol"));
+        assert!(lit > rays.len() / 50, "{name}: {lit} lit paths");
+    }
+}
+
 /// Light-tracing walks with Sobol points in AVX lanes
 /// ([`kalos::transport::lanes::light_walks`]) splat what the walks run one
 /// by one ([`kalos::transport::light_tracing_walk`]) splat, in the same

@@ -26,7 +26,7 @@ mod start;
 mod walks;
 
 pub use draw::{Lanes, Rngs, SobolLanes};
-pub(super) use start::CameraRow;
+pub(super) use start::{CameraRow, Continued, Starts};
 pub(super) use walks::light_walks;
 
 // The records are read as sixteen f32 in field order: p (3 × 3), uv
@@ -243,16 +243,17 @@ fn lerp(a: V, b: V, c: V, b0: V, b1: V, b2: V) -> V {
     a * b0 + b * b1 + c * b2
 }
 
-/// Pixels whose camera rays are traced together before their paths run.
+/// Paths whose starts are made together before they run.
 const CHUNK: usize = 8 * LANES;
 
-/// [`super::radiance_camera_row`] with the common case in AVX lanes.
+/// [`super::radiance_camera_row`] and [`super::radiance_continued`] with
+/// the common case in AVX lanes: the paths of `start`, whose answers go to
+/// `finish(k, L, rays)` for path k.
 #[target_feature(enable = "avx2")]
 pub(super) fn radiance_row<S: LaneSampler>(
     world: &World,
     limits: &DepthLimits,
-    w: usize,
-    mut start: CameraRow<'_, impl FnMut(usize) -> S>,
+    mut start: impl Starts<S>,
     mut finish: impl FnMut(usize, Rgb, u64),
 ) {
     let mut paths = Paths {
@@ -268,13 +269,14 @@ pub(super) fn radiance_row<S: LaneSampler>(
         depth: [0; LANES],
         rays: [0; LANES],
     };
+    let (w, depth) = (start.count(), start.depth());
     let mut rngs = S::Lanes::new();
     let mut pixel = [0usize; LANES];
     let mut found = [None; LANES];
     let mut alive = 0u32;
-    // The camera rays of CHUNK pixels at a time are traced up front, in
-    // packets of neighbouring pixels; a lane whose path ended takes the
-    // next pixel of the chunk
+    // The starts of CHUNK paths at a time are made up front (`path`'s
+    // camera rays traced in packets of neighbouring pixels); a lane whose
+    // path ended takes the next path of the chunk
     let mut chunk_rngs: [S; CHUNK] = std::array::from_fn(|_| S::Lanes::blank());
     let mut chunk_rays = [Ray::new(Vec3::ZERO, Vec3::Z); CHUNK];
     let mut chunk_hits = [None; CHUNK];
@@ -285,17 +287,15 @@ pub(super) fn radiance_row<S: LaneSampler>(
             chunk0 = next;
             chunk_n = CHUNK.min(w - next);
             start.starts(
+                world,
                 chunk0,
                 &mut chunk_rngs[..chunk_n],
                 &mut chunk_rays[..chunk_n],
+                &mut chunk_hits[..chunk_n],
             );
-            for (rays, hits) in chunk_rays[..chunk_n]
-                .chunks(LANES)
-                .zip(chunk_hits[..chunk_n].chunks_mut(LANES))
-            {
-                world.accel.intersect_packet(rays, hits);
-            }
         }
+        // Lanes given a path whose first segment is still to be traced
+        let mut fresh = 0u32;
         for i in lanes(!alive & ((1 << LANES) - 1)) {
             if next == chunk0 + chunk_n {
                 break;
@@ -304,14 +304,22 @@ pub(super) fn radiance_row<S: LaneSampler>(
             rngs.set(i, &chunk_rngs[k]);
             pixel[i] = next;
             next += 1;
-            let mut p = CameraPath::new(chunk_rays[k], 1);
+            let mut p = CameraPath::new(chunk_rays[k], depth);
             p.rays = 1;
             paths.set(i, &p);
-            found[i] = chunk_hits[k];
+            match chunk_hits[k] {
+                Some(h) => found[i] = h,
+                None => fresh |= 1 << i,
+            }
             alive |= 1 << i;
         }
         if alive == 0 {
             return;
+        }
+        if fresh != 0 {
+            world
+                .accel
+                .intersect_lanes(&paths.o, &paths.d, fresh, &mut found);
         }
         let mut hit = 0u32;
         for i in lanes(alive) {

@@ -1,8 +1,11 @@
-//! Where the lanes' paths start: each pixel's sampler and camera ray, for a
-//! run of pixels of one row. [`CameraRow`] makes the jitter and the camera
-//! rays of eight pixels at a time in lanes, with the operations of
-//! [`Camera::ray`] in their order, so the rays are the same bits as the
-//! scalar ones. Every `unsafe` block calls an intrinsic on
+//! Where the lanes' paths start ([`Starts`]): each path's sampler, first
+//! segment and, when already traced, that segment's closest hit.
+//! [`CameraRow`] starts `path`'s paths, one per pixel of a row: it makes
+//! the jitter and the camera rays of eight pixels at a time in lanes, with
+//! the operations of [`Camera::ray`] in their order, so the rays are the
+//! same bits as the scalar ones, and traces them in packets.
+//! [`Continued`] starts paths already begun elsewhere (the camera pass's,
+//! after their first vertex). Every `unsafe` block calls an intrinsic on
 //! register values; the functions run only inlined into
 //! [`super::radiance_row`], which is compiled for AVX2 and called where
 //! the CPU has it.
@@ -11,8 +14,31 @@ use std::arch::x86_64::*;
 
 use super::super::{LaneSampler, LANES};
 use super::{axis, Lanes, V, V3};
+use crate::accel::Hit;
 use crate::camera::Camera;
 use crate::geometry::Ray;
+use crate::world::World;
+
+/// The paths [`super::radiance_row`] runs, numbered 0 … `count() − 1`.
+pub(in crate::transport) trait Starts<S> {
+    /// How many paths there are.
+    fn count(&self) -> usize;
+    /// The depth of every path's first segment (1 for a camera ray).
+    fn depth(&self) -> u32;
+    /// Paths `k0 …`: each one's sampler (after what it drew to make its
+    /// first segment) in `rngs[k]`, its first segment in `rays[k]` and, if
+    /// traced here, that segment's closest hit in `hits[k]` (`None`: the
+    /// lanes trace it as `Ray::new(o, d)`, so `rays[k]` must be such a
+    /// ray). The slices have one length.
+    fn starts(
+        &mut self,
+        world: &World,
+        k0: usize,
+        rngs: &mut [S],
+        rays: &mut [Ray],
+        hits: &mut [Option<Option<Hit>>],
+    );
+}
 
 /// The camera's row `y`: pixel x's sampler is `sampler(x)`, whose first
 /// 2D draw (u, v) jitters the camera ray through (x + u, y + v).
@@ -25,6 +51,40 @@ pub(in crate::transport) struct CameraRow<'a, F> {
     pub sampler: F,
 }
 
+/// Path k is pixel k's: the row's camera rays, traced in packets of eight
+/// neighbours ([`crate::accel::Accel::intersect_packet`]).
+impl<S: LaneSampler, F: FnMut(usize) -> S> Starts<S> for CameraRow<'_, F> {
+    #[inline(always)]
+    fn count(&self) -> usize {
+        self.camera.width as usize
+    }
+
+    #[inline(always)]
+    fn depth(&self) -> u32 {
+        1
+    }
+
+    #[inline(always)]
+    fn starts(
+        &mut self,
+        world: &World,
+        k0: usize,
+        rngs: &mut [S],
+        rays: &mut [Ray],
+        hits: &mut [Option<Option<Hit>>],
+    ) {
+        self.camera_rays(k0, rngs, rays);
+        let mut found = [None; LANES];
+        for (rs, hs) in rays.chunks(LANES).zip(hits.chunks_mut(LANES)) {
+            let found = &mut found[..rs.len()];
+            world.accel.intersect_packet(rs, found);
+            for (h, f) in hs.iter_mut().zip(found.iter()) {
+                *h = Some(*f);
+            }
+        }
+    }
+}
+
 impl<F> CameraRow<'_, F> {
     /// Pixel `x0 + k`'s sampler (after the camera ray's draws) and camera
     /// ray, in `rngs[k]` and `rays[k]`, for every k of `rays`. Eight pixels
@@ -32,12 +92,8 @@ impl<F> CameraRow<'_, F> {
     /// jitter's draw and taken out again, then the eight camera rays in
     /// lanes.
     #[inline(always)]
-    pub(in crate::transport) fn starts<S: LaneSampler>(
-        &mut self,
-        x0: usize,
-        rngs: &mut [S],
-        rays: &mut [Ray],
-    ) where
+    fn camera_rays<S: LaneSampler>(&mut self, x0: usize, rngs: &mut [S], rays: &mut [Ray])
+    where
         F: FnMut(usize) -> S,
     {
         let n = rays.len().min(rngs.len());
@@ -72,6 +128,43 @@ impl<F> CameraRow<'_, F> {
                     tmax: f32::INFINITY,
                 };
             }
+        }
+    }
+}
+
+/// Paths begun elsewhere, whose `depth`-th segment is `paths[k].1`, a
+/// `Ray::new` ray not yet traced, with `paths[k].0` the sampler that drew
+/// it: [`crate::transport::radiance_from`]'s paths, with its `depth`.
+pub(in crate::transport) struct Continued<'a, S> {
+    pub paths: &'a [(S, Ray)],
+    pub depth: u32,
+}
+
+impl<S: LaneSampler> Starts<S> for Continued<'_, S> {
+    #[inline(always)]
+    fn count(&self) -> usize {
+        self.paths.len()
+    }
+
+    #[inline(always)]
+    fn depth(&self) -> u32 {
+        self.depth
+    }
+
+    #[inline(always)]
+    fn starts(
+        &mut self,
+        _: &World,
+        k0: usize,
+        rngs: &mut [S],
+        rays: &mut [Ray],
+        hits: &mut [Option<Option<Hit>>],
+    ) {
+        let paths = &self.paths[k0..k0 + rays.len()];
+        for (k, (s, ray)) in paths.iter().enumerate() {
+            rngs[k] = s.clone();
+            rays[k] = *ray;
+            hits[k] = None;
         }
     }
 }
