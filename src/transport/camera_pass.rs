@@ -41,8 +41,11 @@
 //! p, and a constant κ standing for the light side's density of arrivals:
 //! w_C = p² / (p² + κ²). Where the lobe is sharp (p ≫ κ) the camera side
 //! takes the path; over a diffuse base (p ≤ 1/π) the light side keeps most
-//! of it. BSDFs without a glossy lobe ([`Bsdf::has_glossy`]) stay entirely
-//! with the light side.
+//! of it. BSDFs without a glossy lobe ([`Bsdf::has_glossy`]), or whose
+//! lobe is not sharp ([`is_sharp`]: its peak density below κ, where the
+//! camera side would take less than half of even the peak's paths), stay
+//! entirely with the light side: the camera pass would pay a path-traced
+//! sample per pixel and pass for a small share of the image.
 //!
 //! Budget. Scenes with neither delta lobes nor an environment need no camera
 //! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass
@@ -92,16 +95,26 @@ const RR_DEPTH: u32 = 3;
 /// κ of [`camera_share`], per steradian: the BSDF density at which the
 /// camera side and the light side share a glossy path equally.
 const KAPPA: f32 = 1.0;
+/// The least peak density, per steradian, of a glossy lobe the camera pass
+/// takes a share of ([`is_sharp`]): κ, so that at the lobe's peak the
+/// camera side would take at least half of the path. Below it the light
+/// side keeps the whole lobe and the pass does not mark its pixels. The
+/// rough plastics of two-rooms-baffle (α 0.15–0.3 over a bright base) peak
+/// at 0.39–0.71; the polished floor of two-rooms/glossy-floor.xml (α 0.05)
+/// at 2.91. On the baffle their share of the camera pass cost 22 % of
+/// plb's time and brought little: without it, relMSE at equal time fell
+/// to 0.71× (docs/notebook/plb.md, "The camera pass for sharp lobes only").
+const SHARP_PEAK: f32 = KAPPA;
 
 /// The camera side's MIS weight w_C = p² / (p² + κ²) of a path whose first
 /// camera vertex x₁ has BSDF `bsdf` and scatters from `wo` (local, toward
 /// the eye) to `wi` (local, toward x₂) through a non-delta lobe; p is the
 /// BSDF's sampling density of `wi` given `wo`. Zero for BSDFs without a
-/// glossy lobe. The light-based method weights its camera connection by
-/// 1 − w_C (see the module docs).
+/// sharp glossy lobe ([`is_sharp`]). The light-based method weights its
+/// camera connection by 1 − w_C (see the module docs).
 #[inline]
 pub fn camera_share(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
-    if !bsdf.has_glossy() {
+    if !is_sharp(bsdf) {
         return 0.0;
     }
     let p = bsdf.pdf(wo, wi);
@@ -113,6 +126,14 @@ pub fn camera_share(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
         return 1.0;
     }
     p2 / (p2 + KAPPA * KAPPA)
+}
+
+/// Whether `bsdf` has a glossy lobe sharp enough for the camera side:
+/// its sampling density toward the mirror direction at normal incidence,
+/// the lobe's peak, is at least [`SHARP_PEAK`].
+#[inline]
+pub fn is_sharp(bsdf: &Bsdf) -> bool {
+    bsdf.has_glossy() && bsdf.pdf(Vec3::Z, Vec3::Z) >= SHARP_PEAK
 }
 
 /// The camera pass's state: the pixel mask and the per-pixel sums.
@@ -223,7 +244,7 @@ impl CameraPass {
                         Some(hit) => {
                             let sp = world.surface_point(&hit);
                             let b = world.scene.material_of(&sp).bsdf(sp.uv);
-                            b.has_delta() || (glossy && b.has_glossy())
+                            b.has_delta() || (glossy && is_sharp(&b))
                         }
                     }
                 });
@@ -401,7 +422,7 @@ fn first_vertex<S: Sampler>(world: &World, glossy: bool, x: usize, y: usize, rng
         return First::Done(world.lights.le_env(ray.d));
     };
     let v = world.vertex(&ray, &hit);
-    let glossy = glossy && v.bsdf.has_glossy();
+    let glossy = glossy && is_sharp(&v.bsdf);
     if !v.bsdf.has_delta() && !glossy {
         return First::Done(Rgb::ZERO);
     }

@@ -157,3 +157,40 @@ fn camera_pass_costs_nothing_on_cbox() {
     assert_eq!(ra, rb);
     assert_eq!(a, b);
 }
+
+/// The glossy camera pass takes a share only of sharp lobes
+/// ([`kalos::transport::camera_pass::is_sharp`]): where it does, the camera
+/// side takes at least half of the lobe's peak path; elsewhere it takes
+/// none, on any path. The polished floor of two-rooms/glossy-floor.xml is
+/// sharp; the rough plastics of two-rooms-baffle are not, so the baffle's
+/// glossy lobes stay with the light side.
+#[test]
+fn the_glossy_camera_pass_takes_sharp_lobes_only() {
+    use glam::{Vec2, Vec3};
+    use kalos::sampling::{cosine_hemisphere, Pcg32};
+    use kalos::transport::camera_pass::{camera_share, is_sharp};
+    for (name, sharp_wanted) in [
+        ("scenes/two-rooms/glossy-floor.xml", 1),
+        ("scenes/two-rooms-baffle/scene.xml", 0),
+    ] {
+        let scene = scene::load(&root().join(name)).expect("scene");
+        let mut sharp = 0;
+        for m in &scene.materials {
+            let b = m.bsdf(Vec2::ZERO);
+            if is_sharp(&b) {
+                sharp += 1;
+                assert!(camera_share(&b, Vec3::Z, Vec3::Z) >= 0.5, "{name}: {b:?}");
+                continue;
+            }
+            let mut rng = Pcg32::keyed(&[9]);
+            for _ in 0..200 {
+                let (wo, wi) = (
+                    cosine_hemisphere(rng.next_2d()),
+                    cosine_hemisphere(rng.next_2d()),
+                );
+                assert_eq!(camera_share(&b, wo, wi), 0.0, "{name}: {b:?}");
+            }
+        }
+        assert_eq!(sharp, sharp_wanted, "{name}: sharp glossy materials");
+    }
+}
