@@ -83,8 +83,9 @@
 //!     camera contribution of each new hit at the power Φ of the ray that
 //!     made it. Each step's new hit has expected power T(Le + L_{m−1}), so
 //!     this has the phase images' expectation without the purge's noise;
-//!   - the camera pass takes glossy first vertices too, sharing them with
-//!     the light paths by MIS ([`crate::transport::camera_pass`]);
+//!   - the camera pass takes glossy first vertices too, sharing the sharp
+//!     lobes (peak density at least κ) with the light paths by MIS
+//!     ([`crate::transport::camera_pass`]);
 //!   - plain light-tracing walks run beside the population (`--mix`, on
 //!     by default) and the two images are combined by their variances
 //!     measured across lanes, each pass's work going mostly to the one
@@ -165,8 +166,8 @@ pub struct Settings {
     pub discard: u64,
     /// The camera pass, which estimates from the camera what light paths
     /// cannot reach (delta surfaces seen by the camera, the environment)
-    /// and, with `--variant guided`, shares glossy surfaces seen by the
-    /// camera with the light paths by MIS: on, or off for the raw method.
+    /// and, with `--variant guided`, shares sharp glossy surfaces seen by
+    /// the camera with the light paths by MIS: on, or off for the raw method.
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     pub camera_pass: bool,
     /// Which form of the method: the paper's (§3, eqs. 8–9, measured at
