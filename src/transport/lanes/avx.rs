@@ -26,7 +26,7 @@ mod start;
 mod walks;
 
 pub use draw::{Lanes, Rngs, SobolLanes};
-pub(super) use start::{CameraRow, Continued, Starts};
+pub(super) use start::{CameraRow, Chunk, Continued, Starts};
 pub(super) use walks::light_walks;
 
 // The records are read as sixteen f32 in field order: p (3 × 3), uv
@@ -286,13 +286,12 @@ pub(super) fn radiance_row<S: LaneSampler>(
         if next == chunk0 + chunk_n && next < w {
             chunk0 = next;
             chunk_n = CHUNK.min(w - next);
-            start.starts(
-                world,
-                chunk0,
-                &mut chunk_rngs[..chunk_n],
-                &mut chunk_rays[..chunk_n],
-                &mut chunk_hits[..chunk_n],
-            );
+            let out = Chunk {
+                rngs: &mut chunk_rngs[..chunk_n],
+                rays: &mut chunk_rays[..chunk_n],
+                hits: &mut chunk_hits[..chunk_n],
+            };
+            start.starts(world, chunk0, out);
         }
         // Lanes given a path whose first segment is still to be traced
         let mut fresh = 0u32;

@@ -25,19 +25,19 @@ pub(in crate::transport) trait Starts<S> {
     fn count(&self) -> usize;
     /// The depth of every path's first segment (1 for a camera ray).
     fn depth(&self) -> u32;
-    /// Paths `k0 …`: each one's sampler (after what it drew to make its
-    /// first segment) in `rngs[k]`, its first segment in `rays[k]` and, if
-    /// traced here, that segment's closest hit in `hits[k]` (`None`: the
-    /// lanes trace it as `Ray::new(o, d)`, so `rays[k]` must be such a
-    /// ray). The slices have one length.
-    fn starts(
-        &mut self,
-        world: &World,
-        k0: usize,
-        rngs: &mut [S],
-        rays: &mut [Ray],
-        hits: &mut [Option<Option<Hit>>],
-    );
+    /// Paths `k0 …`, as many as `out` holds, into `out`.
+    fn starts(&mut self, world: &World, k0: usize, out: Chunk<'_, S>);
+}
+
+/// Where [`Starts::starts`] puts paths k0 + k: each one's sampler (after
+/// what it drew to make its first segment) in `rngs[k]`, its first segment
+/// in `rays[k]` and, if traced there, that segment's closest hit in
+/// `hits[k]` (`None`: the lanes trace it as `Ray::new(o, d)`, so `rays[k]`
+/// must be such a ray). The slices have one length.
+pub(in crate::transport) struct Chunk<'a, S> {
+    pub rngs: &'a mut [S],
+    pub rays: &'a mut [Ray],
+    pub hits: &'a mut [Option<Option<Hit>>],
 }
 
 /// The camera's row `y`: pixel x's sampler is `sampler(x)`, whose first
@@ -65,17 +65,10 @@ impl<S: LaneSampler, F: FnMut(usize) -> S> Starts<S> for CameraRow<'_, F> {
     }
 
     #[inline(always)]
-    fn starts(
-        &mut self,
-        world: &World,
-        k0: usize,
-        rngs: &mut [S],
-        rays: &mut [Ray],
-        hits: &mut [Option<Option<Hit>>],
-    ) {
-        self.camera_rays(k0, rngs, rays);
+    fn starts(&mut self, world: &World, k0: usize, out: Chunk<'_, S>) {
+        self.camera_rays(k0, out.rngs, out.rays);
         let mut found = [None; LANES];
-        for (rs, hs) in rays.chunks(LANES).zip(hits.chunks_mut(LANES)) {
+        for (rs, hs) in out.rays.chunks(LANES).zip(out.hits.chunks_mut(LANES)) {
             let found = &mut found[..rs.len()];
             world.accel.intersect_packet(rs, found);
             for (h, f) in hs.iter_mut().zip(found.iter()) {
@@ -152,19 +145,12 @@ impl<S: LaneSampler> Starts<S> for Continued<'_, S> {
     }
 
     #[inline(always)]
-    fn starts(
-        &mut self,
-        _: &World,
-        k0: usize,
-        rngs: &mut [S],
-        rays: &mut [Ray],
-        hits: &mut [Option<Option<Hit>>],
-    ) {
-        let paths = &self.paths[k0..k0 + rays.len()];
+    fn starts(&mut self, _: &World, k0: usize, out: Chunk<'_, S>) {
+        let paths = &self.paths[k0..k0 + out.rays.len()];
         for (k, (s, ray)) in paths.iter().enumerate() {
-            rngs[k] = s.clone();
-            rays[k] = *ray;
-            hits[k] = None;
+            out.rngs[k] = s.clone();
+            out.rays[k] = *ray;
+            out.hits[k] = None;
         }
     }
 }
