@@ -310,6 +310,55 @@ impl Material {
         }
     }
 
+    /// True when the material is the same BSDF at every surface point:
+    /// every texture it reads is a constant. False for glTF's textured
+    /// materials and anything else not known to be uniform.
+    pub fn is_uniform(&self) -> bool {
+        let c = |t: &Texture| matches!(t, Texture::Constant(_));
+        match self.base() {
+            Material::Diffuse { reflectance } => c(reflectance),
+            Material::Conductor {
+                specular_reflectance,
+                ..
+            }
+            | Material::RoughConductor {
+                specular_reflectance,
+                ..
+            } => c(specular_reflectance),
+            Material::Phong {
+                diffuse_reflectance,
+                specular_reflectance,
+                ..
+            }
+            | Material::Plastic {
+                diffuse_reflectance,
+                specular_reflectance,
+                ..
+            }
+            | Material::RoughPlastic {
+                diffuse_reflectance,
+                specular_reflectance,
+                ..
+            } => c(diffuse_reflectance) && c(specular_reflectance),
+            Material::Dielectric {
+                specular_reflectance,
+                specular_transmittance,
+                ..
+            }
+            | Material::RoughDielectric {
+                specular_reflectance,
+                specular_transmittance,
+                ..
+            }
+            | Material::ThinDielectric {
+                specular_reflectance,
+                specular_transmittance,
+                ..
+            } => c(specular_reflectance) && c(specular_transmittance),
+            _ => false,
+        }
+    }
+
     /// The texture of the material's diffuse (Lambertian) part: a diffuse
     /// material's reflectance, a plastic's or Phong's diffuse base; None for
     /// metals and glass, which have none.

@@ -47,8 +47,9 @@
 //! entirely with the light side: the camera pass would pay a path-traced
 //! sample per pixel and pass for a small share of the image.
 //!
-//! Budget. Scenes with neither delta lobes nor an environment need no camera
-//! pass at all, and get none (cbox costs nothing). Otherwise a pre-pass
+//! Budget. Scenes with neither delta lobes nor an environment (nor, glossy,
+//! sharp lobes) need no camera pass at all, and get none (cbox and
+//! two-rooms-baffle cost nothing). Otherwise a pre-pass
 //! ([`CameraPass::prepare`], run by the methods' `prepare`, so inside the
 //! driver's clock and with its rays counted) of up to 4×4 stratified primary
 //! rays per pixel marks the pixels whose first hit has a delta lobe or that
@@ -159,7 +160,8 @@ impl CameraPass {
     /// nothing until [`CameraPass::prepare`]. `enabled = false`
     /// (`--camera-pass off`) gives the raw light-based method; so does a
     /// scene with neither delta lobes nor an environment (nor, with
-    /// `glossy`, glossy lobes). With `glossy` the method's camera
+    /// `glossy`, sharp glossy lobes, [`is_sharp`], or glossy materials that
+    /// vary over their surface and so may be sharp somewhere). With `glossy` the method's camera
     /// connections must be weighted by 1 − [`camera_share`]
     /// ([`CameraPass::splits_glossy`]). `sampler` chooses the numbers the
     /// samples draw (see the module docs).
@@ -171,10 +173,13 @@ impl CameraPass {
         max_depth: Option<u32>,
         sampler: SamplerKind,
     ) -> Self {
+        // A glossy lobe is needed where it is sharp, or may be somewhere
+        // (a material that varies over its surface)
         let needed = world.lights.env.is_some()
             || world.scene.materials.iter().any(|m| {
                 let b = m.bsdf(glam::Vec2::ZERO);
-                b.has_delta() || (glossy && b.has_glossy())
+                let sharp = is_sharp(&b) || (b.has_glossy() && !m.is_uniform());
+                b.has_delta() || (glossy && sharp)
             });
         let active = enabled && needed;
         CameraPass {

@@ -192,5 +192,15 @@ fn the_glossy_camera_pass_takes_sharp_lobes_only() {
             }
         }
         assert_eq!(sharp, sharp_wanted, "{name}: sharp glossy materials");
+        // Materials without textures: the pass runs only where a lobe is
+        // sharp (or delta, or the environment is seen)
+        assert!(scene.materials.iter().all(|m| m.is_uniform()), "{name}");
+        let world = World::new(scene);
+        let pass = CameraPass::new(&world, true, true, 1, None, SamplerKind::Sobol);
+        assert_eq!(
+            pass.is_active(),
+            sharp_wanted > 0,
+            "{name}: camera pass active"
+        );
     }
 }
