@@ -22,8 +22,10 @@
 //!   improves as it runs) and its variance stays measured. Work is counted
 //!   in rays, a plb ray as [`PLB_RAY_COST`] walk rays (callgrind: 1591
 //!   against 818 instructions per ray on cbox, 2737 against 1296 on
-//!   two-rooms-baffle), so that the split, like everything else, depends on
-//!   the seed only, never on the machine's load.
+//!   two-rooms-baffle; with the walks in AVX lanes, 39b6393, about 1490
+//!   against 720 on cbox and 3050 against 1170 on the baffle), so that the
+//!   split, like everything else, depends on the seed only, never on the
+//!   machine's load.
 //! - *The size of a pass* stays that of a pass of plb alone: plb's share
 //!   is paid in whole phases, one every few passes when its share is
 //!   small, and the walks fill the rest. A pass sized by plb's least work
