@@ -102,9 +102,11 @@ const KAPPA: f32 = 1.0;
 /// side keeps the whole lobe and the pass does not mark its pixels. The
 /// rough plastics of two-rooms-baffle (α 0.15–0.3 over a bright base) peak
 /// at 0.39–0.71; the polished floor of two-rooms/glossy-floor.xml (α 0.05)
-/// at 2.91. On the baffle their share of the camera pass cost 22 % of
-/// plb's time and brought little: without it, relMSE at equal time fell
-/// to 0.71× (docs/notebook/plb.md, "The camera pass for sharp lobes only").
+/// at 2.91. On the baffle their share of the camera pass cost about a
+/// quarter of plb's passes at equal time (1,776 against 2,378 in 20 s with
+/// `--camera-pass off`) and brought little: without it, relMSE at equal
+/// time, less the reference's noise, fell to 0.71× (docs/notebook/plb.md, "The camera pass in lanes, and for
+/// sharp lobes only").
 const SHARP_PEAK: f32 = KAPPA;
 
 /// The camera side's MIS weight w_C = p² / (p² + κ²) of a path whose first
@@ -118,6 +120,13 @@ pub fn camera_share(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
     if !is_sharp(bsdf) {
         return 0.0;
     }
+    sharp_share(bsdf, wo, wi)
+}
+
+/// [`camera_share`] of a BSDF already known to be sharp ([`is_sharp`]),
+/// without judging it again.
+#[inline]
+fn sharp_share(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
     let p = bsdf.pdf(wo, wi);
     if p.is_nan() || p <= 0.0 {
         return 0.0;
@@ -131,7 +140,8 @@ pub fn camera_share(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
 
 /// Whether `bsdf` has a glossy lobe sharp enough for the camera side:
 /// its sampling density toward the mirror direction at normal incidence,
-/// the lobe's peak, is at least [`SHARP_PEAK`].
+/// the lobe's peak, is at least κ, the MIS constant of [`camera_share`]
+/// (`SHARP_PEAK`).
 #[inline]
 pub fn is_sharp(bsdf: &Bsdf) -> bool {
     bsdf.has_glossy() && bsdf.pdf(Vec3::Z, Vec3::Z) >= SHARP_PEAK
@@ -444,7 +454,7 @@ fn first_vertex<S: Sampler>(world: &World, glossy: bool, x: usize, y: usize, rng
     let share = if s.delta {
         1.0
     } else if glossy {
-        camera_share(&v.bsdf, v.wo_local, s.wi)
+        sharp_share(&v.bsdf, v.wo_local, s.wi)
     } else {
         0.0
     };

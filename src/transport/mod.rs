@@ -16,7 +16,7 @@
 //!   first surface that can be measured, with a named depth limit
 //!   ([`DELTA_CHAIN_DEPTH_LIMIT`]).
 //! - [`light_walk`]: the one light-path walk (Russian roulette on the
-//!   albedo), with a per-vertex hook; `light`, `density` and the diagnostics
+//!   albedo or the throughput, [`Roulette`]), with a per-vertex hook; `light`, `density` and the diagnostics
 //!   put their own measurement in the hook. [`LightWalk::step`] is its loop
 //!   body, for the lanes.
 //! - [`direct_light`], [`shadow_clear`]: next-event estimation alone (one
@@ -27,7 +27,8 @@
 //!   time, bounce by bounce, the common vertex shaded in AVX lanes and the
 //!   rest by the same step ([`CameraPath::scatter`]) lane by lane; and
 //!   eight of `light`'s Sobol walks at a time, likewise
-//!   ([`lanes::light_walks`]).
+//!   ([`lanes::light_walks`]); and the camera pass's paths after their
+//!   first vertex ([`lanes::radiance_continued`]).
 //! - [`camera_pass`]: the part of path space that light paths cannot reach,
 //!   estimated from the camera for `light` and `plb`.
 //!
