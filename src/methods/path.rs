@@ -183,7 +183,7 @@ impl Method for PathTracer {
                 if !shard.owns(y as u64) {
                     return 0;
                 }
-                render_row(world, settings, seed, pass, y, row)
+                render_row(world, settings, seed, pass, y, row, None)
             })
             .sum();
         self.passes += 1;
@@ -224,15 +224,19 @@ impl Method for PathTracer {
 dispatched! {
     /// Adds one sample to each pixel of row `y` (`row` holds its sums);
     /// returns the rays traced. The per-pass loop that runtime dispatch
-    /// compiles for x86-64-v3 ([`crate::transport::dispatch`]).
-    fn render_row(
+    /// compiles for x86-64-v3 ([`crate::transport::dispatch`]). plb's
+    /// mixture runs it too (`plb::mix`), with `squares` to receive each
+    /// sample's square.
+    pub(crate) fn render_row(
         world: &World,
         settings: &Settings,
         seed: u64,
         pass: u64,
         y: usize,
         row: &mut [DVec3],
+        squares: Option<&mut [DVec3]>,
     ) -> u64 {
+        let mut squares = squares;
         let w = row.len();
         crate::film::prefetch_row(row);
         let mut rays = 0u64;
@@ -240,7 +244,11 @@ dispatched! {
         let mut finish = |x: usize, l: Rgb, n: u64| {
             rays += n;
             if l.is_finite() {
-                row[x] += l.as_dvec3();
+                let v = l.as_dvec3();
+                row[x] += v;
+                if let Some(q) = squares.as_deref_mut() {
+                    q[x] += v * v;
+                }
             }
         };
         // Each pixel with its own numbers, keyed by (seed, pass, pixel)

@@ -282,6 +282,16 @@ fn plb_is_deterministic_per_seed() {
     let e = common::render(&scene, &alone, 7, 1).0;
     assert_ne!(a.data, e.data);
     assert_eq!(e.data, common::render(&scene, &alone, 7, 1).0.data);
+    // The mixture without `path` beside it (cbox needs no camera pass, so
+    // the default runs it)
+    let no_path = common::plb(plb::Settings {
+        mix_path: false,
+        ..Default::default()
+    });
+    let f = common::render(&scene, &no_path, 7, 1).0;
+    assert_ne!(a.data, f.data);
+    assert_ne!(e.data, f.data);
+    assert_eq!(f.data, common::render(&scene, &no_path, 7, 1).0.data);
     let world = kalos::methods::World::new(scene);
     let err = bad
         .create(&world, &Default::default())

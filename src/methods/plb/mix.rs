@@ -1,4 +1,5 @@
-//! The mixture with plain light tracing (`--mix on`, guided only).
+//! The mixture with plain light tracing (`--mix on`, guided only), and
+//! with `path` (`--mix-path on`).
 //!
 //! Where light reaches the camera easily (a Cornell box), the population
 //! adds little per ray and each of plb's rays costs about twice a light
@@ -49,15 +50,29 @@
 //!   (docs/notebook/plb.md). `--sampler independent` draws PCG32 streams
 //!   per (seed, pass, lane), one walk after another, as before.
 //!
-//! Both estimates are unbiased; the combined one has a bias of the order of
+//! - *`path` beside them* (`--mix-path`, on by default), where the light
+//!   paths estimate the whole image (the scene needs no camera pass): a
+//!   third estimate, `path`'s own samples, measured by each pixel's spread
+//!   of its samples ([`PathArm`]) and combined with the light paths'
+//!   combination by the same rule, tile by tile. When it has the least
+//!   variance per unit of work it gets all of each pass but a floor for
+//!   each of the other two; when not, no work at all: it learns nothing as
+//!   it runs, so its first measurement stands. Its first two samples are
+//!   run before it is measured, within [`FIRST_SAMPLES`] of the work. On
+//!   cbox it wins (next-event estimation finds the light at every vertex),
+//!   and plb there goes from light's error to about `path`'s; on the
+//!   baffle it loses by some forty times and costs its first two samples
+//!   (docs/notebook/plb.md, "`path` in the mixture").
+//!
+//! The estimates are unbiased; the combined one has a bias of the order of
 //! the weights' own noise times the correlation between a pixel and the
-//! weights, which pool all pixels, far below the noise.
+//! weights, which pool a tile's pixels, far below the noise.
 
 use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::film::{Film, Image};
-use crate::methods::World;
+use crate::methods::{path, World};
 use crate::sampling::{Pcg32, SamplerKind};
 use crate::simd::dispatched;
 use crate::transport::{lanes, light_tracing_walk, WalkKind};
@@ -79,6 +94,94 @@ const TILE: u32 = 16;
 /// What one plb ray costs, in light-tracing walk rays.
 const PLB_RAY_COST: f64 = 2.0;
 
+/// The most of the work that the path arm's first two samples take, while
+/// it has no share (it is not measured yet): they run in the first passes
+/// unless the image is large against a pass's work. On the baffle they are
+/// 0.36 M rays, 1.8 % of a 20 M-ray render.
+const FIRST_SAMPLES: f64 = 0.1;
+
+/// What one ray of the path arm costs, in light-tracing walk rays.
+/// Callgrind, whole runs at two budgets, the difference over the rays'
+/// difference (128 × 96, one thread): `path` 680 instructions a ray
+/// against `light`'s 706 on cbox, 835 against 1130 on two-rooms-baffle
+/// (docs/notebook/plb.md, "`path` in the mixture").
+const PATH_RAY_COST: f64 = 1.0;
+
+/// `path`'s estimator beside the light paths (`--mix-path`): its samples
+/// (one per pixel a sample, the whole image; sample k is Sobol point k of
+/// the pixel) and their squares, per pixel, so that its variance is the
+/// samples' spread in each pixel. This needs two samples, where the lanes'
+/// spread of the other two estimates would need eight: on the baffle eight
+/// samples per pixel are 1.4 M rays, 7 % of a 20 M-ray render. The spread
+/// treats a pixel's samples as independent; Sobol points do better than
+/// that (about 2× on cbox at 64 samples), so it overstates the arm's
+/// variance, which errs toward the light paths.
+#[derive(Clone, Debug)]
+pub(super) struct PathArm {
+    /// Sums of the samples and of their squares, per pixel.
+    pub(super) film: Film,
+    squares: Vec<DVec3>,
+    /// Samples per pixel so far.
+    pub(super) samples: u64,
+    /// Rays traced.
+    pub(super) rays: u64,
+    /// Work owed to the arm and not yet run, in walk rays (its first
+    /// samples run whatever is owed, and are not charged).
+    credit: f64,
+    /// `path`'s settings: the render's seed, depth and sampler.
+    settings: path::Settings,
+}
+
+impl PathArm {
+    pub(super) fn new(w: u32, h: u32, settings: path::Settings) -> Self {
+        PathArm {
+            film: Film::new(w, h),
+            squares: vec![DVec3::ZERO; w as usize * h as usize],
+            samples: 0,
+            rays: 0,
+            credit: 0.0,
+            settings,
+        }
+    }
+
+    /// Whether each pixel has the two samples that its spread needs.
+    pub(super) fn measurable(&self) -> bool {
+        self.samples >= 2
+    }
+
+    /// Runs `n` samples per pixel, the rows of a sample in parallel
+    /// (`path`'s own loop, [`path::render_row`]); returns the rays traced.
+    pub(super) fn run(&mut self, world: &World, n: u64) -> u64 {
+        let w = world.camera.width as usize;
+        let mut rays = 0;
+        for _ in 0..n {
+            let (k, settings) = (self.samples, &self.settings);
+            rays += self
+                .film
+                .sum
+                .par_chunks_mut(w)
+                .zip(self.squares.par_chunks_mut(w))
+                .enumerate()
+                .map(|(y, (row, sq))| {
+                    path::render_row(world, settings, settings.seed, k, y, row, Some(sq))
+                })
+                .sum::<u64>();
+            self.samples += 1;
+        }
+        self.rays += rays;
+        rays
+    }
+
+    /// The variance of pixel `j`'s mean, per channel: the samples' spread
+    /// over n − 1, divided by n (n ≥ 2).
+    #[inline]
+    fn variance(&self, j: usize) -> DVec3 {
+        let n = self.samples as f64;
+        let s = self.film.sum[j];
+        ((self.squares[j] - s * s / n) / ((n - 1.0) * n)).max(DVec3::ZERO)
+    }
+}
+
 /// The walks beside plb, and what the split has learnt.
 #[derive(Clone, Debug)]
 pub(super) struct Mix {
@@ -93,15 +196,22 @@ pub(super) struct Mix {
     pub(super) plb_steps: u64,
     /// The walks' share of the next pass's work.
     pub(super) share: f64,
+    /// The path arm's share (0 without it); plb's is what is left.
+    path_share: f64,
+    /// `path`'s estimator beside them (`--mix-path`), where the light
+    /// paths estimate the whole image.
+    pub(super) path: Option<PathArm>,
     /// plb's steps per lane owed and not yet run (less than a phase, or
     /// negative after its first pass, which runs a phase whatever it owes).
     credit: f64,
     /// The relative variances of the two estimates (plb, walks), as last
     /// measured; 0 until measured.
     pub(super) var: (f64, f64),
+    /// The path arm's, 0 until measured.
+    pub(super) var_path: f64,
     /// The same per tile of [`TILE`]² pixels (sums over the tile's pixels
-    /// and channels, in the same units).
-    tiles: Vec<(f64, f64)>,
+    /// and channels, in the same units): plb, walks, path.
+    tiles: Vec<(f64, f64, f64)>,
     /// plb's variance per unit of work in its recent passes (a moving
     /// average over passes), 0 until measured: plb learns as it runs, so
     /// its whole image, early passes included, would understate what its
@@ -115,7 +225,9 @@ pub(super) struct Mix {
 }
 
 impl Mix {
-    pub(super) fn new(w: u32, h: u32) -> Self {
+    /// The mixture for a `w` × `h` image, with `path`'s estimator beside
+    /// it when `path` holds its settings.
+    pub(super) fn new(w: u32, h: u32, path: Option<path::Settings>) -> Self {
         Mix {
             films: (0..LANES).map(|_| Film::new(w, h)).collect(),
             walks_per_lane: 0,
@@ -123,8 +235,11 @@ impl Mix {
             plb_rays: 0,
             plb_steps: 0,
             share: 0.5,
+            path_share: 0.0,
+            path: path.map(|p| PathArm::new(w, h, p)),
             credit: 0.0,
             var: (0.0, 0.0),
+            var_path: 0.0,
             tiles: Vec::new(),
             recent: 0.0,
             since: 0,
@@ -140,7 +255,7 @@ impl Mix {
     /// pass runs a phase, so that plb is measured from the start.
     pub(super) fn plb_steps_per_lane(&mut self, full: u64, phase: u64) -> u64 {
         let phase = phase.max(1);
-        self.credit += full as f64 * (1.0 - self.share);
+        self.credit += full as f64 * (1.0 - self.share - self.path_share);
         let mut n = (self.credit / phase as f64).floor().max(0.0) as u64 * phase;
         if self.plb_steps == 0 {
             n = n.max(phase);
@@ -153,23 +268,59 @@ impl Mix {
     /// `full_steps` plb steps (over all lanes): the walks' share of it, at
     /// the rays per step and per walk measured so far.
     pub(super) fn walks_per_lane_for(&self, full_steps: u64) -> u64 {
-        let per_step = if self.plb_steps > 0 {
-            self.plb_rays as f64 / self.plb_steps as f64
-        } else {
-            2.0
-        };
         let per_walk = if self.walks_per_lane > 0 {
             (self.walk_rays as f64 / (self.walks_per_lane * LANES as u64) as f64).max(1.0)
         } else {
             4.0
         };
-        let pass_work = full_steps as f64 * per_step * PLB_RAY_COST;
-        let walks = pass_work * self.share / per_walk;
+        let walks = self.pass_work(full_steps) * self.share / per_walk;
         (walks / LANES as f64).ceil().max(1.0) as u64
     }
 
+    /// The work of a pass of `full_steps` plb steps (over all lanes), in
+    /// walk rays, at the rays per step measured so far.
+    fn pass_work(&self, full_steps: u64) -> f64 {
+        let per_step = if self.plb_steps > 0 {
+            self.plb_rays as f64 / self.plb_steps as f64
+        } else {
+            2.0
+        };
+        full_steps as f64 * per_step * PLB_RAY_COST
+    }
+
+    /// The path arm's samples per pixel for the next pass, whose whole
+    /// work is that of `full_steps` plb steps: its share of the work
+    /// accrues and is paid in whole samples, at the rays per sample
+    /// measured so far. Until every lane has a sample to measure, a pass
+    /// runs one whenever the arm's work so far is at most
+    /// [`FIRST_SAMPLES`] of all the work. 0 without the arm.
+    pub(super) fn path_samples_for(&mut self, full_steps: u64, pixels: u64) -> u64 {
+        let work = self.pass_work(full_steps) * self.path_share;
+        let Some(arm) = self.path.as_mut() else {
+            return 0;
+        };
+        let per_sample = if arm.samples > 0 {
+            arm.rays as f64 / arm.samples as f64
+        } else {
+            4.0 * pixels as f64
+        }
+        .max(1.0)
+            * PATH_RAY_COST;
+        arm.credit += work;
+        let owed = (arm.credit / per_sample).floor().max(0.0) as u64;
+        arm.credit -= owed as f64 * per_sample;
+        // Until every lane has a sample, one more whenever the arm's work
+        // is below its cap of all the work so far
+        let mine = arm.rays as f64 * PATH_RAY_COST;
+        let all = mine + self.walk_rays as f64 + self.plb_rays as f64 * PLB_RAY_COST;
+        let first = !arm.measurable() && mine <= FIRST_SAMPLES * all;
+        owed.max(u64::from(first))
+    }
+
     /// Combines plb's image `img` (the lights' paths, without the camera
-    /// pass) with the walks' image, tile by tile.
+    /// pass) with the walks' image, tile by tile, and that with the path
+    /// arm's image when there is one (the light paths' combined variance
+    /// against the arm's).
     pub(super) fn combine(&self, img: &mut Image) {
         let (w, h) = (self.films[0].width, self.films[0].height);
         let mut total = Film::new(w, h);
@@ -183,26 +334,65 @@ impl Mix {
         // tile that one estimate barely reached does not get all the weight
         let nt = self.tiles.len().max(1) as f64;
         let (gp, gw) = (self.var.0, self.var.1);
-        let (mp, mw) = if self.tiles.is_empty() {
-            (0.0, 0.0)
+        let (mp, mw, mc) = if self.tiles.is_empty() {
+            (0.0, 0.0, 0.0)
         } else {
-            let (sp, sw) = self
+            let (sp, sw, sc) = self
                 .tiles
                 .iter()
-                .fold((0.0, 0.0), |(a, b), t| (a + t.0, b + t.1));
-            (sp / nt, sw / nt)
+                .fold((0.0, 0.0, 0.0), |(a, b, c), t| (a + t.0, b + t.1, c + t.2));
+            (sp / nt, sw / nt, sc / nt)
         };
+        let path = self
+            .path
+            .as_ref()
+            .filter(|a| a.samples > 0)
+            .map(|a| a.film.mean(a.samples));
+        let path_global = self.path_weight();
+        let measured = gp > 0.0 && gw > 0.0 && mp + mw > 0.0;
         for (i, (p, q)) in img.data.iter_mut().zip(&walks.data).enumerate() {
             let (x, y) = (i as u32 % w, i as u32 / w);
             let t = (y / TILE * tiles_x + x / TILE) as usize;
-            let k = match self.tiles.get(t) {
-                Some(&(vp, vw)) if gp > 0.0 && gw > 0.0 && mp + mw > 0.0 => {
-                    (vp + mp) / (vp + vw + mp + mw)
-                }
-                _ => global,
+            let tile = self.tiles.get(t).filter(|_| measured);
+            let k = match tile {
+                Some(&(vp, vw, _)) => (vp + mp) / (vp + vw + mp + mw),
+                None => global,
             } as f32;
             if k > 0.0 {
                 *p = *p * (1.0 - k) + *q * k;
+            }
+            if let Some(c) = &path {
+                let kc = match tile {
+                    Some(&(vp, vw, vc)) if self.var_path > 0.0 => {
+                        // The variance of the light paths' combination
+                        let vl = (vp + mp) * (vw + mw) / (vp + vw + mp + mw);
+                        vl / (vl + vc + mc)
+                    }
+                    _ => path_global,
+                } as f32;
+                *p = *p * (1.0 - kc) + c.data[i] * kc;
+            }
+        }
+    }
+
+    /// The path arm's weight over the whole image: the light paths'
+    /// combined variance against the arm's, or the arm's share of the work
+    /// while a variance is unknown; 0 without the arm.
+    fn path_weight(&self) -> f64 {
+        let Some(arm) = &self.path else {
+            return 0.0;
+        };
+        let (vp, vw, vc) = (self.var.0, self.var.1, self.var_path);
+        if vp > 0.0 && vw > 0.0 && vc > 0.0 && (vp + vw + vc).is_finite() {
+            let vl = vp * vw / (vp + vw);
+            vl / (vl + vc)
+        } else {
+            let wc = arm.rays as f64 * PATH_RAY_COST;
+            let all = wc + self.walk_rays as f64 + self.plb_rays as f64 * PLB_RAY_COST;
+            if all > 0.0 {
+                wc / all
+            } else {
+                0.0
             }
         }
     }
@@ -275,11 +465,14 @@ impl Mix {
                 row.push(cut);
             }
         }
+        // The path arm, once its pixels have two samples each
+        let arm = self.path.as_ref().filter(|a| a.measurable());
         let input = MeasureInput {
             plb,
             scales: &scales,
             walks: &self.films,
             walk_scale: inv(nw),
+            path: arm,
             width,
             tiles_x,
         };
@@ -288,12 +481,13 @@ impl Mix {
             .enumerate()
             .map(|(r, mut prev)| measure_tile_row(&input, r * chunk, &mut prev))
             .collect();
-        let (mut vp, mut vw, mut vd) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut vp, mut vw, mut vd, mut vc) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         self.tiles.clear();
         for part in parts {
             vp += part.vp;
             vw += part.vw;
             vd += part.vd;
+            vc += part.vc;
             self.tiles.extend(part.tiles);
         }
         for ((_, pa, _, pb), (_, a, _, b)) in self.prev.iter_mut().zip(plb) {
@@ -306,8 +500,10 @@ impl Mix {
         let lanes_p = norm / (lp * (lp - 1.0));
         let lanes_w = norm / (lw * (lw - 1.0));
         self.var = (vp * lanes_p, vw * lanes_w);
+        // The path arm's are the variances of its pixels' means already
+        self.var_path = vc * norm;
         for t in &mut self.tiles {
-            *t = (t.0 * lanes_p, t.1 * lanes_w);
+            *t = (t.0 * lanes_p, t.1 * lanes_w, t.2 * norm);
         }
         // Variance times work: what each would reach with all the work
         let pass = vd * lanes_p * pass_rays as f64 * PLB_RAY_COST;
@@ -320,7 +516,25 @@ impl Mix {
         }
         let ep = self.recent;
         let ew = self.var.1 * self.walk_rays as f64;
-        if ep > 0.0 && ew > 0.0 && (ep + ew).is_finite() {
+        let ec = self
+            .path
+            .as_ref()
+            .map_or(0.0, |a| self.var_path * a.rays as f64 * PATH_RAY_COST);
+        if ep > 0.0 && ew > 0.0 && ec > 0.0 && (ep + ew + ec).is_finite() {
+            // Three estimates. The path arm, when best, leaves a floor to
+            // each other (plb learns as it runs); when not, it gets no more
+            // work: it learns nothing, and its measured variance per unit
+            // of work stays what it was
+            let (share, path_share) = if ec < ep && ec < ew {
+                (FLOOR, 1.0 - 2.0 * FLOOR)
+            } else if ew < ep {
+                (1.0 - FLOOR, 0.0)
+            } else {
+                (FLOOR, 0.0)
+            };
+            self.share = share;
+            self.path_share = path_share;
+        } else if ep > 0.0 && ew > 0.0 && (ep + ew).is_finite() {
             self.share = if ew < ep { 1.0 - FLOOR } else { FLOOR };
         }
     }
@@ -334,18 +548,22 @@ struct MeasureInput<'a> {
     scales: &'a [[f64; 4]],
     walks: &'a [Film],
     walk_scale: f64,
+    /// The path arm (none without it, or before it can be measured).
+    path: Option<&'a PathArm>,
     width: usize,
     tiles_x: usize,
 }
 
 /// One row of tiles' relative spreads, as sums over its pixels and
 /// channels: plb's lanes' (`vp`), the walks' (`vw`), plb's lanes' over the
-/// passes since the last measurement (`vd`), and the first two per tile.
+/// passes since the last measurement (`vd`), the path arm's lanes' (`vc`),
+/// and plb's, the walks' and the path arm's per tile.
 struct TileRow {
     vp: f64,
     vw: f64,
     vd: f64,
-    tiles: Vec<(f64, f64)>,
+    vc: f64,
+    tiles: Vec<(f64, f64, f64)>,
 }
 
 /// Measures the pixels from `first` on, one row of tiles, and moves each
@@ -359,7 +577,8 @@ fn measure_tile_row(
         vp: 0.0,
         vw: 0.0,
         vd: 0.0,
-        tiles: vec![(0.0, 0.0); input.tiles_x],
+        vc: 0.0,
+        tiles: vec![(0.0, 0.0, 0.0); input.tiles_x],
     };
     let (lp, lw) = (input.plb.len() as f64, input.walks.len() as f64);
     let mut xp = vec![DVec3::ZERO; input.plb.len()];
@@ -385,19 +604,27 @@ fn measure_tile_row(
             mw += f.sum[j] * input.walk_scale;
         }
         mw /= lw;
-        // The smaller of the two means: a firefly in one estimate
+        // The smallest of the means: a firefly in one estimate
         // must not shrink the relative variance it causes
-        let m = mp.min(mw).max(DVec3::ZERO);
+        let m = match input.path {
+            None => mp.min(mw),
+            Some(a) => mp.min(mw).min(a.film.sum[j] / a.samples as f64),
+        }
+        .max(DVec3::ZERO);
         let w = DVec3::ONE / (m * m + crate::metrics::EPSILON);
         let mut sq = DVec3::ZERO;
         for f in input.walks {
             let d = f.sum[j] * input.walk_scale - mw;
             sq += d * d;
         }
+        let sc = input.path.map_or(DVec3::ZERO, |a| a.variance(j));
         let (a, b) = ((spread(&xp, mp) * w).element_sum(), (sq * w).element_sum());
+        let c = (sc * w).element_sum();
         let t = &mut out.tiles[j % input.width / TILE as usize];
         t.0 += a;
         t.1 += b;
+        t.2 += c;
+        out.vc += c;
         out.vp += a;
         out.vd += (spread(&xd, md) * w).element_sum();
         out.vw += b;
@@ -463,7 +690,7 @@ mod tests {
 
     #[test]
     fn plb_keeps_whole_phases_and_its_share_of_each_pass() {
-        let mut m = Mix::new(4, 4);
+        let mut m = Mix::new(4, 4, None);
         // The first pass runs a phase whatever plb's share
         m.share = 0.97;
         assert_eq!(m.plb_steps_per_lane(800, 400), 400);
@@ -485,7 +712,7 @@ mod tests {
     /// The walks take their share of a pass's work, counted in plb rays.
     #[test]
     fn walks_take_their_share_of_the_pass() {
-        let mut m = Mix::new(4, 4);
+        let mut m = Mix::new(4, 4, None);
         m.plb_rays = 3000;
         m.plb_steps = 1000;
         m.walk_rays = 8 * 100 * 5;
@@ -499,7 +726,11 @@ mod tests {
     /// 10 steps, every pixel of lane i at 5 + `walk(i)` (walks) and
     /// 5 + `plb(i)` (plb's lights' film; its hits' film empty), as sums.
     fn measured(walk: impl Fn(f64) -> f64, plb: impl Fn(f64) -> f64) -> Mix {
-        let mut m = Mix::new(32, 16);
+        measured_with(Mix::new(32, 16, None), walk, plb)
+    }
+
+    /// [`measured`] on the mixture `m`.
+    fn measured_with(mut m: Mix, walk: impl Fn(f64) -> f64, plb: impl Fn(f64) -> f64) -> Mix {
         m.walks_per_lane = 10;
         m.walk_rays = 8 * 10 * 4;
         m.plb_rays = 8 * 10 * 2;
@@ -528,6 +759,17 @@ mod tests {
         assert!(m.weight() > 0.99, "walks' weight {}", m.weight());
         assert_eq!(m.share, 1.0 - FLOOR);
         // The combination follows the weights, tile by tile
+        assert_combines_to_half(&m);
+
+        // Swap the roles: plb lanes that agree, walks that scatter
+        let m2 = measured(|i| 0.5 * (i - 3.5), |i| 0.01 * i);
+        assert!(m2.weight() < 0.01, "walks' weight {}", m2.weight());
+        assert_eq!(m2.share, FLOOR);
+    }
+
+    /// `m` combines an image of ones (plb's) into one of 0.5 (the walks'
+    /// and the path arm's), tile by tile: the weight is on the others.
+    fn assert_combines_to_half(m: &Mix) {
         let mut img = Image::new(32, 16);
         img.data
             .iter_mut()
@@ -536,10 +778,78 @@ mod tests {
         for p in &img.data {
             assert!((p.x - 0.5).abs() < 0.01, "{p:?}");
         }
+    }
 
-        // Swap the roles: plb lanes that agree, walks that scatter
-        let m2 = measured(|i| 0.5 * (i - 3.5), |i| 0.01 * i);
-        assert!(m2.weight() < 0.01, "walks' weight {}", m2.weight());
-        assert_eq!(m2.share, FLOOR);
+    /// A mixture with the path arm, its pixels' samples (4, the same mean
+    /// as the others', 0.5) spread with variance `v` each, at the walks'
+    /// rays.
+    fn with_path(v: f64) -> Mix {
+        let mut m = Mix::new(32, 16, Some(path::Settings::default()));
+        let arm = m.path.as_mut().expect("the arm");
+        arm.samples = 4;
+        arm.rays = 8 * 10 * 4;
+        arm.film.sum.iter_mut().for_each(|p| *p = DVec3::splat(2.0));
+        // Σx² = (Σx)²/n + (n − 1)·v
+        arm.squares
+            .iter_mut()
+            .for_each(|q| *q = DVec3::splat(1.0 + 3.0 * v));
+        m
+    }
+
+    /// The path arm is measured by its pixels' spread: where it is the
+    /// least noisy per unit of work it gets the work (all but a floor for
+    /// each other) and the weight; where it is not, no work and little
+    /// weight, and the other two split as without it.
+    #[test]
+    fn the_path_arm_gets_the_work_only_where_it_does_best() {
+        let (walks, plb) = (|i| 0.05 * (i - 3.5), |i| 0.5 * (i - 3.5));
+        // Walks' lanes: 10 walks each, so a lane's mean spreads by 0.005
+        // (i − 3.5) around 0.5, a variance of the lanes' mean of 1.9e-5;
+        // the arm's pixels' means, 2.5e-8
+        let m = measured_with(with_path(1e-7), walks, plb);
+        let (vp, vw) = m.var;
+        assert!(
+            m.var_path > 0.0 && m.var_path < 0.01 * vw,
+            "{} {vw:e}",
+            m.var_path
+        );
+        assert_eq!((m.share, m.path_share), (FLOOR, 1.0 - 2.0 * FLOOR));
+        assert!(vw < vp);
+        assert!(m.path_weight() > 0.99, "{}", m.path_weight());
+        assert_combines_to_half(&m);
+
+        // An arm far noisier than the walks (a variance of its pixels'
+        // means of 1): no work, and the walks get theirs as without it
+        let m2 = measured_with(with_path(4.0), walks, plb);
+        assert!(
+            m2.var_path > 10.0 * m2.var.1,
+            "{} {:e}",
+            m2.var_path,
+            m2.var.1
+        );
+        assert_eq!((m2.share, m2.path_share), (1.0 - FLOOR, 0.0));
+        assert!(m2.path_weight() < 0.01, "{}", m2.path_weight());
+        let m3 = measured(walks, plb);
+        assert_eq!(m3.share, m2.share);
+    }
+
+    /// Before the arm can be measured, a pass runs one of its samples
+    /// while its work is within [`FIRST_SAMPLES`] of all the work, and
+    /// none once it is measurable and owed nothing.
+    #[test]
+    fn the_path_arm_takes_its_first_samples_within_a_cap() {
+        let mut m = Mix::new(4, 4, Some(path::Settings::default()));
+        m.walk_rays = 1000;
+        assert_eq!(m.path_samples_for(100, 16), 1);
+        let arm = m.path.as_mut().expect("the arm");
+        arm.samples = 1;
+        arm.rays = 200;
+        // 200 of 1200 is above the cap: wait
+        assert_eq!(m.path_samples_for(100, 16), 0);
+        m.walk_rays = 3000;
+        assert_eq!(m.path_samples_for(100, 16), 1);
+        let arm = m.path.as_mut().expect("the arm");
+        arm.samples = 2;
+        assert_eq!(m.path_samples_for(100, 16), 0);
     }
 }

@@ -91,7 +91,12 @@
 //!     measured across lanes, each pass's work going mostly to the one
 //!     with less variance per unit of work (`mix`): where light arrives
 //!     easily (a Cornell box) the walks carry the image, where it does
-//!     not (a gap) the population does.
+//!     not (a gap) the population does;
+//!   - on scenes where no camera pass is needed, `path`'s estimator runs
+//!     beside them as a third estimate (`--mix-path`, on by default),
+//!     measured by its pixels' spread: on cbox, where next-event
+//!     estimation finds the light at every vertex, it takes the work, so
+//!     the default method is not 3–4× behind `path` there.
 //!
 //!   Every change moves where rays go or when they are counted, never the
 //!   expectation (tests/it/plb.rs checks each form against `path`, light
@@ -194,6 +199,19 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
     #[serde(default = "mix_default")]
     pub mix: bool,
+    /// With `--mix on`: run `path`'s estimator beside the light paths too,
+    /// as a third estimate of the image in the same combination, on scenes
+    /// where the light paths estimate the whole image (no camera pass is
+    /// needed: no delta lobe, no glossy lobe that is or may be sharp, no
+    /// environment).
+    /// Where `path` does better per unit of work (a Cornell box, where it
+    /// finds the light by next-event estimation) it gets the work; where
+    /// light arrives through a gap, the population does (`mix`). Off: the
+    /// population and the walks only. A partial-result file without the
+    /// field was written without it.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
+    #[serde(default)]
+    pub mix_path: bool,
     /// The numbers the camera pass and the mixed walks draw:
     /// Owen-scrambled Sobol points (the default), or independent ones
     /// (PCG32 streams). The camera pass's are per pixel, the pass as the
@@ -280,6 +298,7 @@ impl Default for Settings {
             variant: Variant::Guided,
             measure: None,
             mix: true,
+            mix_path: true,
             sampler: SamplerKind::Sobol,
         }
     }
@@ -358,11 +377,15 @@ impl MethodSettings for Settings {
     /// Two films per lane (light and hits), their two merges and images,
     /// the final image, the camera pass; when mixing, the walks' films,
     /// their merge and image, and a copy of each lane's two films (the
-    /// pass's own image is measured against it); and the populations.
+    /// pass's own image is measured against it), and with `--mix-path` the
+    /// path arm's film, its squares and its image; and the populations.
     fn memory(&self, width: u32, height: u32) -> Vec<MemoryItem> {
         let lanes = self.lanes.max(1) as u64;
+        // The path arm: its film, its squares and its image (counted
+        // whenever it may run: the scene decides at the start)
+        let path = if self.mix_path { 2 * FILM + IMAGE } else { 0 };
         let mix = if self.mixes() {
-            (mix::LANES as u64 + 1 + 2 * lanes) * FILM + IMAGE
+            (mix::LANES as u64 + 1 + 2 * lanes) * FILM + IMAGE + path
         } else {
             0
         };
@@ -418,15 +441,28 @@ impl Plb {
         let n = settings.lanes.max(1);
         let pooled = settings.variant != Variant::Paper;
         let guided = settings.variant == Variant::Guided;
+        let camera_pass = CameraPass::new(
+            world,
+            settings.camera_pass,
+            guided,
+            settings.seed,
+            settings.max_depth,
+            settings.sampler,
+        );
+        // `path` beside the light paths where they estimate the whole
+        // image: the camera pass on, and needed nowhere in this scene. Its
+        // own seed, so that its samples are not `path --seed`'s
+        let path =
+            (settings.mix_path && settings.camera_pass && !camera_pass.is_active()).then(|| {
+                super::path::Settings {
+                    seed: crate::sampling::mix64(settings.seed ^ 0x7061_7468_6172_6d00),
+                    max_depth: settings.max_depth,
+                    sampler: settings.sampler,
+                    ..Default::default()
+                }
+            });
         Plb {
-            camera_pass: CameraPass::new(
-                world,
-                settings.camera_pass,
-                guided,
-                settings.seed,
-                settings.max_depth,
-                settings.sampler,
-            ),
+            camera_pass,
             lanes: (0..n)
                 .map(|_| {
                     let grid = pooled.then(|| {
@@ -436,7 +472,7 @@ impl Plb {
                     Lane::new(w, h, grid, guided.then(Vec::new))
                 })
                 .collect(),
-            mix: settings.mixes().then(|| Mix::new(w, h)),
+            mix: settings.mixes().then(|| Mix::new(w, h, path)),
             shared: pooled.then(|| CellStats::new(SLOTS)),
             shared_dirs: guided.then(|| (DirStats::new(SLOTS), Arc::new(DirGuide::new(SLOTS)))),
             settings,
@@ -556,7 +592,15 @@ impl Method for Plb {
             mix.since += rays;
             mix.plb_steps += steps;
             rays += walk_rays;
-            if Mix::due(pass) {
+            let samples = mix.path_samples_for(full * self.lanes.len() as u64, self.pixels);
+            // Measured as soon as the path arm can be, too
+            let mut ready = false;
+            if let Some(arm) = mix.path.as_mut() {
+                let was = arm.measurable();
+                rays += arm.run(world, samples);
+                ready = !was && arm.measurable();
+            }
+            if Mix::due(pass) || ready {
                 let birth = Form::of(s).birth;
                 let lanes: Vec<_> = self
                     .lanes
@@ -604,6 +648,11 @@ impl Method for Plb {
             .mix
             .as_ref()
             .map_or(0, |m| m.walks_per_lane * mix::LANES as u64);
-        (steps + walks) as f64 / self.pixels as f64
+        let path = self
+            .mix
+            .as_ref()
+            .and_then(|m| m.path.as_ref())
+            .map_or(0, |a| a.samples);
+        (steps + walks) as f64 / self.pixels as f64 + path as f64
     }
 }
