@@ -50,19 +50,22 @@
 //!   (docs/notebook/plb.md). `--sampler independent` draws PCG32 streams
 //!   per (seed, pass, lane), one walk after another, as before.
 //!
-//! - *`path` beside them* (`--mix-path`, on by default), where the light
-//!   paths estimate the whole image (the scene needs no camera pass): a
-//!   third estimate, `path`'s own samples, measured by each pixel's spread
-//!   of its samples ([`PathArm`]) and combined with the light paths'
-//!   combination by the same rule, tile by tile. When it has the least
-//!   variance per unit of work it gets all of each pass but a floor for
-//!   each of the other two; when not, no work at all: it learns nothing as
-//!   it runs, so its first measurement stands. Its first two samples are
-//!   run before it is measured, within [`FIRST_SAMPLES`] of the work. On
-//!   cbox it wins (next-event estimation finds the light at every vertex),
-//!   and plb there goes from light's error to about `path`'s; on the
-//!   baffle it loses by some forty times and costs its first two samples
-//!   (docs/notebook/plb.md, "`path` in the mixture").
+//! - *`path` beside them* (`--mix-path`, on by default), where the
+//!   light paths estimate the whole image (the scene needs no camera
+//!   pass): a third estimate, `path`'s own samples, measured by each
+//!   pixel's spread of its samples ([`PathArm`]) and combined with the
+//!   light paths' combination by the same rule, tile by tile. It competes
+//!   with the walks only: where the walks beat the population and the arm
+//!   beats the walks, it takes their place (all of each pass but a floor
+//!   for each of the other two); otherwise it gets no work at all, and its
+//!   first measurement stands (it learns nothing as it runs). Judged
+//!   against the population too, it took the work on two-rooms, where the
+//!   population does better than it is measured, and doubled the error.
+//!   Its first two samples are run before it is measured, within
+//!   [`FIRST_SAMPLES`] of the work. On cbox it wins (next-event estimation
+//!   finds the light at every vertex), and plb there goes from light's
+//!   error to about `path`'s (docs/notebook/plb.md, "`path` in the
+//!   mixture").
 //!
 //! The estimates are unbiased; the combined one has a bias of the order of
 //! the weights' own noise times the correlation between a pixel and the
@@ -521,14 +524,19 @@ impl Mix {
             .as_ref()
             .map_or(0.0, |a| self.var_path * a.rays as f64 * PATH_RAY_COST);
         if ep > 0.0 && ew > 0.0 && ec > 0.0 && (ep + ew + ec).is_finite() {
-            // Three estimates. The path arm, when best, leaves a floor to
-            // each other (plb learns as it runs); when not, it gets no more
-            // work: it learns nothing, and its measured variance per unit
-            // of work stays what it was
-            let (share, path_share) = if ec < ep && ec < ew {
-                (FLOOR, 1.0 - 2.0 * FLOOR)
-            } else if ew < ep {
-                (1.0 - FLOOR, 0.0)
+            // Three estimates. The population against the walks as without
+            // the path arm; where the walks win, the arm takes their place
+            // if it does better than they do, leaving them a floor. It
+            // never competes with the population itself: plb learns as it
+            // runs, and its recent passes' variance is measured on few
+            // samples (on two-rooms, judged against the population, the arm
+            // took the work and doubled the error)
+            let (share, path_share) = if ew < ep {
+                if ec < ew {
+                    (FLOOR, 1.0 - 2.0 * FLOOR)
+                } else {
+                    (1.0 - FLOOR, 0.0)
+                }
             } else {
                 (FLOOR, 0.0)
             };
@@ -796,10 +804,10 @@ mod tests {
         m
     }
 
-    /// The path arm is measured by its pixels' spread: where it is the
-    /// least noisy per unit of work it gets the work (all but a floor for
-    /// each other) and the weight; where it is not, no work and little
-    /// weight, and the other two split as without it.
+    /// The path arm is measured by its pixels' spread: where the walks
+    /// beat the population and the arm beats the walks it gets the work
+    /// (all but a floor for each other) and the weight; where it does not,
+    /// no work and little weight, and the other two split as without it.
     #[test]
     fn the_path_arm_gets_the_work_only_where_it_does_best() {
         let (walks, plb) = (|i| 0.05 * (i - 3.5), |i| 0.5 * (i - 3.5));
@@ -831,6 +839,13 @@ mod tests {
         assert!(m2.path_weight() < 0.01, "{}", m2.path_weight());
         let m3 = measured(walks, plb);
         assert_eq!(m3.share, m2.share);
+
+        // Where the population beats the walks it keeps the work, even
+        // against an arm that seems better still: the arm only ever takes
+        // the walks' place
+        let m4 = measured_with(with_path(1e-7), plb, walks);
+        assert!(m4.var_path < 0.01 * m4.var.0);
+        assert_eq!((m4.share, m4.path_share), (FLOOR, 0.0));
     }
 
     /// Before the arm can be measured, a pass runs one of its samples

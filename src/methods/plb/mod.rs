@@ -94,9 +94,10 @@
 //!     not (a gap) the population does;
 //!   - on scenes where no camera pass is needed, `path`'s estimator runs
 //!     beside them as a third estimate (`--mix-path`, on by default),
-//!     measured by its pixels' spread: on cbox, where next-event
-//!     estimation finds the light at every vertex, it takes the work, so
-//!     the default method is not 3–4× behind `path` there.
+//!     measured by its pixels' spread; it takes the walks' place where
+//!     they beat the population and it beats them: on cbox, where
+//!     next-event estimation finds the light at every vertex, so the
+//!     default method is not 3–4× behind `path` there.
 //!
 //!   Every change moves where rays go or when they are counted, never the
 //!   expectation (tests/it/plb.rs checks each form against `path`, light
@@ -204,9 +205,10 @@ pub struct Settings {
     /// where the light paths estimate the whole image (no camera pass is
     /// needed: no delta lobe, no glossy lobe that is or may be sharp, no
     /// environment).
-    /// Where `path` does better per unit of work (a Cornell box, where it
-    /// finds the light by next-event estimation) it gets the work; where
-    /// light arrives through a gap, the population does (`mix`). Off: the
+    /// It takes the walks' place where they beat the population and it
+    /// does better per unit of work than they do (a Cornell box, where it
+    /// finds the light by next-event estimation); where light arrives
+    /// through a gap, the population keeps the work (`mix`). Off: the
     /// population and the walks only. A partial-result file without the
     /// field was written without it.
     #[cfg_attr(feature = "cli", arg(long, value_name = "on|off", default_value = "on", value_parser = super::cli::on_off, action = clap::ArgAction::Set))]
