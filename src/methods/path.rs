@@ -29,13 +29,11 @@ use crate::emitter::LightSelection;
 use crate::film::{Film, Image};
 use crate::geometry::Ray;
 use crate::memory::MemoryItem;
-use crate::sampling::{Pcg32, SamplerKind, SobolSampler};
+use crate::sampling::{Pcg32, SamplerKind};
 use crate::scene::Rgb;
-use crate::simd::dispatched;
 use crate::state::{Shard, ShardKind, State};
-use crate::transport::lanes::radiance_camera_row;
+use crate::transport::lanes::camera_row;
 use crate::transport::{radiance_from_hit, DepthLimits};
-use glam::DVec3;
 
 /// Settings of the path tracer.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -75,8 +73,8 @@ impl Default for Settings {
         Settings {
             seed: 0,
             max_depth: None,
-            rr_depth: 5,
-            light_selection: LightSelection::Spatial,
+            rr_depth: DepthLimits::default().rr_depth,
+            light_selection: DepthLimits::default().light_selection,
             sampler: SamplerKind::Sobol,
         }
     }
@@ -170,6 +168,7 @@ impl Method for PathTracer {
         let w = world.camera.width as usize;
         let seed = self.settings.seed;
         let settings = &self.settings;
+        let limits = limits(settings);
         let shard = self.shard;
         // One sample per pixel; rows in parallel, each pixel with its own
         // stream keyed by (seed, pass, pixel), so the image does not depend on
@@ -183,7 +182,7 @@ impl Method for PathTracer {
                 if !shard.owns(y as u64) {
                     return 0;
                 }
-                render_row(world, settings, seed, pass, y, row, None)
+                camera_row(world, &limits, settings.sampler, seed, pass, y, row, None)
             })
             .sum();
         self.passes += 1;
@@ -218,52 +217,6 @@ impl Method for PathTracer {
         self.passes = state.need_counter("passes")?;
         self.film.sum.copy_from_slice(film);
         Ok(())
-    }
-}
-
-dispatched! {
-    /// Adds one sample to each pixel of row `y` (`row` holds its sums);
-    /// returns the rays traced. The per-pass loop that runtime dispatch
-    /// compiles for x86-64-v3 ([`crate::transport::dispatch`]). plb's
-    /// mixture runs it too (`plb::mix`), with `squares` to receive each
-    /// sample's square.
-    pub(crate) fn render_row(
-        world: &World,
-        settings: &Settings,
-        seed: u64,
-        pass: u64,
-        y: usize,
-        row: &mut [DVec3],
-        squares: Option<&mut [DVec3]>,
-    ) -> u64 {
-        let mut squares = squares;
-        let w = row.len();
-        crate::film::prefetch_row(row);
-        let mut rays = 0u64;
-        let limits = limits(settings);
-        let mut finish = |x: usize, l: Rgb, n: u64| {
-            rays += n;
-            if l.is_finite() {
-                let v = l.as_dvec3();
-                row[x] += v;
-                if let Some(q) = squares.as_deref_mut() {
-                    q[x] += v * v;
-                }
-            }
-        };
-        // Each pixel with its own numbers, keyed by (seed, pass, pixel)
-        let pixel = |x: usize| (y * w + x) as u64;
-        match settings.sampler {
-            SamplerKind::Independent => {
-                let sampler = |x: usize| Pcg32::keyed(&[seed, pass, pixel(x)]);
-                radiance_camera_row(world, &limits, y, sampler, &mut finish);
-            }
-            SamplerKind::Sobol => {
-                let sampler = |x: usize| SobolSampler::new(seed, pixel(x), pass);
-                radiance_camera_row(world, &limits, y, sampler, &mut finish);
-            }
-        }
-        rays
     }
 }
 

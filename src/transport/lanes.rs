@@ -35,10 +35,13 @@
 //! walk's splats are added in walk order, so the film's sums are the bits
 //! of the walks run one by one.
 
+use glam::DVec3;
+
 use crate::film::Film;
 use crate::geometry::Ray;
-use crate::sampling::{Pcg32, Sampler, SobolSampler, SobolWalkSampler};
+use crate::sampling::{Pcg32, Sampler, SamplerKind, SobolSampler, SobolWalkSampler};
 use crate::scene::Rgb;
+use crate::simd::dispatched;
 use crate::world::World;
 
 use super::{light_tracing_walk, radiance_from_hit, DepthLimits, WalkKind};
@@ -99,6 +102,54 @@ pub fn radiance_camera_row<S: LaneSampler>(
         (s, camera.ray(x as f32 + j.x, y as f32 + j.y))
     };
     radiance_row_packets(world, limits, w, start, finish);
+}
+
+dispatched! {
+    /// Adds one sample to each pixel of row `y` (`row` holds its sums, and
+    /// `squares`, when given, the sums of their squares); returns the rays
+    /// traced. Each pixel draws its own numbers, keyed by (seed, pass,
+    /// pixel) and chosen by `sampler`, so that the row does not depend on
+    /// the thread count. `path`'s pass loop, and the path estimate of
+    /// plb's mixture (with the squares); compiled for x86-64-v3 by runtime
+    /// dispatch ([`crate::transport::dispatch`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn camera_row(
+        world: &World,
+        limits: &DepthLimits,
+        sampler: SamplerKind,
+        seed: u64,
+        pass: u64,
+        y: usize,
+        row: &mut [DVec3],
+        squares: Option<&mut [DVec3]>,
+    ) -> u64 {
+        let mut squares = squares;
+        let w = row.len();
+        crate::film::prefetch_row(row);
+        let mut rays = 0u64;
+        let mut finish = |x: usize, l: Rgb, n: u64| {
+            rays += n;
+            if l.is_finite() {
+                let v = l.as_dvec3();
+                row[x] += v;
+                if let Some(q) = squares.as_deref_mut() {
+                    q[x] += v * v;
+                }
+            }
+        };
+        let pixel = |x: usize| (y * w + x) as u64;
+        match sampler {
+            SamplerKind::Independent => {
+                let sampler = |x: usize| Pcg32::keyed(&[seed, pass, pixel(x)]);
+                radiance_camera_row(world, limits, y, sampler, &mut finish);
+            }
+            SamplerKind::Sobol => {
+                let sampler = |x: usize| SobolSampler::new(seed, pixel(x), pass);
+                radiance_camera_row(world, limits, y, sampler, &mut finish);
+            }
+        }
+        rays
+    }
 }
 
 /// [`radiance_camera_row`] without lanes, for any [`Sampler`]: the camera rays of

@@ -28,7 +28,9 @@
 //!   rest by the same step ([`CameraPath::scatter`]) lane by lane; and
 //!   eight of `light`'s Sobol walks at a time, likewise
 //!   ([`lanes::light_walks`]); and the camera pass's paths after their
-//!   first vertex ([`lanes::radiance_continued`]).
+//!   first vertex ([`lanes::radiance_continued`]). [`lanes::camera_row`]
+//!   is the row loop of one sample per pixel that `path` runs, and plb's
+//!   mixture for its path estimate.
 //! - [`camera_pass`]: the part of path space that light paths cannot reach,
 //!   estimated from the camera for `light` and `plb`.
 //!

@@ -26,6 +26,18 @@ pub struct DepthLimits {
     pub light_selection: LightSelection,
 }
 
+impl Default for DepthLimits {
+    /// `path`'s defaults: unlimited depth, Russian roulette from depth 5
+    /// (Mitsuba's), lights chosen spatially (the light tree).
+    fn default() -> Self {
+        DepthLimits {
+            max_depth: None,
+            rr_depth: 5,
+            light_selection: LightSelection::Spatial,
+        }
+    }
+}
+
 /// Radiance arriving along `ray`, which is the `depth`-th segment of a camera
 /// path whose previous scattering (if any) was a delta lobe, so that emission
 /// found by `ray` takes full weight; and the number of rays traced. Used for

@@ -75,10 +75,10 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::film::{Film, Image};
-use crate::methods::{path, World};
+use crate::methods::World;
 use crate::sampling::{Pcg32, SamplerKind};
 use crate::simd::dispatched;
-use crate::transport::{lanes, light_tracing_walk, WalkKind};
+use crate::transport::{lanes, light_tracing_walk, DepthLimits, WalkKind};
 
 /// Independent walk lanes (films and streams), fixed so that results do not
 /// depend on the thread count.
@@ -131,19 +131,31 @@ pub(super) struct PathArm {
     /// Work owed to the arm and not yet run, in walk rays (its first
     /// samples run whatever is owed, and are not charged).
     credit: f64,
-    /// `path`'s settings: the render's seed, depth and sampler.
-    settings: path::Settings,
+    /// The samples' seed, depth limits and numbers.
+    seed: u64,
+    limits: DepthLimits,
+    sampler: SamplerKind,
 }
 
 impl PathArm {
-    pub(super) fn new(w: u32, h: u32, settings: path::Settings) -> Self {
+    /// The arm for a `w` × `h` image: `path`'s estimator under `seed`,
+    /// with `limits` and `sampler`.
+    pub(super) fn new(
+        w: u32,
+        h: u32,
+        seed: u64,
+        limits: DepthLimits,
+        sampler: SamplerKind,
+    ) -> Self {
         PathArm {
             film: Film::new(w, h),
             squares: vec![DVec3::ZERO; w as usize * h as usize],
             samples: 0,
             rays: 0,
             credit: 0.0,
-            settings,
+            seed,
+            limits,
+            sampler,
         }
     }
 
@@ -153,12 +165,13 @@ impl PathArm {
     }
 
     /// Runs `n` samples per pixel, the rows of a sample in parallel
-    /// (`path`'s own loop, [`path::render_row`]); returns the rays traced.
+    /// (`path`'s own loop, [`lanes::camera_row`]); returns the rays traced.
     pub(super) fn run(&mut self, world: &World, n: u64) -> u64 {
         let w = world.camera.width as usize;
         let mut rays = 0;
         for _ in 0..n {
-            let (k, settings) = (self.samples, &self.settings);
+            let k = self.samples;
+            let (seed, limits, sampler) = (self.seed, &self.limits, self.sampler);
             rays += self
                 .film
                 .sum
@@ -166,7 +179,7 @@ impl PathArm {
                 .zip(self.squares.par_chunks_mut(w))
                 .enumerate()
                 .map(|(y, (row, sq))| {
-                    path::render_row(world, settings, settings.seed, k, y, row, Some(sq))
+                    lanes::camera_row(world, limits, sampler, seed, k, y, row, Some(sq))
                 })
                 .sum::<u64>();
             self.samples += 1;
@@ -229,8 +242,8 @@ pub(super) struct Mix {
 
 impl Mix {
     /// The mixture for a `w` × `h` image, with `path`'s estimator beside
-    /// it when `path` holds its settings.
-    pub(super) fn new(w: u32, h: u32, path: Option<path::Settings>) -> Self {
+    /// it when `path` holds one.
+    pub(super) fn new(w: u32, h: u32, path: Option<PathArm>) -> Self {
         Mix {
             films: (0..LANES).map(|_| Film::new(w, h)).collect(),
             walks_per_lane: 0,
@@ -239,7 +252,7 @@ impl Mix {
             plb_steps: 0,
             share: 0.5,
             path_share: 0.0,
-            path: path.map(|p| PathArm::new(w, h, p)),
+            path,
             credit: 0.0,
             var: (0.0, 0.0),
             var_path: 0.0,
@@ -297,7 +310,7 @@ impl Mix {
     /// measured so far. Until every lane has a sample to measure, a pass
     /// runs one whenever the arm's work so far is at most
     /// [`FIRST_SAMPLES`] of all the work. 0 without the arm.
-    pub(super) fn path_samples_for(&mut self, full_steps: u64, pixels: u64) -> u64 {
+    fn path_samples_for(&mut self, full_steps: u64, pixels: u64) -> u64 {
         let work = self.pass_work(full_steps) * self.path_share;
         let Some(arm) = self.path.as_mut() else {
             return 0;
@@ -318,6 +331,21 @@ impl Mix {
         let all = mine + self.walk_rays as f64 + self.plb_rays as f64 * PLB_RAY_COST;
         let first = !arm.measurable() && mine <= FIRST_SAMPLES * all;
         owed.max(u64::from(first))
+    }
+
+    /// Runs the path arm's samples for the next pass, whose whole work is
+    /// that of `full_steps` plb steps ([`Mix::path_samples_for`]); returns
+    /// its rays, and whether it has just become measurable, so that the
+    /// mixture is measured at once. (0, false) without the arm.
+    pub(super) fn run_path(&mut self, world: &World, full_steps: u64) -> (u64, bool) {
+        let pixels = self.films[0].sum.len() as u64;
+        let n = self.path_samples_for(full_steps, pixels);
+        let Some(arm) = self.path.as_mut() else {
+            return (0, false);
+        };
+        let was = arm.measurable();
+        let rays = arm.run(world, n);
+        (rays, !was && arm.measurable())
     }
 
     /// Combines plb's image `img` (the lights' paths, without the camera
@@ -788,11 +816,16 @@ mod tests {
         }
     }
 
+    /// A path arm with `path`'s defaults.
+    fn arm(w: u32, h: u32) -> PathArm {
+        PathArm::new(w, h, 0, DepthLimits::default(), SamplerKind::Sobol)
+    }
+
     /// A mixture with the path arm, its pixels' samples (4, the same mean
     /// as the others', 0.5) spread with variance `v` each, at the walks'
     /// rays.
     fn with_path(v: f64) -> Mix {
-        let mut m = Mix::new(32, 16, Some(path::Settings::default()));
+        let mut m = Mix::new(32, 16, Some(arm(32, 16)));
         let arm = m.path.as_mut().expect("the arm");
         arm.samples = 4;
         arm.rays = 8 * 10 * 4;
@@ -853,7 +886,7 @@ mod tests {
     /// none once it is measurable and owed nothing.
     #[test]
     fn the_path_arm_takes_its_first_samples_within_a_cap() {
-        let mut m = Mix::new(4, 4, Some(path::Settings::default()));
+        let mut m = Mix::new(4, 4, Some(arm(4, 4)));
         m.walk_rays = 1000;
         assert_eq!(m.path_samples_for(100, 16), 1);
         let arm = m.path.as_mut().expect("the arm");

@@ -123,7 +123,7 @@ use crate::memory::MemoryItem;
 use crate::sampling::{Pcg32, SamplerKind};
 use crate::state::{ShardKind, State};
 use crate::transport::camera_pass::CameraPass;
-use crate::transport::{Roulette, WalkKind};
+use crate::transport::{DepthLimits, Roulette, WalkKind};
 
 mod guide;
 mod importance;
@@ -136,7 +136,7 @@ use std::sync::Arc;
 use guide::{DirGuide, DirStats};
 use importance::{share_grids, CellStats, ImportanceGrid, SLOTS};
 use iterate::{run_lane, Form, Lane};
-use mix::{run_walks, Mix};
+use mix::{run_walks, Mix, PathArm};
 
 /// Settings of progressive light path building.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -454,15 +454,15 @@ impl Plb {
         // `path` beside the light paths where they estimate the whole
         // image: the camera pass on, and needed nowhere in this scene. Its
         // own seed, so that its samples are not `path --seed`'s
-        let path =
-            (settings.mix_path && settings.camera_pass && !camera_pass.is_active()).then(|| {
-                super::path::Settings {
-                    seed: crate::sampling::mix64(settings.seed ^ 0x7061_7468_6172_6d00),
-                    max_depth: settings.max_depth,
-                    sampler: settings.sampler,
-                    ..Default::default()
-                }
-            });
+        let arm = settings.mixes() && settings.mix_path;
+        let path = (arm && settings.camera_pass && !camera_pass.is_active()).then(|| {
+            let limits = DepthLimits {
+                max_depth: settings.max_depth,
+                ..Default::default()
+            };
+            let seed = crate::sampling::mix64(settings.seed ^ 0x7061_7468_6172_6d00);
+            PathArm::new(w, h, seed, limits, settings.sampler)
+        });
         Plb {
             camera_pass,
             lanes: (0..n)
@@ -594,14 +594,8 @@ impl Method for Plb {
             mix.since += rays;
             mix.plb_steps += steps;
             rays += walk_rays;
-            let samples = mix.path_samples_for(full * self.lanes.len() as u64, self.pixels);
-            // Measured as soon as the path arm can be, too
-            let mut ready = false;
-            if let Some(arm) = mix.path.as_mut() {
-                let was = arm.measurable();
-                rays += arm.run(world, samples);
-                ready = !was && arm.measurable();
-            }
+            let (path_rays, ready) = mix.run_path(world, full * self.lanes.len() as u64);
+            rays += path_rays;
             if Mix::due(pass) || ready {
                 let birth = Form::of(s).birth;
                 let lanes: Vec<_> = self
