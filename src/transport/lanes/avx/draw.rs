@@ -103,6 +103,11 @@ pub struct SobolLanes {
     dim: [u32; LANES],
     index: [u32; LANES],
     key: [u64; LANES],
+    /// The lanes hold light walks' samplers ([`SobolLanes::walks`]), whose
+    /// dimensions are the table's own, not camera paths' (whose first
+    /// vertex takes them in another order,
+    /// [`crate::sampling::sobol::CAMERA_ROWS`]).
+    walk: bool,
 }
 
 impl Lanes<SobolSampler> for SobolLanes {
@@ -114,6 +119,7 @@ impl Lanes<SobolSampler> for SobolLanes {
             dim: [0; LANES],
             index: [0; LANES],
             key: [0; LANES],
+            walk: false,
         }
     }
 
@@ -167,6 +173,16 @@ impl Lanes<SobolSampler> for SobolLanes {
 }
 
 impl SobolLanes {
+    /// Lanes for light walks' samplers
+    /// ([`crate::sampling::SobolWalkSampler`]).
+    #[inline(always)]
+    pub(super) fn walks() -> Self {
+        SobolLanes {
+            walk: true,
+            ..<Self as Lanes<SobolSampler>>::new()
+        }
+    }
+
     /// The four numbers of the vertex at `depth` of each light walk of
     /// `mask` whose [`crate::sampling::SobolWalkSampler`] the lanes hold:
     /// dimensions from `walk_vertex_dimension(depth)`, that is
@@ -240,7 +256,7 @@ impl SobolLanes {
     /// of `radiance_row`).
     #[inline(always)]
     fn coordinates_run(&self, mask: u32) -> [__m256i; 8] {
-        let table = nibbles_by_dimension_table();
+        let table = nibbles_by_dimension_table(self.walk);
         let mut x = [V::splat(0.0).0; 8];
         let (mut t, mut pos) = (self.top(mask), 0);
         while t != 0 {

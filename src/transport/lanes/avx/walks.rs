@@ -133,7 +133,7 @@ pub(in crate::transport::lanes) fn light_walks(
         emitted: [[0.0; LANES]; 3],
         depth: [0; LANES],
         k: [0; LANES],
-        rngs: SobolLanes::new(),
+        rngs: SobolLanes::walks(),
         splats: std::array::from_fn(|_| Vec::new()),
     };
     let mut pending = Pending {
