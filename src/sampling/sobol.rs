@@ -32,6 +32,10 @@
 //! the two-dimensional projections, which are what a 2D draw sees.
 //! Dimensions past the table ([`SOBOL_DIMENSIONS`]: the ninth vertex's
 //! last draw and deeper) are padded with hashed independent numbers.
+//! (Padding every draw with its own shuffled (0,2)-sequence, Burley's §4
+//! and pbrt-v4's `PaddedSobolSampler`, stratifies each 2D draw alone but
+//! not the draws together; on cbox it gave less error per sample at 16
+//! spp but more at 64 and 256.)
 //!
 //! The first vertex's draws take the Sobol dimensions in another order
 //! than they are drawn ([`CAMERA_ROWS`]): its BSDF direction, which
@@ -39,14 +43,10 @@
 //! camera's and the light choice's, where the sequence stratifies best
 //! with them; its point on the light takes 5 and 6 and its lobe 7. Against
 //! the order of the draws, on cbox at 128², error per sample 0.87 at 16
-//! spp, 0.915 at 64 and 0.935 at 256, and 0.97 on a textured room of many
+//! spp, 0.915 at 64 and 0.935 at 256, and 0.966 on a textured room of many
 //! lights at 64 (docs/notebook/sampling.md, "The first vertex's direction
 //! next to the camera's"). Light walks keep the table's order
 //! ([`SobolWalkSampler`]).
-//! (Padding every draw with its own shuffled (0,2)-sequence, Burley's §4
-//! and pbrt-v4's `PaddedSobolSampler`, stratifies each 2D draw alone but
-//! not the draws together; on cbox it gave less error per sample at 16
-//! spp but more at 64 and 256.)
 //!
 //! Everything is keyed by (seed, pixel, pass) and nothing else, so an image
 //! does not depend on the thread count, shards own whole pixels' sequences
