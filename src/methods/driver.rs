@@ -54,6 +54,55 @@ impl Budget {
     }
 }
 
+/// Seconds of passes a method that batches them ([`Method::batches`]) is
+/// given per call, at most: the progress, the cancel flag, checkpoints and
+/// the log are served between calls.
+const BATCH_SECONDS: f64 = 0.25;
+
+/// Passes per call at most, for a method that batches them.
+const MAX_BATCH: u64 = 64;
+
+/// How many passes to give a method that batches them, one sample per
+/// pixel each: as many as take about `granularity` seconds at `rate`
+/// (seconds and rays per pass so far; one pass until a pass has been
+/// measured), and no more than the budget has left, so that a budget of
+/// passes, samples or rays is met as by single passes and a time budget
+/// is overrun by at most one pass, as before.
+fn batch_len(
+    budget: &Budget,
+    spp: f64,
+    pass: u64,
+    rays: u64,
+    elapsed: f64,
+    rate: Option<(f64, f64)>,
+    granularity: f64,
+) -> u64 {
+    let Some((secs, rays_per_pass)) = rate else {
+        return 1;
+    };
+    let fit = |room: f64, per: f64| {
+        if per > 0.0 && room.is_finite() {
+            (room / per).floor().max(1.0).min(MAX_BATCH as f64) as u64
+        } else {
+            MAX_BATCH
+        }
+    };
+    let mut k = fit(granularity, secs);
+    if let Some(t) = budget.time {
+        k = k.min(fit(t - elapsed, secs));
+    }
+    if let Some(r) = budget.rays {
+        k = k.min(fit(r.saturating_sub(rays) as f64, rays_per_pass));
+    }
+    if let Some(s) = budget.spp {
+        k = k.min((s - spp).ceil().max(1.0).min(MAX_BATCH as f64) as u64);
+    }
+    if let Some(p) = budget.passes {
+        k = k.min(p.saturating_sub(pass).max(1));
+    }
+    k
+}
+
 /// A row of the convergence log.
 #[derive(Clone, Copy, Debug)]
 pub struct LogRow {
@@ -195,7 +244,9 @@ fn snapshot(method: &dyn Method, passes: u64, rays: u64, seconds: f64) -> Option
 pub struct Driver<'a> {
     /// The budget.
     pub budget: Budget,
-    /// Set from another thread to stop after the current pass.
+    /// Set from another thread to stop after the current pass (or the
+    /// current passes of a method that batches them, at most
+    /// [`BATCH_SECONDS`] of them).
     pub cancel: Option<&'a AtomicBool>,
     /// Reference image for the convergence log.
     pub reference: Option<&'a Image>,
@@ -216,7 +267,8 @@ pub struct Watch<'a> {
 }
 
 impl Driver<'_> {
-    /// Runs `method`; `on_progress` is called after every pass.
+    /// Runs `method`; `on_progress` is called after every pass (every
+    /// call of [`Method::steps`] for a method that batches its passes).
     pub fn run(
         &self,
         method: &mut dyn Method,
@@ -270,6 +322,9 @@ impl Driver<'_> {
             && budget.time.is_none()
             && budget.rays.is_none()
             && budget.passes.is_none();
+        // Seconds, pass and rays when the passes began: the rate of a pass
+        // for a method that batches them
+        let first = (start.elapsed().as_secs_f64() - excluded, pass, rays);
         loop {
             let elapsed = start.elapsed().as_secs_f64() - excluded;
             let mut fraction = budget.spent(elapsed, rays);
@@ -307,9 +362,36 @@ impl Driver<'_> {
                 interrupted = true;
                 break;
             }
-            let stats = method.step(world, pass);
+            let k = if method.batches() {
+                let granularity = [
+                    hooks.checkpoint.as_ref().map(|c| c.0),
+                    hooks.watch.as_ref().map(|w| w.every),
+                    self.reference
+                        .filter(|_| self.log_every > 0.0)
+                        .map(|_| self.log_every),
+                ]
+                .into_iter()
+                .flatten()
+                .fold(BATCH_SECONDS, f64::min);
+                let rate = (pass > first.1).then(|| {
+                    let n = (pass - first.1) as f64;
+                    ((elapsed - first.0) / n, (rays - first.2) as f64 / n)
+                });
+                batch_len(
+                    &budget,
+                    method.spp(),
+                    pass,
+                    rays,
+                    elapsed,
+                    rate,
+                    granularity,
+                )
+            } else {
+                1
+            };
+            let stats = method.steps(world, pass, k);
             rays += stats.rays;
-            pass += 1;
+            pass += k;
             if let Some((every, save)) = hooks.checkpoint.as_mut() {
                 let now = start.elapsed().as_secs_f64() - excluded;
                 if now >= next_checkpoint {

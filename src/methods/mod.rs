@@ -75,6 +75,24 @@ pub trait Method: Send {
     }
     /// Adds one pass of work; `pass` counts from 0 and keys the random streams.
     fn step(&mut self, world: &World, pass: u64) -> StepStats;
+    /// Adds the `k` passes `pass` … `pass + k − 1`: the same image, to the
+    /// bit, as `k` calls of [`Method::step`], which the default makes. A
+    /// method whose passes are independent per pixel may run them row by
+    /// row with one synchronisation of its threads instead of `k`
+    /// ([`Method::batches`]).
+    fn steps(&mut self, world: &World, pass: u64, k: u64) -> StepStats {
+        let mut rays = 0;
+        for p in pass..pass + k {
+            rays += self.step(world, p).rays;
+        }
+        StepStats { rays }
+    }
+    /// Whether the driver should give [`Method::steps`] several passes at a
+    /// time; a method that says so takes one sample per pixel per pass.
+    /// The default: one pass per call.
+    fn batches(&self) -> bool {
+        false
+    }
     /// The current estimate.
     fn image(&self, world: &World) -> Image;
     /// Work done so far, in samples per pixel or the method's equivalent

@@ -53,6 +53,48 @@ fn budgets_stop_the_render() {
     assert!((rays.rays as f64) < 200_000.0 + per_pass + 1.0);
 }
 
+/// `path` takes its passes several at a time from the driver (one meeting
+/// of its threads per call): the image is the one of single passes to the
+/// bit, and the spp budget is met exactly. The progress is reported once
+/// per call, so fewer reports than passes show that the passes were
+/// batched.
+#[test]
+fn passes_taken_together_give_the_image_of_single_passes() {
+    let world = World::new(cbox());
+    let create = || {
+        MethodConfig::Path(Default::default())
+            .create(&world, &Common::default())
+            .expect("method")
+    };
+    let mut m = create();
+    let mut reports = 0;
+    let r = Driver {
+        budget: Budget {
+            spp: Some(40.0),
+            ..Default::default()
+        },
+        cancel: None,
+        reference: None,
+        log_every: 0.0,
+    }
+    .run(m.as_mut(), &world, |_| reports += 1)
+    .expect("render");
+    assert_eq!(r.passes, 40);
+    assert!(reports < 40, "{reports} progress reports for 40 passes");
+    let mut one = create();
+    for p in 0..40 {
+        one.step(&world, p);
+    }
+    let (a, b) = (r.image, one.image(&world));
+    assert_eq!(a.data.len(), b.data.len());
+    for (x, y) in a.data.iter().zip(&b.data) {
+        assert_eq!(
+            x.to_array().map(f32::to_bits),
+            y.to_array().map(f32::to_bits)
+        );
+    }
+}
+
 #[test]
 fn a_cancelled_render_returns_what_it_has() {
     let world = World::new(cbox());
@@ -60,6 +102,9 @@ fn a_cancelled_render_returns_what_it_has() {
         .create(&world, &Common::default())
         .expect("method");
     let cancel = AtomicBool::new(false);
+    // `path` takes its passes several at a time after the first: the
+    // render stops after the call during which the flag was set
+    let mut at = None;
     let r = Driver {
         budget: Budget {
             spp: Some(1000.0),
@@ -70,13 +115,15 @@ fn a_cancelled_render_returns_what_it_has() {
         log_every: 0.0,
     }
     .run(m.as_mut(), &world, |p| {
-        if p.passes == 2 {
+        if p.passes >= 2 && at.is_none() {
+            at = Some(p.passes);
             cancel.store(true, std::sync::atomic::Ordering::SeqCst);
         }
     })
     .expect("render");
     assert!(r.interrupted);
-    assert_eq!(r.passes, 2);
+    assert_eq!(Some(r.passes), at);
+    assert!(r.passes < 1000);
     assert!(r.image.data.iter().any(|p| p.x > 0.0));
     assert!(r.image.data.iter().all(|p| p.is_finite()));
 }
