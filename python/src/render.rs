@@ -17,7 +17,8 @@ use crate::scene::Scene;
 use crate::RenderError;
 
 /// Progress of a render or a bake, passed to the `progress` callback after
-/// every pass (and between units of a setup's work).
+/// every pass, or every few passes for `path`, which takes up to a quarter
+/// of a second of them at a time (and between units of a setup's work).
 #[pyclass(frozen, get_all, module = "kalos")]
 #[derive(Clone)]
 pub struct Progress {
@@ -216,7 +217,8 @@ pub(crate) fn count(name: &str, v: Option<&Bound<'_, PyAny>>) -> PyResult<Option
 /// `no_decimate=True`), checked with the command line's messages;
 /// `kalos.settings(method)` lists them.
 ///
-/// `progress(p)` is called with a `kalos.Progress` after every pass; an
+/// `progress(p)` is called with a `kalos.Progress` after every pass (every
+/// few passes for `path`); an
 /// exception it raises stops the render and is raised. Ctrl-C stops the
 /// render after the current pass and raises KeyboardInterrupt. The
 /// interpreter is released while rendering.
