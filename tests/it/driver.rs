@@ -14,6 +14,16 @@ fn cbox() -> Scene {
     s
 }
 
+/// A driver with `budget`, no cancel flag and no log.
+fn with_budget(budget: Budget) -> Driver<'static> {
+    Driver {
+        budget,
+        cancel: None,
+        reference: None,
+        log_every: 0.0,
+    }
+}
+
 #[test]
 fn budgets_stop_the_render() {
     let scene = cbox();
@@ -21,30 +31,20 @@ fn budgets_stop_the_render() {
     let mut m = MethodConfig::Path(Default::default())
         .create(&world, &Common::default())
         .expect("method");
-    let spp = Driver {
-        budget: Budget {
-            spp: Some(5.0),
-            ..Default::default()
-        },
-        cancel: None,
-        reference: None,
-        log_every: 0.0,
-    }
+    let spp = with_budget(Budget {
+        spp: Some(5.0),
+        ..Default::default()
+    })
     .run(m.as_mut(), &world, |_| {})
     .expect("render");
     assert_eq!(spp.passes, 5);
     let mut m = MethodConfig::Light(Default::default())
         .create(&world, &Common::default())
         .expect("method");
-    let rays = Driver {
-        budget: Budget {
-            rays: Some(200_000),
-            ..Default::default()
-        },
-        cancel: None,
-        reference: None,
-        log_every: 0.0,
-    }
+    let rays = with_budget(Budget {
+        rays: Some(200_000),
+        ..Default::default()
+    })
     .run(m.as_mut(), &world, |_| {})
     .expect("render");
     assert!(rays.rays >= 200_000);
@@ -68,15 +68,10 @@ fn passes_taken_together_give_the_image_of_single_passes() {
     };
     let mut m = create();
     let mut reports = 0;
-    let r = Driver {
-        budget: Budget {
-            spp: Some(40.0),
-            ..Default::default()
-        },
-        cancel: None,
-        reference: None,
-        log_every: 0.0,
-    }
+    let r = with_budget(Budget {
+        spp: Some(40.0),
+        ..Default::default()
+    })
     .run(m.as_mut(), &world, |_| reports += 1)
     .expect("render");
     assert_eq!(r.passes, 40);
