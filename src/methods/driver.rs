@@ -325,6 +325,17 @@ impl Driver<'_> {
         // Seconds, pass and rays when the passes began: the rate of a pass
         // for a method that batches them
         let first = (start.elapsed().as_secs_f64() - excluded, pass, rays);
+        // ... and the most seconds of them per call: the hooks' intervals
+        let granularity = [
+            hooks.checkpoint.as_ref().map(|c| c.0),
+            hooks.watch.as_ref().map(|w| w.every),
+            self.reference
+                .filter(|_| self.log_every > 0.0)
+                .map(|_| self.log_every),
+        ]
+        .into_iter()
+        .flatten()
+        .fold(BATCH_SECONDS, f64::min);
         loop {
             let elapsed = start.elapsed().as_secs_f64() - excluded;
             let mut fraction = budget.spent(elapsed, rays);
@@ -363,16 +374,6 @@ impl Driver<'_> {
                 break;
             }
             let k = if method.batches() {
-                let granularity = [
-                    hooks.checkpoint.as_ref().map(|c| c.0),
-                    hooks.watch.as_ref().map(|w| w.every),
-                    self.reference
-                        .filter(|_| self.log_every > 0.0)
-                        .map(|_| self.log_every),
-                ]
-                .into_iter()
-                .flatten()
-                .fold(BATCH_SECONDS, f64::min);
                 let rate = (pass > first.1).then(|| {
                     let n = (pass - first.1) as f64;
                     ((elapsed - first.0) / n, (rays - first.2) as f64 / n)
